@@ -1,0 +1,47 @@
+"""Atomic output: a file is either its old self or complete, never half-written."""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import tempfile
+from collections.abc import Iterator
+from pathlib import Path
+
+from mocap.errors import MocapError
+
+
+def check_output_path(path: str | os.PathLike) -> Path:
+    """Fail early, with a clear message, if ``path`` cannot be written."""
+    path = Path(path)
+    if path.is_dir():
+        raise MocapError(f"{path}: is a folder; give a file name for the output")
+    if not path.parent.exists():
+        raise MocapError(f"{path}: output folder {path.parent} does not exist; create it first")
+    if not os.access(path.parent, os.W_OK):
+        raise MocapError(f"{path}: output folder {path.parent} is not writable")
+    return path
+
+
+@contextlib.contextmanager
+def atomic_output(path: str | os.PathLike) -> Iterator[Path]:
+    """Yield a temporary path beside ``path``; rename it onto ``path`` on success.
+
+    On any exception the temporary file is removed and an existing ``path`` is untouched.
+    The temporary name keeps the final suffix, for libraries that choose by extension.
+    """
+    path = check_output_path(path)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.stem}.", suffix=f".tmp{path.suffix}")
+    os.close(fd)
+    tmp_path = Path(tmp)
+    try:
+        yield tmp_path
+        os.replace(tmp_path, path)
+    finally:
+        tmp_path.unlink(missing_ok=True)
+
+
+def atomic_write_bytes(path: str | os.PathLike, payload: bytes) -> None:
+    """Write ``payload`` to ``path`` atomically (temp file in the same folder + rename)."""
+    with atomic_output(path) as tmp:
+        tmp.write_bytes(payload)

@@ -1,0 +1,404 @@
+"""Camera and rig model; ``calibration.toml`` reading and writing.
+
+Conventions (anipose / Pose2Sim, see DESIGN.md):
+
+* ``rotation`` is a Rodrigues vector and ``translation`` a vector in metres, both
+  mapping world to camera: ``X_cam = R @ X_world + t``.
+* ``matrix`` is the 3x3 intrinsic matrix K in pixels, ``distortions`` the OpenCV
+  coefficients ``(k1, k2, p1, p2[, k3])`` (or ``(k1, k2, k3, k4)`` when ``fisheye``).
+* ``size`` is ``(width, height)`` in pixels.
+* The world frame is z-up, in metres.
+
+Pixel coordinates are *distorted* (as seen in the image) unless a name says
+``ideal``: ideal pixels are where a distortion-free pinhole camera with the same K
+would see the point. Epipolar geometry and triangulation work in ideal pixels.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import tomllib
+from collections.abc import Iterator
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+import tomli_w
+
+from mocap.atomic import atomic_write_bytes
+from mocap.errors import MocapError
+
+__all__ = ["Camera", "Rig", "load_rig", "save_rig", "rig_to_toml"]
+
+
+def _rodrigues_to_matrix(rvec: np.ndarray) -> np.ndarray:
+    """(3,) Rodrigues vector -> (3, 3) rotation matrix."""
+    return cv2.Rodrigues(np.asarray(rvec, dtype=np.float64).reshape(3, 1))[0]
+
+
+@dataclass(frozen=True, eq=False)
+class Camera:
+    """One calibrated camera.
+
+    Attributes:
+        name: camera name; also the stem of its recording in a take.
+        size: (width, height) in pixels.
+        matrix: (3, 3) intrinsic matrix K, pixels.
+        distortions: (4,) or (5,) OpenCV distortion coefficients.
+        rotation: (3,) Rodrigues vector, world -> camera.
+        translation: (3,) world -> camera translation, metres.
+        fisheye: use OpenCV's fisheye model instead of the standard one.
+    """
+
+    name: str
+    size: tuple[int, int]
+    matrix: np.ndarray
+    distortions: np.ndarray
+    rotation: np.ndarray
+    translation: np.ndarray
+    fisheye: bool = False
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "size", (int(self.size[0]), int(self.size[1])))
+        for attr, shape in (("matrix", (3, 3)), ("rotation", (3,)), ("translation", (3,))):
+            value = np.asarray(getattr(self, attr), dtype=np.float64)
+            if value.shape != shape:
+                raise ValueError(f"camera {self.name!r}: {attr} must have shape {shape}, got {value.shape}")
+            value.setflags(write=False)
+            object.__setattr__(self, attr, value)
+        dist = np.asarray(self.distortions, dtype=np.float64).ravel()
+        if dist.size not in (4, 5, 8):
+            raise ValueError(f"camera {self.name!r}: distortions must have 4, 5 or 8 values, got {dist.size}")
+        dist.setflags(write=False)
+        object.__setattr__(self, "distortions", dist)
+
+    # ----------------------------------------------------------------- poses
+    @property
+    def R(self) -> np.ndarray:
+        """(3, 3) world -> camera rotation matrix."""
+        return _rodrigues_to_matrix(self.rotation)
+
+    @property
+    def center(self) -> np.ndarray:
+        """(3,) camera centre in world coordinates, metres: ``-R^T t``."""
+        return -self.R.T @ self.translation
+
+    @property
+    def projection_matrix(self) -> np.ndarray:
+        """(3, 4) ideal-pixel projection matrix ``K [R | t]``."""
+        return self.matrix @ np.hstack([self.R, self.translation[:, None]])
+
+    def world_to_camera(self, points: np.ndarray) -> np.ndarray:
+        """(N, 3) world points, metres -> (N, 3) camera-frame points, metres."""
+        points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+        return points @ self.R.T + self.translation
+
+    def camera_to_world(self, points: np.ndarray) -> np.ndarray:
+        """(N, 3) camera-frame points, metres -> (N, 3) world points, metres."""
+        points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+        return (points - self.translation) @ self.R
+
+    # ------------------------------------------------------------ projection
+    def project(self, points: np.ndarray) -> np.ndarray:
+        """Project world points to distorted pixel coordinates.
+
+        Args:
+            points: (N, 3) world points, metres.
+
+        Returns:
+            (N, 2) pixel coordinates (x right, y down). Points behind the camera
+            (depth <= 0) come back as NaN.
+        """
+        xc = self.world_to_camera(points)
+        z = xc[:, 2]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            x = xc[:, 0] / z
+            y = xc[:, 1] / z
+        if self.fisheye:
+            pts = np.stack([x, y], axis=1)
+            xd = _fisheye_distort(pts, self.distortions)
+        else:
+            xd = _standard_distort(x, y, self.distortions)
+        K = self.matrix
+        u = K[0, 0] * xd[:, 0] + K[0, 1] * xd[:, 1] + K[0, 2]
+        v = K[1, 1] * xd[:, 1] + K[1, 2]
+        uv = np.stack([u, v], axis=1)
+        uv[~(z > 0)] = np.nan
+        return uv
+
+    def ideal_to_distorted(self, uv_ideal: np.ndarray) -> np.ndarray:
+        """(N, 2) ideal pixels -> (N, 2) distorted pixels (applies the lens model)."""
+        uv_ideal = np.asarray(uv_ideal, dtype=np.float64).reshape(-1, 2)
+        rays = np.column_stack([uv_ideal, np.ones(len(uv_ideal))]) @ np.linalg.inv(self.matrix).T
+        return self.project(self.camera_to_world(rays))
+
+    def undistort(self, uv: np.ndarray) -> np.ndarray:
+        """Remove lens distortion.
+
+        Args:
+            uv: (N, 2) distorted pixel coordinates.
+
+        Returns:
+            (N, 2) ideal pixel coordinates (same K, no distortion). NaN rows stay NaN.
+        """
+        uv = np.asarray(uv, dtype=np.float64).reshape(-1, 2)
+        out = np.full_like(uv, np.nan)
+        ok = np.isfinite(uv).all(axis=1)
+        if not ok.any():
+            return out
+        src = uv[ok].reshape(-1, 1, 2)
+        if self.fisheye:
+            und = cv2.fisheye.undistortPoints(src, self.matrix, self.distortions[:4], P=self.matrix)
+        elif not self.distortions.any():
+            und = src
+        else:
+            crit = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 30, 1e-10)
+            und = cv2.undistortPoints(src, self.matrix, self.distortions, None, None, self.matrix, crit)
+        out[ok] = und.reshape(-1, 2)
+        return out
+
+    def projection_jacobian(self, points: np.ndarray, step: float = 1e-6) -> np.ndarray:
+        """Jacobian of :meth:`project` with respect to the world point.
+
+        Central differences of the full (distorted) model; accurate to ~1e-6 relative.
+
+        Args:
+            points: (N, 3) world points, metres.
+            step: finite-difference step, metres.
+
+        Returns:
+            (N, 2, 3) d(pixel)/d(world), pixels per metre.
+        """
+        points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+        jac = np.empty((len(points), 2, 3))
+        for axis in range(3):
+            delta = np.zeros(3)
+            delta[axis] = step
+            jac[:, :, axis] = (self.project(points + delta) - self.project(points - delta)) / (2 * step)
+        return jac
+
+    def in_image(self, uv: np.ndarray, margin: float = 0.0) -> np.ndarray:
+        """(N, 2) pixels -> (N,) bool: inside the image, ``margin`` pixels from the border."""
+        uv = np.asarray(uv, dtype=np.float64).reshape(-1, 2)
+        w, h = self.size
+        with np.errstate(invalid="ignore"):
+            return (
+                (uv[:, 0] >= margin - 0.5)
+                & (uv[:, 0] <= w - 0.5 - margin)
+                & (uv[:, 1] >= margin - 0.5)
+                & (uv[:, 1] <= h - 0.5 - margin)
+            )
+
+    def with_pose(self, rotation: np.ndarray, translation: np.ndarray) -> Camera:
+        """A copy of this camera at another pose."""
+        return Camera(self.name, self.size, self.matrix, self.distortions, rotation, translation, self.fisheye)
+
+    # ---------------------------------------------------------------- toml
+    def to_table(self) -> dict[str, Any]:
+        """This camera as a ``calibration.toml`` table (plain Python types)."""
+        return {
+            "name": self.name,
+            "size": [int(self.size[0]), int(self.size[1])],
+            "matrix": self.matrix.tolist(),
+            "distortions": self.distortions.tolist(),
+            "rotation": self.rotation.tolist(),
+            "translation": self.translation.tolist(),
+            "fisheye": bool(self.fisheye),
+        }
+
+
+def _standard_distort(x: np.ndarray, y: np.ndarray, dist: np.ndarray) -> np.ndarray:
+    """OpenCV's standard (Brown-Conrady) model on normalised coordinates; (N,) x, y -> (N, 2)."""
+    d = np.zeros(8)
+    d[: dist.size] = dist
+    k1, k2, p1, p2, k3, k4, k5, k6 = d
+    r2 = x * x + y * y
+    radial = (1 + r2 * (k1 + r2 * (k2 + r2 * k3))) / (1 + r2 * (k4 + r2 * (k5 + r2 * k6)))
+    xd = x * radial + 2 * p1 * x * y + p2 * (r2 + 2 * x * x)
+    yd = y * radial + p1 * (r2 + 2 * y * y) + 2 * p2 * x * y
+    return np.stack([xd, yd], axis=1)
+
+
+def _fisheye_distort(xy: np.ndarray, dist: np.ndarray) -> np.ndarray:
+    """OpenCV's fisheye (equidistant) model on normalised coordinates; (N, 2) -> (N, 2)."""
+    k = np.zeros(4)
+    k[: min(4, dist.size)] = dist[:4]
+    r = np.hypot(xy[:, 0], xy[:, 1])
+    theta = np.arctan(r)
+    t2 = theta * theta
+    theta_d = theta * (1 + t2 * (k[0] + t2 * (k[1] + t2 * (k[2] + t2 * k[3]))))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        scale = np.where(r > 1e-12, theta_d / r, 1.0)
+    return xy * scale[:, None]
+
+
+# --------------------------------------------------------------------- rig
+@dataclass(eq=False)
+class Rig:
+    """A calibrated set of cameras sharing one world frame.
+
+    Attributes:
+        cameras: the cameras, in file order.
+        metadata: the free-form ``[metadata]`` table.
+        extra_tables: other top-level tables this reader does not interpret (for
+            example pairwise fundamental matrices written by the calibration
+            utility). They are kept and written back unchanged.
+    """
+
+    cameras: list[Camera]
+    metadata: dict[str, Any] = field(default_factory=dict)
+    extra_tables: dict[str, Any] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        names = [c.name for c in self.cameras]
+        dupes = sorted({n for n in names if names.count(n) > 1})
+        if dupes:
+            raise MocapError(f"calibration: camera name(s) {dupes} appear more than once; names must be unique")
+
+    def __len__(self) -> int:
+        return len(self.cameras)
+
+    def __iter__(self) -> Iterator[Camera]:
+        return iter(self.cameras)
+
+    def __getitem__(self, index: int) -> Camera:
+        return self.cameras[index]
+
+    @property
+    def names(self) -> list[str]:
+        """Camera names in order."""
+        return [c.name for c in self.cameras]
+
+    def index(self, name: str) -> int:
+        """Position of the camera called ``name``."""
+        try:
+            return self.names.index(name)
+        except ValueError:
+            raise MocapError(f"no camera named {name!r} in the calibration (cameras: {self.names})") from None
+
+    def project(self, points: np.ndarray) -> np.ndarray:
+        """(N, 3) world points, metres -> (C, N, 2) distorted pixels per camera."""
+        return np.stack([c.project(points) for c in self.cameras])
+
+    def projection_matrices(self) -> np.ndarray:
+        """(C, 3, 4) ideal-pixel projection matrices."""
+        return np.stack([c.projection_matrix for c in self.cameras])
+
+    def centers(self) -> np.ndarray:
+        """(C, 3) camera centres, metres."""
+        return np.stack([c.center for c in self.cameras])
+
+
+_CAMERA_FIELDS = ("name", "size", "matrix", "distortions", "rotation", "translation")
+
+
+def _camera_from_table(key: str, table: dict[str, Any], path: Path) -> Camera:
+    where = f"{path}: table [{key}]"
+    missing = [f for f in _CAMERA_FIELDS if f not in table]
+    if missing:
+        raise MocapError(f"{where} is missing field(s) {missing}; every camera table needs {list(_CAMERA_FIELDS)}")
+
+    def array(field_name: str, shape: tuple[int, ...] | None = None, sizes: tuple[int, ...] = ()) -> np.ndarray:
+        try:
+            value = np.asarray(table[field_name], dtype=np.float64)
+        except (TypeError, ValueError):
+            raise MocapError(f"{where}: field '{field_name}' must be numbers, got {table[field_name]!r}") from None
+        if shape is not None and value.shape != shape:
+            raise MocapError(
+                f"{where}: field '{field_name}' must have shape {list(shape)}, got {list(value.shape)}"
+            )
+        if sizes and (value.ndim != 1 or value.size not in sizes):
+            raise MocapError(f"{where}: field '{field_name}' must hold {' or '.join(map(str, sizes))} numbers")
+        if not np.isfinite(value).all():
+            raise MocapError(f"{where}: field '{field_name}' contains NaN or infinity")
+        return value
+
+    size = array("size", (2,))
+    if (size <= 0).any() or (size != np.round(size)).any():
+        raise MocapError(f"{where}: field 'size' must be two positive whole numbers [width, height]")
+    matrix = array("matrix", (3, 3))
+    if matrix[0, 0] <= 0 or matrix[1, 1] <= 0:
+        raise MocapError(f"{where}: field 'matrix' must have positive focal lengths fx, fy")
+    fisheye = table.get("fisheye", False)
+    if not isinstance(fisheye, bool):
+        raise MocapError(f"{where}: field 'fisheye' must be true or false")
+    name = table["name"]
+    if not isinstance(name, str) or not name or any(ch in name for ch in "/\\"):
+        raise MocapError(f"{where}: field 'name' must be a non-empty string without slashes")
+    return Camera(
+        name=name,
+        size=(int(size[0]), int(size[1])),
+        matrix=matrix,
+        distortions=array("distortions", sizes=(4, 5, 8)),
+        rotation=array("rotation", (3,)),
+        translation=array("translation", (3,)),
+        fisheye=fisheye,
+    )
+
+
+def load_rig(path: str | os.PathLike) -> Rig:
+    """Read a ``calibration.toml``.
+
+    Camera tables are the top-level tables holding the camera fields (their keys are
+    conventionally ``cam_1``, ``cam_2`` ...); ``[metadata]`` is kept as-is, and any other
+    table is kept in :attr:`Rig.extra_tables` and otherwise ignored.
+
+    Raises:
+        MocapError: missing or unreadable file, TOML syntax error, or a malformed camera
+            table; the message names the file, the table and the field.
+    """
+    path = Path(path)
+    try:
+        with open(path, "rb") as fh:
+            data = tomllib.load(fh)
+    except FileNotFoundError:
+        raise MocapError(f"{path}: calibration file not found; run 'mocap calibrate' or copy one into the take") from None
+    except tomllib.TOMLDecodeError as exc:
+        raise MocapError(f"{path}: not valid TOML ({exc}); fix the syntax or re-export the calibration") from None
+    except OSError as exc:
+        raise MocapError(f"{path}: cannot read the calibration file ({exc.strerror})") from None
+    cameras: list[Camera] = []
+    metadata: dict[str, Any] = {}
+    extra: dict[str, Any] = {}
+    for key, value in data.items():
+        if key == "metadata" and isinstance(value, dict):
+            metadata = value
+        elif isinstance(value, dict) and ("matrix" in value or key.startswith("cam")):
+            cameras.append(_camera_from_table(key, value, path))
+        else:
+            extra[key] = value
+    if not cameras:
+        raise MocapError(f"{path}: no camera tables found; expected tables like [cam_1] with {list(_CAMERA_FIELDS)}")
+    return Rig(cameras, metadata, extra)
+
+
+def rig_to_toml(rig: Rig) -> str:
+    """The ``calibration.toml`` text of a rig (cameras as ``cam_1``..., then metadata, then extras)."""
+    doc: dict[str, Any] = {f"cam_{i + 1}": cam.to_table() for i, cam in enumerate(rig.cameras)}
+    for key, value in rig.extra_tables.items():
+        doc[key] = value
+    doc["metadata"] = dict(rig.metadata)
+    return tomli_w.dumps(_plain(doc))
+
+
+def _plain(value: Any) -> Any:
+    """Convert numpy scalars/arrays inside nested containers to plain Python for TOML."""
+    if isinstance(value, dict):
+        return {str(k): _plain(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_plain(v) for v in value]
+    if isinstance(value, np.ndarray):
+        return _plain(value.tolist())
+    if isinstance(value, np.generic):
+        return value.item()
+    if isinstance(value, float) and not math.isfinite(value):
+        return str(value)
+    return value
+
+
+def save_rig(rig: Rig, path: str | os.PathLike) -> None:
+    """Write ``rig`` to ``path`` atomically (temp file + rename); exact float round trip."""
+    atomic_write_bytes(Path(path), rig_to_toml(rig).encode("utf-8"))

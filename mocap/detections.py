@@ -1,0 +1,59 @@
+"""2D blobs found in one camera image: arrays, never one object per blob."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+__all__ = ["Detections"]
+
+
+@dataclass(eq=False)
+class Detections:
+    """The N blobs one camera saw in one frame.
+
+    Attributes:
+        xy: (N, 2) sub-pixel centroids, distorted pixels (x right, y down; pixel centres at
+            integer coordinates, OpenCV's convention).
+        area: (N,) blob area, pixels.
+        roundness: (N,) in (0, 1]: minor/major axis ratio of the blob's second moments.
+        cov: (N, 2, 2) centroid covariance, pixels^2 (from image noise and blob shape).
+        merged: (N,) bool, True where the blob is probably two or more markers merged.
+    """
+
+    xy: np.ndarray
+    area: np.ndarray | None = None
+    roundness: np.ndarray | None = None
+    cov: np.ndarray | None = None
+    merged: np.ndarray | None = None
+
+    DEFAULT_SIGMA_PX = 0.1
+
+    def __post_init__(self) -> None:
+        self.xy = np.asarray(self.xy, dtype=np.float64).reshape(-1, 2)
+        n = len(self.xy)
+        if self.area is None:
+            self.area = np.zeros(n)
+        if self.roundness is None:
+            self.roundness = np.ones(n)
+        if self.cov is None:
+            self.cov = np.broadcast_to(np.eye(2) * self.DEFAULT_SIGMA_PX**2, (n, 2, 2)).copy()
+        if self.merged is None:
+            self.merged = np.zeros(n, dtype=bool)
+        self.area = np.asarray(self.area, dtype=np.float64).reshape(n)
+        self.roundness = np.asarray(self.roundness, dtype=np.float64).reshape(n)
+        self.cov = np.asarray(self.cov, dtype=np.float64).reshape(n, 2, 2)
+        self.merged = np.asarray(self.merged, dtype=bool).reshape(n)
+
+    def __len__(self) -> int:
+        return len(self.xy)
+
+    @classmethod
+    def empty(cls) -> Detections:
+        return cls(np.zeros((0, 2)))
+
+    def subset(self, index: np.ndarray) -> Detections:
+        """The blobs selected by a boolean mask or an index array."""
+        return Detections(self.xy[index], self.area[index], self.roundness[index], self.cov[index],
+                          self.merged[index])

@@ -1,0 +1,1 @@
+"""Writers and readers of trajectory files: C3D, TRC, CSV, MCAP."""

@@ -1,0 +1,97 @@
+"""C3D reading and writing with ezc3d.
+
+Written files: POINT:UNITS "mm", POINT:RATE = fps, float storage (POINT:SCALE < 0);
+residuals in mm, quantised by C3D to steps of |POINT:SCALE| (chosen from the data so the
+largest residual fits the format's 8 bits); invalid samples have residual -1; the camera
+mask holds the first 7 cameras (a C3D limit).
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import ezc3d
+import numpy as np
+
+from mocap.atomic import atomic_output
+from mocap.errors import MocapError
+from mocap.trajectories import Trajectories
+
+__all__ = ["write_c3d", "read_c3d", "UNIT_TO_METRES"]
+
+UNIT_TO_METRES = {"mm": 1e-3, "cm": 1e-2, "dm": 1e-1, "m": 1.0, "in": 0.0254, "inch": 0.0254, "ft": 0.3048}
+_RESIDUAL_STEPS_MM = (0.001, 0.002, 0.005, 0.01, 0.02, 0.05, 0.1, 0.2, 0.5, 1.0, 2.0, 5.0)
+_C3D_CAMERA_BITS = 7
+
+
+def _residual_scale(residuals_mm: np.ndarray) -> float:
+    """Smallest step (mm) from a 1-2-5 series that fits the largest residual into 255 steps."""
+    finite = residuals_mm[np.isfinite(residuals_mm)]
+    largest = float(finite.max()) if finite.size else 0.0
+    for step in _RESIDUAL_STEPS_MM:
+        if largest <= 255 * step:
+            return step
+    return _RESIDUAL_STEPS_MM[-1]
+
+
+def write_c3d(traj: Trajectories, path: str | os.PathLike) -> None:
+    """Write ``traj`` to a C3D file atomically (positions in mm)."""
+    F, M = traj.n_frames, traj.n_markers
+    valid = traj.valid
+    points = np.zeros((4, M, F))
+    points[:3] = np.transpose(np.where(valid[..., None], traj.positions * 1000.0, np.nan), (2, 1, 0))
+    points[3] = valid.T
+    step = _residual_scale(traj.residuals)
+    residuals = np.where(valid, np.clip(np.nan_to_num(traj.residuals, nan=0.0), 0.0, 255 * step), -1.0)
+    bits = (traj.camera_masks[..., None] >> np.arange(_C3D_CAMERA_BITS, dtype=np.uint32)) & 1  # (F, M, 7)
+    masks = np.transpose(bits.astype(bool) & valid[..., None], (2, 1, 0))
+    c3d = ezc3d.c3d()
+    c3d["parameters"]["POINT"]["RATE"]["value"] = [float(traj.fps)]
+    c3d["parameters"]["POINT"]["LABELS"]["value"] = list(traj.labels)
+    c3d["parameters"]["POINT"]["UNITS"]["value"] = ["mm"]
+    c3d["parameters"]["POINT"]["SCALE"]["value"] = [-step]
+    if traj.camera_names:
+        c3d.add_parameter("POINT", "CAMERAS", list(traj.camera_names)[:_C3D_CAMERA_BITS])
+    c3d["header"]["points"]["first_frame"] = int(traj.first_frame)
+    c3d["data"]["points"] = points
+    c3d["data"]["meta_points"] = {"residuals": residuals.T[None], "camera_masks": masks}
+    with atomic_output(path) as tmp:
+        c3d.write(str(tmp))
+
+
+def read_c3d(path: str | os.PathLike) -> Trajectories:
+    """Read a C3D file's points into :class:`Trajectories` (metres; NaN where invalid).
+
+    Accepts any POINT:UNITS in :data:`UNIT_TO_METRES`. Samples with residual < 0 or all-zero
+    coordinates (the usual gap conventions) become NaN. Axes are left as in the file.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise MocapError(f"{path}: C3D file not found")
+    try:
+        c3d = ezc3d.c3d(str(path))
+    except Exception as exc:  # ezc3d raises bare RuntimeError/IOError on corrupt files
+        raise MocapError(f"{path}: cannot read as C3D ({exc}); the file may be truncated or not a C3D") from None
+    params = c3d["parameters"]["POINT"]
+    units = str(params.get("UNITS", {}).get("value", ["mm"])[0] or "mm").strip().lower()
+    if units not in UNIT_TO_METRES:
+        raise MocapError(f"{path}: unknown POINT:UNITS {units!r}; expected one of {sorted(UNIT_TO_METRES)}")
+    fps = float(params["RATE"]["value"][0])
+    labels = [str(label).strip() for label in params["LABELS"]["value"]]
+    pts = np.asarray(c3d["data"]["points"], dtype=np.float64)  # (4, M, F)
+    labels = labels[: pts.shape[1]] + [f"M{i:03d}" for i in range(len(labels), pts.shape[1])]
+    positions = np.transpose(pts[:3], (2, 1, 0)) * UNIT_TO_METRES[units]
+    meta = c3d["data"].get("meta_points", {})
+    residuals = np.asarray(meta.get("residuals", np.zeros((1,) + pts.shape[1:])), dtype=np.float64)[0].T
+    invalid = (residuals < 0) | ~np.isfinite(positions).all(axis=2) | (positions == 0).all(axis=2)
+    positions[invalid] = np.nan
+    residuals = np.where(invalid, np.nan, residuals)
+    masks = np.zeros(residuals.shape, dtype=np.uint32)
+    if "camera_masks" in meta:
+        cm = np.asarray(meta["camera_masks"], dtype=bool)  # (7, M, F)
+        weights = (1 << np.arange(cm.shape[0], dtype=np.uint32))[:, None, None]
+        masks = (cm * weights).sum(axis=0).T.astype(np.uint32)
+    cameras = params.get("CAMERAS", {}).get("value", [])
+    first = int(c3d["header"]["points"].get("first_frame", 0))
+    return Trajectories(labels, fps, positions, residuals, masks, [str(c) for c in cameras], first)

@@ -1,0 +1,71 @@
+"""The engine's output: labelled 3D marker trajectories, as numpy arrays."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+__all__ = ["Trajectories"]
+
+
+@dataclass(eq=False)
+class Trajectories:
+    """Labelled 3D trajectories of one take.
+
+    Attributes:
+        labels: (M,) marker names, one per identity.
+        fps: frame rate, Hz.
+        positions: (F, M, 3) world positions, metres (z up); NaN where missing.
+        residuals: (F, M) triangulation residuals, mm (RMS reprojection error back-projected
+            to the marker's depth); NaN where missing.
+        camera_masks: (F, M) uint32 bit field, bit c set when camera c saw the marker.
+        camera_names: names of the cameras behind the mask bits, in bit order.
+        first_frame: index of the first frame in the source recording.
+        metadata: free-form facts about the take (written where a format allows).
+    """
+
+    labels: list[str]
+    fps: float
+    positions: np.ndarray
+    residuals: np.ndarray | None = None
+    camera_masks: np.ndarray | None = None
+    camera_names: list[str] = field(default_factory=list)
+    first_frame: int = 0
+    metadata: dict[str, Any] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        self.positions = np.asarray(self.positions, dtype=np.float64)
+        if self.positions.ndim != 3 or self.positions.shape[2] != 3:
+            raise ValueError(f"positions must have shape (frames, markers, 3), got {self.positions.shape}")
+        F, M = self.positions.shape[:2]
+        if len(self.labels) != M:
+            raise ValueError(f"{len(self.labels)} labels for {M} markers")
+        self.labels = [str(label) for label in self.labels]
+        if self.residuals is None:
+            self.residuals = np.where(np.isfinite(self.positions).all(axis=2), 0.0, np.nan)
+        self.residuals = np.asarray(self.residuals, dtype=np.float64).reshape(F, M)
+        if self.camera_masks is None:
+            self.camera_masks = np.zeros((F, M), dtype=np.uint32)
+        self.camera_masks = np.asarray(self.camera_masks, dtype=np.uint32).reshape(F, M)
+        if not np.isfinite(self.fps) or self.fps <= 0:
+            raise ValueError(f"fps must be a positive number, got {self.fps}")
+
+    @property
+    def n_frames(self) -> int:
+        return self.positions.shape[0]
+
+    @property
+    def n_markers(self) -> int:
+        return self.positions.shape[1]
+
+    @property
+    def valid(self) -> np.ndarray:
+        """(F, M) bool: the sample exists."""
+        return np.isfinite(self.positions).all(axis=2)
+
+    @property
+    def times(self) -> np.ndarray:
+        """(F,) capture time of each frame, seconds from the take's first frame."""
+        return (np.arange(self.n_frames) + self.first_frame) / self.fps

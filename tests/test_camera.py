@@ -1,0 +1,113 @@
+"""Camera model against OpenCV, and calibration.toml round trips and errors."""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from mocap.camera import Camera, load_rig, save_rig
+from mocap.errors import MocapError
+from tests.conftest import ring_rig
+
+
+def _volume_points(n: int, seed: int = 0) -> np.ndarray:
+    rng = np.random.default_rng(seed)
+    return rng.uniform([-1.0, -1.0, 0.0], [1.0, 1.0, 2.0], size=(n, 3))
+
+
+def test_project_matches_opencv(rig):
+    X = _volume_points(200)
+    for cam in rig:
+        ref, _ = cv2.projectPoints(X, cam.rotation, cam.translation, cam.matrix, cam.distortions)
+        np.testing.assert_allclose(cam.project(X), ref.reshape(-1, 2), atol=1e-9)
+
+
+def test_fisheye_project_matches_opencv():
+    base = ring_rig(1)[0]
+    cam = Camera("fe", base.size, base.matrix, [0.05, -0.01, 0.002, 0.0], base.rotation, base.translation, True)
+    X = _volume_points(100)
+    ref, _ = cv2.fisheye.projectPoints(X.reshape(-1, 1, 3), cam.rotation, cam.translation, cam.matrix, cam.distortions)
+    np.testing.assert_allclose(cam.project(X), ref.reshape(-1, 2), atol=1e-8)
+
+
+def test_undistort_inverts_distortion_and_matches_opencv(rig):
+    X = _volume_points(200, seed=1)
+    for cam in rig:
+        uv = cam.project(X)
+        ideal = cam.undistort(uv)
+        ref = cv2.undistortPoints(uv.reshape(-1, 1, 2), cam.matrix, cam.distortions, P=cam.matrix).reshape(-1, 2)
+        np.testing.assert_allclose(ideal, ref, atol=1e-3)
+        pinhole = (cam.projection_matrix @ np.c_[X, np.ones(len(X))].T).T
+        np.testing.assert_allclose(ideal, pinhole[:, :2] / pinhole[:, 2:], atol=1e-6)
+        np.testing.assert_allclose(cam.ideal_to_distorted(ideal), uv, atol=1e-9)
+
+
+def test_points_behind_camera_are_nan(rig):
+    cam = rig[0]
+    behind = cam.center + 2 * (cam.center - np.array([0.0, 0.0, 1.0]))
+    assert np.isnan(cam.project(behind[None])).all()
+
+
+def test_world_camera_round_trip_and_center(rig):
+    X = _volume_points(50)
+    for cam in rig:
+        np.testing.assert_allclose(cam.camera_to_world(cam.world_to_camera(X)), X, atol=1e-12)
+        np.testing.assert_allclose(cam.world_to_camera(cam.center[None]), 0.0, atol=1e-12)
+
+
+def test_projection_jacobian_matches_opencv(rig):
+    X = _volume_points(5)
+    cam = rig[2]
+    for x in X:
+        _, jac = cv2.projectPoints(x[None], cam.rotation, cam.translation, cam.matrix, cam.distortions)
+        # OpenCV gives d/d(rvec, tvec, ...); d/dX_world = d/dtvec @ R.
+        ref = jac[:, 3:6] @ cam.R
+        np.testing.assert_allclose(cam.projection_jacobian(x[None])[0], ref, rtol=1e-5, atol=1e-3)
+
+
+@settings(max_examples=25, deadline=None)
+@given(k1=st.floats(-0.3, 0.3), p1=st.floats(-0.01, 0.01), k3=st.floats(-0.05, 0.05))
+def test_calibration_toml_round_trip_is_exact(tmp_path_factory, k1, p1, k3):
+    rig = ring_rig(3, distortions=(k1, 0.02, p1, 0.0, k3))
+    rig.extra_tables["fundamental"] = {"cam1-cam2": [[0.1, 0.2, 0.3]] * 3}
+    path = tmp_path_factory.mktemp("cal") / "calibration.toml"
+    save_rig(rig, path)
+    back = load_rig(path)
+    assert back.names == rig.names and back.metadata == rig.metadata and back.extra_tables == rig.extra_tables
+    for a, b in zip(rig, back, strict=True):
+        assert a.size == b.size and a.fisheye == b.fisheye
+        for attr in ("matrix", "distortions", "rotation", "translation"):
+            np.testing.assert_array_equal(getattr(a, attr), getattr(b, attr))
+
+
+def test_unknown_tables_ignored(tmp_path, rig):
+    path = tmp_path / "calibration.toml"
+    save_rig(rig, path)
+    path.write_text(path.read_text() + '\n[something_new]\nvalue = 3\n[other]\nx = "y"\n')
+    assert load_rig(path).names == rig.names
+
+
+@pytest.mark.parametrize(
+    ("edit", "expected"),
+    [
+        (lambda s: s.replace("matrix = ", "matrixx = ", 1), "missing field(s) ['matrix']"),
+        (lambda s: s.replace("size = [\n    1024,", "size = [\n    -1024,", 1), "field 'size'"),
+        (lambda s: s.replace("rotation = [", 'rotation = ["a", ', 1), "field 'rotation'"),
+        (lambda s: s.replace("[cam_1]", "[cam_1", 1), "not valid TOML"),
+    ],
+)
+def test_malformed_calibration_names_file_and_field(tmp_path, rig, edit, expected):
+    path = tmp_path / "calibration.toml"
+    save_rig(rig, path)
+    path.write_text(edit(path.read_text()))
+    with pytest.raises(MocapError) as info:
+        load_rig(path)
+    assert str(path) in str(info.value) and expected in str(info.value)
+
+
+def test_missing_calibration_file(tmp_path):
+    with pytest.raises(MocapError, match="not found"):
+        load_rig(tmp_path / "nope.toml")

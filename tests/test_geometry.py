@@ -1,0 +1,87 @@
+"""Epipolar geometry and triangulation against OpenCV and invariants."""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from hypothesis.extra.numpy import arrays
+
+from mocap.geometry import (
+    epipolar_distance_matrix,
+    fundamental_from_cameras,
+    triangulate_dlt,
+    triangulate_weighted,
+)
+from tests.conftest import ring_rig
+
+RIG = ring_rig()
+
+
+def _ideal(rig, X):
+    return np.stack([c.undistort(c.project(X)) for c in rig])
+
+
+@settings(max_examples=50, deadline=None)
+@given(X=arrays(np.float64, (20, 3), elements=st.floats(-1.0, 1.0)), i=st.integers(0, 5), j=st.integers(0, 5))
+def test_fundamental_epipolar_constraint(X, i, j):
+    if i == j:
+        return
+    X = X + [0.0, 0.0, 1.0]
+    F = fundamental_from_cameras(RIG[i], RIG[j])
+    u1, u2 = RIG[i].undistort(RIG[i].project(X)), RIG[j].undistort(RIG[j].project(X))
+    assert np.linalg.matrix_rank(F, tol=1e-9) == 2
+    d = np.diag(epipolar_distance_matrix(F, u1, u2))
+    assert np.all(d < 1e-6)
+
+
+def test_fundamental_matches_opencv_estimate():
+    rng = np.random.default_rng(3)
+    X = rng.uniform(-1, 1, (100, 3)) + [0, 0, 1]
+    u1, u2 = RIG[0].undistort(RIG[0].project(X)), RIG[1].undistort(RIG[1].project(X))
+    F_cv, _ = cv2.findFundamentalMat(u1, u2, cv2.FM_8POINT)
+    F = fundamental_from_cameras(RIG[0], RIG[1])
+    F_cv = F_cv / np.linalg.norm(F_cv) * np.sign(F_cv.ravel() @ F.ravel())
+    np.testing.assert_allclose(F, F_cv, atol=1e-6)
+
+
+def test_dlt_matches_opencv_and_truth():
+    rng = np.random.default_rng(4)
+    X = rng.uniform(-1, 1, (200, 3)) + [0, 0, 1]
+    uv = _ideal(RIG, X)
+    P = RIG.projection_matrices()
+    got = triangulate_dlt(P[:2], uv[:2])
+    ref = cv2.triangulatePoints(P[0], P[1], uv[0].T, uv[1].T)
+    np.testing.assert_allclose(got, (ref[:3] / ref[3]).T, atol=1e-9)
+    np.testing.assert_allclose(triangulate_dlt(P, uv), X, atol=1e-9)
+
+
+def test_dlt_with_missing_views():
+    X = np.array([[0.1, 0.2, 1.0], [0.0, 0.0, 1.5], [-0.3, 0.2, 0.4]])
+    uv = _ideal(RIG, X)
+    uv[:5, 1] = np.nan  # point 1 seen by one camera only
+    uv[:4, 2] = np.nan  # point 2 seen by two cameras
+    got = triangulate_dlt(RIG.projection_matrices(), uv)
+    np.testing.assert_allclose(got[[0, 2]], X[[0, 2]], atol=1e-9)
+    assert np.isnan(got[1]).all()
+
+
+def test_weighted_triangulation_covariance_is_calibrated():
+    """The empirical scatter of the estimate matches its predicted covariance."""
+    rng = np.random.default_rng(5)
+    X = np.array([[0.2, -0.1, 1.2]])
+    P = RIG.projection_matrices()
+    clean = _ideal(RIG, X)
+    sigmas = np.array([0.1, 0.1, 0.3, 0.3, 0.2, 0.5])
+    cov2 = (sigmas**2)[:, None, None, None] * np.eye(2)
+    trials = 2000
+    noisy = clean[:, None, 0, :] + rng.normal(size=(6, trials, 2)) * sigmas[:, None, None]
+    est, cov, rms = triangulate_weighted(P, noisy, np.broadcast_to(cov2, (6, trials, 2, 2)))
+    emp = np.cov((est - X).T)
+    np.testing.assert_allclose(np.diag(emp), np.diag(cov[0]), rtol=0.12)
+    assert np.linalg.norm(est.mean(axis=0) - X[0]) < 3e-5
+    # Weighting beats the unweighted DLT when cameras differ in noise.
+    dlt = triangulate_dlt(P, noisy)
+    assert ((est - X) ** 2).sum(1).mean() < ((dlt - X) ** 2).sum(1).mean()
+    assert np.all(rms > 0)
