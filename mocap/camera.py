@@ -355,7 +355,9 @@ def load_rig(path: str | os.PathLike) -> Rig:
         with open(path, "rb") as fh:
             data = tomllib.load(fh)
     except FileNotFoundError:
-        raise MocapError(f"{path}: calibration file not found; run 'mocap calibrate' or copy one into the take") from None
+        raise MocapError(
+            f"{path}: calibration file not found; run 'mocap calibrate' or copy one into the take"
+        ) from None
     except tomllib.TOMLDecodeError as exc:
         raise MocapError(f"{path}: not valid TOML ({exc}); fix the syntax or re-export the calibration") from None
     except OSError as exc:

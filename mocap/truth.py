@@ -90,6 +90,8 @@ def load_truth(path: str | os.PathLike) -> Truth:
                 settings=json.loads(str(z["settings"])),
             )
     except FileNotFoundError:
-        raise MocapError(f"{path}: truth file not found (mocap synth writes it beside the take, as TAKE.truth.npz)") from None
+        raise MocapError(
+            f"{path}: truth file not found (mocap synth writes it beside the take, as TAKE.truth.npz)"
+        ) from None
     except (KeyError, ValueError, OSError) as exc:
         raise MocapError(f"{path}: not a mocap truth file ({exc})") from None
