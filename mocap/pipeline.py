@@ -1,0 +1,224 @@
+"""The whole job: a take (images or 2D centroids) or an MCAP log in, labelled trajectories out.
+
+Frame by frame: read every camera's frame -> detect blobs (full frame, or only the tracker's
+predicted windows between periodic full scans) -> :class:`mocap.tracker.Tracker` -> live
+MCAP log. At the end: C3D / TRC / CSV. Memory stays flat apart from the output arrays.
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import os
+from collections.abc import Iterator
+from dataclasses import dataclass, replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from tqdm import tqdm
+
+from mocap import __version__
+from mocap.atomic import check_output_path
+from mocap.camera import Rig, rig_to_toml
+from mocap.detect import detect
+from mocap.detections import Detections
+from mocap.errors import MocapError
+from mocap.fitcheck import check_calibration_fit
+from mocap.tracker import Tracker, TrackerConfig
+from mocap.trajectories import Trajectories
+
+__all__ = ["ReconstructOptions", "reconstruct", "write_outputs"]
+
+log = logging.getLogger(__name__)
+
+FIT_CHECK_FRAMES = 10
+
+
+@dataclass
+class ReconstructOptions:
+    """How to run a reconstruction.
+
+    Attributes:
+        fps: frame rate override, Hz (else take.toml, else the videos).
+        start: first frame to process.
+        stop: frame to stop before (None: to the end).
+        roi_scan_every: 0 scans every full frame; N > 0 searches only the tracker's predicted
+            windows and scans the full frame every N frames (new markers wait at most N frames).
+        progress: show a progress bar on a terminal.
+        tracker: tracker settings.
+    """
+
+    fps: float | None = None
+    start: int = 0
+    stop: int | None = None
+    roi_scan_every: int = 0
+    progress: bool = True
+    tracker: TrackerConfig | None = None
+
+
+def _open_source(path: Path, fps: float | None) -> tuple[Any, str]:
+    """Open a take folder or an MCAP log; returns the source and its kind ("images"/"centroids")."""
+    if path.suffix.lower() == ".mcap":
+        from mocap.export.mcap import read_mcap_take
+
+        return read_mcap_take(path), "centroids"
+    from mocap.take import open_take
+
+    take = open_take(path, fps=fps)
+    return take, take.kind
+
+
+def _detection_frames(source: Any, kind: str, tracker: Tracker, opts: ReconstructOptions
+                      ) -> Iterator[tuple[int, list[Detections]]]:
+    """Yield ``(frame_index, detections per camera)``, detecting blobs in images when needed."""
+    if kind == "centroids":
+        yield from source.centroids(opts.start, opts.stop)
+        return
+    for frame_index, images in source.images(opts.start, opts.stop):
+        rois = None
+        if opts.roi_scan_every > 0 and (frame_index - opts.start) % opts.roi_scan_every != 0:
+            rois = tracker.predicted_rois()
+        dets = []
+        for c, image in enumerate(images):
+            if image is None:  # undecodable frame: the take reader has logged it
+                dets.append(Detections.empty())
+            else:
+                dets.append(detect(image, rois=None if rois is None else rois[c]))
+        yield frame_index, dets
+
+
+def _warn_if_calibration_does_not_fit(rig: Rig, frames: list[list[Detections]], where: Path) -> None:
+    report = check_calibration_fit(rig, frames)
+    poor = report.poor_cameras(rig)
+    examined = int(report.blobs.sum())
+    if examined == 0:
+        return
+    if poor:
+        pct = ", ".join(f"{n} {100 * s:.0f} %" for n, s in zip(rig.names, report.support, strict=True)
+                        if n in poor)
+        log.warning(
+            "%s: the calibration does not seem to fit the images: few blobs of camera(s) %s have a partner on "
+            "their epipolar line in another camera (%s, tolerance %.0f px, first %d frames). Check that "
+            "calibration.toml belongs to this take, that camera names match their recordings, and that no "
+            "camera moved since calibration; re-run 'mocap calibrate' if in doubt.",
+            where, ", ".join(poor), pct, report.tolerance_px, len(frames),
+        )
+    else:
+        log.debug("calibration fit: epipolar support per camera %s", np.round(report.support, 3))
+
+
+def reconstruct(take: str | os.PathLike, options: ReconstructOptions | None = None,
+                mcap: str | os.PathLike | None = None) -> Trajectories:
+    """Reconstruct labelled 3D trajectories from a take folder or an MCAP log.
+
+    Args:
+        take: a take folder (DESIGN.md) or an ``.mcap`` written by an earlier run (re-runs the 3D
+            stage from its logged 2D centroids).
+        options: run settings (:class:`ReconstructOptions`).
+        mcap: if given, log cameras, 2D centroids and 3D markers to this MCAP file while running.
+
+    Returns:
+        :class:`Trajectories`: (frames, identities, 3) metres in the calibration's world frame.
+    """
+    opts = options or ReconstructOptions()
+    path = Path(take)
+    source, kind = _open_source(path, opts.fps)
+    rig: Rig = source.rig
+    fps = float(opts.fps or source.fps)
+    stop = source.n_frames if opts.stop is None else min(opts.stop, source.n_frames)
+    if not 0 <= opts.start < stop:
+        raise MocapError(f"{path}: frame range {opts.start}:{stop} is empty; the take has {source.n_frames} frames")
+    tracker = Tracker(rig, fps, opts.tracker)
+    logger = _open_mcap_logger(mcap, rig, fps, path) if mcap is not None else None
+    first_frames: list[list[Detections]] = []
+    fit_checked = False
+    try:
+        frames = _detection_frames(source, kind, tracker, replace(opts, stop=stop))
+        bar = tqdm(frames, total=stop - opts.start, unit="frame", desc="reconstruct",
+                   disable=None if opts.progress else True, leave=False)
+        for frame_index, dets in bar:
+            if not fit_checked:
+                if sum(len(d) > 0 for d in dets) >= 2:
+                    first_frames.append(dets)
+                if len(first_frames) >= FIT_CHECK_FRAMES:
+                    _warn_if_calibration_does_not_fit(rig, first_frames, path)
+                    fit_checked = True
+            result = tracker.step(frame_index, dets)
+            if logger is not None:
+                logger.log_frame(frame_index, dets, result.ids, result.positions, result.residuals_mm,
+                                 result.camera_masks)
+        if not fit_checked and first_frames:
+            _warn_if_calibration_does_not_fit(rig, first_frames, path)
+    finally:
+        if logger is not None:
+            logger.close()
+    traj = tracker.finish()
+    traj.camera_names = rig.names
+    traj.metadata.update({"source": str(path), "software": f"mocap {__version__}", "cameras": len(rig)})
+    if traj.n_markers == 0:
+        log.warning("%s: no markers were reconstructed; check that markers are visible to at least two "
+                    "cameras and that the images are not too dark", path)
+    return traj
+
+
+def _open_mcap_logger(mcap: str | os.PathLike, rig: Rig, fps: float, take: Path) -> Any:
+    from mocap.export.mcap import McapLogger
+
+    return McapLogger(Path(mcap), rig, fps, rig_to_toml(rig),
+                      {"take": str(take), "fps": str(fps), "software": f"mocap {__version__}"})
+
+
+def write_outputs(traj: Trajectories, c3d: str | None = None, trc: str | None = None,
+                  csv: str | None = None) -> list[Path]:
+    """Write the requested trajectory files (each atomically); returns the paths written."""
+    written = []
+    if c3d:
+        from mocap.export.c3d import write_c3d
+
+        write_c3d(traj, c3d)
+        written.append(Path(c3d))
+    if trc:
+        from mocap.export.trc import write_trc
+
+        write_trc(traj, trc)
+        written.append(Path(trc))
+    if csv:
+        from mocap.export.csv import write_csv
+
+        write_csv(traj, csv)
+        written.append(Path(csv))
+    return written
+
+
+# ------------------------------------------------------------------------ CLI
+def configure_parser(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("take", help="take folder (calibration.toml + one recording per camera) or a run's .mcap")
+    parser.add_argument("--c3d", required=True, metavar="OUT.c3d", help="labelled trajectories, mm")
+    parser.add_argument("--mcap", metavar="OUT.mcap", help="Foxglove-ready log of cameras, 2D centroids, 3D markers")
+    parser.add_argument("--trc", metavar="OUT.trc", help="OpenSim TRC trajectories")
+    parser.add_argument("--csv", metavar="OUT.csv", help="Motive-style CSV trajectories")
+    parser.add_argument("--fps", type=float, help="frame rate, Hz, when neither take.toml nor the videos say")
+    parser.add_argument("--start", type=int, default=0, help="first frame to process (default 0)")
+    parser.add_argument("--stop", type=int, help="frame to stop before (default: the end)")
+    parser.add_argument("--roi-scan-every", type=int, default=0, metavar="N",
+                        help="search only predicted windows, with a full-frame scan every N frames (0: always scan)")
+    parser.add_argument("--no-progress", action="store_true", help="no progress bar")
+
+
+def run(args: argparse.Namespace) -> int:
+    outputs = [p for p in (args.c3d, args.mcap, args.trc, args.csv) if p]
+    for out in outputs:
+        check_output_path(out)
+    if args.mcap and Path(args.mcap).resolve() == Path(args.take).resolve():
+        raise MocapError(f"{args.mcap}: the output MCAP would overwrite the input log; choose another name")
+    opts = ReconstructOptions(fps=args.fps, start=args.start, stop=args.stop, roi_scan_every=args.roi_scan_every,
+                              progress=not args.no_progress)
+    traj = reconstruct(args.take, opts, mcap=args.mcap)
+    written = write_outputs(traj, c3d=args.c3d, trc=args.trc, csv=args.csv)
+    if args.mcap:
+        written.append(Path(args.mcap))
+    gaps = 100.0 * (1.0 - traj.valid.mean()) if traj.n_markers else 0.0
+    print(f"{traj.n_markers} markers, {traj.n_frames} frames at {traj.fps:g} Hz ({gaps:.1f} % gaps) -> "
+          + ", ".join(map(str, written)))
+    return 0
