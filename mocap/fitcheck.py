@@ -1,9 +1,12 @@
 """Does the calibration fit the images? An epipolar-support check on the first frames.
 
-With a correct calibration almost every real marker blob in one camera has a partner on
-its epipolar line in some other camera. With a wrong calibration (another session's file,
-swapped camera names, a camera that was bumped) that support collapses for the cameras at
-fault. The check is cheap and runs once, on the first frames that hold detections.
+With a correct calibration almost every real marker blob is explained by a 3D point seen by
+three cameras: it has a partner on its epipolar line in a second camera, and the pair's
+triangulated point lands on a blob in a third. With a wrong calibration (another session's
+file, swapped camera names, a camera that was bumped) that support collapses for the cameras
+at fault. Two-view support alone is not enough: with dozens of markers, a random blob finds
+some partner within a few pixels of a 1000-pixel epipolar line by chance. The check is cheap
+and runs once, on the first frames that hold detections.
 """
 
 from __future__ import annotations
@@ -14,7 +17,12 @@ import numpy as np
 
 from mocap.camera import Rig
 from mocap.detections import Detections
-from mocap.geometry import epipolar_distance_matrix, fundamental_from_cameras
+from mocap.geometry import (
+    epipolar_distance_matrix,
+    fundamental_from_cameras,
+    reprojection_jacobians,
+    triangulate_dlt,
+)
 
 __all__ = ["FitReport", "check_calibration_fit"]
 
@@ -24,8 +32,9 @@ class FitReport:
     """Epipolar support per camera.
 
     Attributes:
-        support: (C,) fraction of the camera's blobs that have a partner within the tolerance
-            on the epipolar line in at least one other camera; NaN for a camera with no blobs.
+        support: (C,) fraction of the camera's blobs that belong to a three-camera-consistent
+            point (epipolar partner in a second camera, reprojection onto a blob in a third, both
+            within the tolerance); NaN for a camera with no blobs.
         blobs: (C,) number of blobs examined per camera.
         tolerance_px: the epipolar distance tolerance used, pixels.
     """
@@ -40,32 +49,43 @@ class FitReport:
 
 
 def check_calibration_fit(rig: Rig, frames: list[list[Detections]], tolerance_px: float = 3.0) -> FitReport:
-    """Measure epipolar support of the blobs in ``frames`` under ``rig``.
+    """Measure three-view support of the blobs in ``frames`` under ``rig``.
 
     Args:
-        rig: the calibration to check.
+        rig: the calibration to check (three cameras or more; with two, support is two-view).
         frames: a few frames, each a list of one :class:`Detections` per camera (rig order).
-        tolerance_px: symmetric epipolar distance under which two blobs count as partners.
+        tolerance_px: epipolar and reprojection distance under which blobs count as partners.
 
     Returns:
         A :class:`FitReport`.
     """
     C = len(rig)
-    fundamentals = {(i, j): fundamental_from_cameras(rig[i], rig[j]) for i in range(C) for j in range(C) if i < j}
+    P = rig.projection_matrices()
+    fundamentals = {(i, j): fundamental_from_cameras(rig[i], rig[j]) for i in range(C) for j in range(i + 1, C)}
     supported = np.zeros(C)
     total = np.zeros(C)
     for dets in frames:
         ideal = [rig[c].undistort(d.xy) for c, d in enumerate(dets)]
-        has_partner = [np.zeros(len(p), dtype=bool) for p in ideal]
+        explained = [np.zeros(len(p), dtype=bool) for p in ideal]
         for (i, j), F in fundamentals.items():
             if len(ideal[i]) == 0 or len(ideal[j]) == 0:
                 continue
-            close = epipolar_distance_matrix(F, ideal[i], ideal[j]) < tolerance_px
-            has_partner[i] |= close.any(axis=1)
-            has_partner[j] |= close.any(axis=0)
+            a, b = np.nonzero(epipolar_distance_matrix(F, ideal[i], ideal[j]) < tolerance_px)
+            if a.size == 0:
+                continue
+            confirmed = np.full(a.size, C == 2)
+            X = triangulate_dlt(P[[i, j]], np.stack([ideal[i][a], ideal[j][b]]))
+            for k in range(C):
+                if k in (i, j) or len(ideal[k]) == 0:
+                    continue
+                uv, _ = reprojection_jacobians(P[k : k + 1], np.nan_to_num(X))
+                gap = np.linalg.norm(uv[0][:, None, :] - ideal[k][None, :, :], axis=2).min(axis=1)
+                confirmed |= gap < tolerance_px
+            explained[i][a[confirmed]] = True
+            explained[j][b[confirmed]] = True
         for c in range(C):
-            supported[c] += has_partner[c].sum()
-            total[c] += len(has_partner[c])
+            supported[c] += explained[c].sum()
+            total[c] += len(explained[c])
     with np.errstate(invalid="ignore", divide="ignore"):
         support = np.where(total > 0, supported / total, np.nan)
     return FitReport(support, total.astype(int), tolerance_px)

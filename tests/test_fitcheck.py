@@ -1,0 +1,43 @@
+"""The calibration-fit check tells a matching calibration from a wrong one."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from mocap.camera import Rig
+from mocap.detections import Detections
+from mocap.fitcheck import check_calibration_fit
+from tests.conftest import ring_rig
+
+
+def _frames(rig: Rig, n_frames: int = 10, n_markers: int = 30, seed: int = 0) -> list[list[Detections]]:
+    rng = np.random.default_rng(seed)
+    frames = []
+    for _ in range(n_frames):
+        X = rng.uniform([-0.8, -0.8, 0.1], [0.8, 0.8, 1.9], size=(n_markers, 3))
+        frames.append([Detections(cam.project(X) + rng.normal(0, 0.1, (n_markers, 2))) for cam in rig])
+    return frames
+
+
+def test_matching_calibration_has_full_support():
+    rig = ring_rig()
+    report = check_calibration_fit(rig, _frames(rig))
+    assert np.all(report.support > 0.95)
+    assert report.poor_cameras(rig) == []
+
+
+def test_swapped_cameras_are_named():
+    rig = ring_rig()
+    frames = _frames(rig, n_markers=40)
+    cams = list(rig.cameras)
+    swapped = [c.with_pose(o.rotation, o.translation) for c, o in zip(cams, [cams[0], cams[3], cams[2], cams[1],
+                                                                              cams[4], cams[5]], strict=True)]
+    report = check_calibration_fit(Rig(swapped), frames)
+    assert sorted(report.poor_cameras(rig)) == ["cam2", "cam4"]
+    assert report.support[[0, 2, 4, 5]].min() > 0.9
+
+
+def test_empty_frames_give_nan_support():
+    rig = ring_rig(3)
+    report = check_calibration_fit(rig, [[Detections.empty()] * 3])
+    assert np.isnan(report.support).all() and report.poor_cameras(rig) == []
