@@ -31,7 +31,7 @@ import tomli_w
 from mocap.atomic import atomic_write_bytes
 from mocap.errors import MocapError
 
-__all__ = ["Camera", "Rig", "load_rig", "save_rig", "rig_to_toml"]
+__all__ = ["Camera", "Rig", "load_rig", "parse_rig", "save_rig", "rig_to_toml"]
 
 
 def _rodrigues_to_matrix(rvec: np.ndarray) -> np.ndarray:
@@ -295,8 +295,8 @@ class Rig:
 _CAMERA_FIELDS = ("name", "size", "matrix", "distortions", "rotation", "translation")
 
 
-def _camera_from_table(key: str, table: dict[str, Any], path: Path) -> Camera:
-    where = f"{path}: table [{key}]"
+def _camera_from_table(key: str, table: dict[str, Any], source: str) -> Camera:
+    where = f"{source}: table [{key}]"
     missing = [f for f in _CAMERA_FIELDS if f not in table]
     if missing:
         raise MocapError(f"{where} is missing field(s) {missing}; every camera table needs {list(_CAMERA_FIELDS)}")
@@ -340,28 +340,44 @@ def _camera_from_table(key: str, table: dict[str, Any], path: Path) -> Camera:
 
 
 def load_rig(path: str | os.PathLike) -> Rig:
-    """Read a ``calibration.toml``.
+    """Read a ``calibration.toml`` (see :func:`parse_rig` for what it holds).
+
+    Raises:
+        MocapError: missing or unreadable file, or any problem :func:`parse_rig` reports.
+    """
+    path = Path(path)
+    try:
+        text = path.read_bytes().decode("utf-8")
+    except FileNotFoundError:
+        raise MocapError(
+            f"{path}: calibration file not found; run 'mocap calibrate' or copy one into the take"
+        ) from None
+    except UnicodeDecodeError:
+        raise MocapError(f"{path}: not a text file; calibration.toml must be UTF-8 TOML") from None
+    except OSError as exc:
+        raise MocapError(f"{path}: cannot read the calibration file ({exc.strerror})") from None
+    return parse_rig(text, str(path))
+
+
+def parse_rig(text: str, where: str = "calibration") -> Rig:
+    """Parse ``calibration.toml`` text.
 
     Camera tables are the top-level tables holding the camera fields (their keys are
     conventionally ``cam_1``, ``cam_2`` ...); ``[metadata]`` is kept as-is, and any other
     table is kept in :attr:`Rig.extra_tables` and otherwise ignored.
 
+    Args:
+        text: the TOML text.
+        where: the file name (or other origin) to name in error messages.
+
     Raises:
-        MocapError: missing or unreadable file, TOML syntax error, or a malformed camera
-            table; the message names the file, the table and the field.
+        MocapError: TOML syntax error or a malformed camera table; the message names
+            ``where``, the table and the field.
     """
-    path = Path(path)
     try:
-        with open(path, "rb") as fh:
-            data = tomllib.load(fh)
-    except FileNotFoundError:
-        raise MocapError(
-            f"{path}: calibration file not found; run 'mocap calibrate' or copy one into the take"
-        ) from None
+        data = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
-        raise MocapError(f"{path}: not valid TOML ({exc}); fix the syntax or re-export the calibration") from None
-    except OSError as exc:
-        raise MocapError(f"{path}: cannot read the calibration file ({exc.strerror})") from None
+        raise MocapError(f"{where}: not valid TOML ({exc}); fix the syntax or re-export the calibration") from None
     cameras: list[Camera] = []
     metadata: dict[str, Any] = {}
     extra: dict[str, Any] = {}
@@ -369,11 +385,11 @@ def load_rig(path: str | os.PathLike) -> Rig:
         if key == "metadata" and isinstance(value, dict):
             metadata = value
         elif isinstance(value, dict) and ("matrix" in value or key.startswith("cam")):
-            cameras.append(_camera_from_table(key, value, path))
+            cameras.append(_camera_from_table(key, value, where))
         else:
             extra[key] = value
     if not cameras:
-        raise MocapError(f"{path}: no camera tables found; expected tables like [cam_1] with {list(_CAMERA_FIELDS)}")
+        raise MocapError(f"{where}: no camera tables found; expected tables like [cam_1] with {list(_CAMERA_FIELDS)}")
     return Rig(cameras, metadata, extra)
 
 
