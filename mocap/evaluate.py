@@ -1,0 +1,374 @@
+"""Score reconstructed trajectories against the ground truth of a synthetic take.
+
+Frame k of the output is truth frame ``k + traj.first_frame``. In every frame the output points
+are assigned one-to-one to the truth markers that exist (finite position) by minimum total
+Euclidean distance (``scipy.optimize.linear_sum_assignment``), pairs further apart than the gate
+being forbidden. A truth marker-frame is *required* when at least two cameras saw it
+(``truth.visible``); only required marker-frames enter accuracy and completeness. Every output
+point is then exactly one of:
+
+* matched to a required marker (scored);
+* matched to a marker seen by fewer than two cameras (``unscored``: neither right nor wrong);
+* unmatched but within the gate of a marker already taken by another point (``duplicate``);
+* unmatched with no truth marker within the gate (``ghost``).
+
+Identity metrics (ID switches, IDF1/IDP/IDR, MOTA) come from py-motmetrics fed with, per frame,
+the required markers, the output points that are not ``unscored``, and their distances (NaN
+beyond the gate). The Cramér–Rao reference RMSE is ``sqrt(mean trace(I^-1))`` over the matched
+required marker-frames, I being the Fisher information of the cameras that saw the marker
+(:mod:`mocap.crlb`).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import tempfile
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any
+
+import motmetrics as mm
+import numpy as np
+from scipy.optimize import linear_sum_assignment
+
+from mocap.atomic import atomic_write_bytes, check_output_path
+from mocap.camera import Rig, load_rig
+from mocap.crlb import crlb_covariance
+from mocap.errors import MocapError
+from mocap.export.c3d import read_c3d
+from mocap.trajectories import Trajectories
+from mocap.truth import Truth, load_truth
+
+__all__ = ["EvalReport", "MarkerScore", "evaluate", "rig_from_truth", "configure_parser", "run"]
+
+_MOT_METRICS = ["num_switches", "idf1", "idp", "idr", "mota"]
+
+
+@dataclass
+class MarkerScore:
+    """Scores of one truth marker (NaN where undefined)."""
+
+    label: str
+    required: int  # marker-frames seen by >= 2 cameras
+    matched: int  # of those, matched by an output point
+    completeness: float
+    rmse_mm: float
+    switches: int
+
+
+@dataclass
+class EvalReport:
+    """Scores of one output against its truth; distances in mm, NaN where undefined.
+
+    ``rmse_axis_mm`` is (x, y, z). ``crlb_rmse_mm`` is NaN when no calibration was available.
+    """
+
+    frames: int
+    first_frame: int
+    fps: float
+    gate_mm: float
+    truth_markers: int
+    output_tracks: int
+    required: int
+    matched: int
+    completeness: float
+    output_points: int
+    ghosts: int
+    duplicates: int
+    unscored: int
+    ghost_rate: float
+    rmse_mm: float
+    median_mm: float
+    p95_mm: float
+    max_mm: float
+    rmse_axis_mm: list[float]
+    switches: int
+    switches_per_10k: float
+    idf1: float
+    idp: float
+    idr: float
+    mota: float
+    crlb_rmse_mm: float
+    rmse_over_crlb: float
+    per_marker: list[MarkerScore] = field(default_factory=list)
+
+    def to_dict(self) -> dict[str, Any]:
+        """Plain JSON-ready dict (NaN -> None)."""
+        return _json_ready(asdict(self))
+
+    def table(self, per_marker: bool = False) -> str:
+        """A short human-readable summary (optionally one line per truth marker)."""
+        f = _fmt
+        axes = " / ".join(f(v, 3) for v in self.rmse_axis_mm)
+        crlb = (
+            f"{f(self.crlb_rmse_mm, 3)} mm   RMSE/CRLB {f(self.rmse_over_crlb, 2)}"
+            if math.isfinite(self.crlb_rmse_mm)
+            else "n/a (no calibration: pass --calibration)"
+        )
+        last = self.first_frame + self.frames - 1
+        lines = [
+            f"frames {self.first_frame}..{last} ({self.frames} at {self.fps:g} Hz), "
+            f"{self.truth_markers} truth markers, {self.output_tracks} output tracks, gate {self.gate_mm:g} mm",
+            f"accuracy     RMSE {f(self.rmse_mm, 3)} mm   median {f(self.median_mm, 3)}   "
+            f"p95 {f(self.p95_mm, 3)}   max {f(self.max_mm, 3)}   x/y/z RMSE {axes}",
+            f"CRLB         {crlb}",
+            f"completeness {f(100 * self.completeness, 3)} %  ({self.matched} of {self.required} marker-frames "
+            f"seen by >= 2 cameras)",
+            f"ghost rate   {f(100 * self.ghost_rate, 3)} %  ({self.ghosts} ghosts, {self.duplicates} duplicates, "
+            f"{self.unscored} on markers seen by < 2 cameras, of {self.output_points} output points)",
+            f"identity     {self.switches} ID switches ({f(self.switches_per_10k, 2)} per 10,000 marker-frames)   "
+            f"IDF1 {f(self.idf1, 4)}   IDP {f(self.idp, 4)}   IDR {f(self.idr, 4)}   MOTA {f(self.mota, 4)}",
+        ]
+        if per_marker:
+            width = max([len(m.label) for m in self.per_marker] + [6])
+            lines.append(f"{'marker':<{width}}  complete %   RMSE mm  switches")
+            lines += [
+                f"{m.label:<{width}}  {f(100 * m.completeness, 2):>10}  {f(m.rmse_mm, 3):>8}  {m.switches:>8}"
+                for m in self.per_marker
+            ]
+        return "\n".join(lines)
+
+
+def _fmt(value: float, digits: int) -> str:
+    return f"{value:.{digits}f}" if math.isfinite(value) else "n/a"
+
+
+def _json_ready(value: Any) -> Any:
+    if isinstance(value, dict):
+        return {k: _json_ready(v) for k, v in value.items()}
+    if isinstance(value, list):
+        return [_json_ready(v) for v in value]
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
+    return value
+
+
+def rig_from_truth(truth: Truth) -> Rig | None:
+    """The rig stored in ``truth.settings["calibration_toml"]`` (None when absent)."""
+    text = truth.settings.get("calibration_toml")
+    if not text:
+        return None
+    with tempfile.TemporaryDirectory() as tmp:
+        path = Path(tmp) / "calibration.toml"
+        path.write_text(str(text), encoding="utf-8")
+        try:
+            return load_rig(path)
+        except MocapError as exc:
+            message = str(exc).replace(str(path), "truth settings['calibration_toml']")
+            raise MocapError(f"{message} (pass a good calibration with --calibration)") from None
+
+
+def _truth_rig(rig: Rig, truth: Truth) -> Rig:
+    """``rig``'s cameras in the truth's camera order."""
+    try:
+        return Rig([rig[rig.index(name)] for name in truth.camera_names], rig.metadata)
+    except MocapError as exc:
+        raise MocapError(f"the calibration does not match the truth's cameras: {exc}") from None
+
+
+def _aligned_frames(traj: Trajectories, truth: Truth) -> slice:
+    """The truth frames covered by ``traj``; MocapError when rate or range disagree."""
+    if not math.isclose(traj.fps, truth.fps, rel_tol=1e-4):
+        raise MocapError(
+            f"frame rates differ: output {traj.fps:g} Hz, truth {truth.fps:g} Hz; score the output of this take"
+        )
+    start, stop = traj.first_frame, traj.first_frame + traj.n_frames
+    if start < 0 or stop > truth.n_frames:
+        raise MocapError(
+            f"output frames {start}..{stop - 1} are not inside the truth's frames 0..{truth.n_frames - 1}; "
+            "score the output of this take (frame counts must agree)"
+        )
+    return slice(start, stop)
+
+
+@dataclass
+class _Matches:
+    """Matched output/truth pairs over all frames, and per-output-point tallies."""
+
+    frame: np.ndarray  # (K,) output frame index
+    marker: np.ndarray  # (K,) truth marker index
+    error: np.ndarray  # (K, 3) output - truth, mm
+    ghosts: int
+    duplicates: int
+    unscored: int
+
+
+def _match(
+    out_pos: np.ndarray, truth_pos: np.ndarray, required: np.ndarray, gate_mm: float, acc: mm.MOTAccumulator
+) -> _Matches:
+    """Assign output points to truth markers frame by frame; feed ``acc`` with the identity events.
+
+    Args:
+        out_pos: (F, N, 3) output positions, mm; NaN where missing.
+        truth_pos: (F, M, 3) truth positions, mm; NaN where the marker does not exist.
+        required: (F, M) bool: seen by >= 2 cameras.
+    """
+    out_ok = np.isfinite(out_pos).all(axis=2)
+    truth_ok = np.isfinite(truth_pos).all(axis=2)
+    frames, markers, errors = [], [], []
+    ghosts = duplicates = unscored = 0
+    for k in range(out_pos.shape[0]):
+        hyp = np.flatnonzero(out_ok[k])
+        obj = np.flatnonzero(truth_ok[k])
+        dist = np.linalg.norm(out_pos[k][hyp][:, None] - truth_pos[k][obj][None], axis=2)  # (n_hyp, n_obj)
+        near = dist <= gate_mm
+        # Forbidden pairs cost more than any full set of allowed ones: maximum matches first.
+        rows, cols = linear_sum_assignment(np.where(near, dist, gate_mm * (min(dist.shape) + 1)))
+        keep = near[rows, cols]
+        rows, cols = rows[keep], cols[keep]
+        scored = required[k, obj[cols]]
+        frames.append(np.full(scored.sum(), k))
+        markers.append(obj[cols[scored]])
+        errors.append(out_pos[k, hyp[rows[scored]]] - truth_pos[k, obj[cols[scored]]])
+        unmatched = np.ones(len(hyp), dtype=bool)
+        unmatched[rows] = False
+        has_near = near.any(axis=1)
+        ghosts += int((unmatched & ~has_near).sum())
+        duplicates += int((unmatched & has_near).sum())
+        unscored += int((~scored).sum())
+        # Identity: required markers against every output point not sitting on an unscored marker.
+        mot_hyp = np.ones(len(hyp), dtype=bool)
+        mot_hyp[rows[~scored]] = False
+        mot_obj = required[k, obj]
+        mot_dist = np.where(near, dist, np.nan)[np.ix_(mot_hyp, mot_obj)].T
+        acc.update(obj[mot_obj], hyp[mot_hyp], mot_dist)
+    return _Matches(
+        np.concatenate(frames).astype(np.intp),
+        np.concatenate(markers).astype(np.intp),
+        np.concatenate(errors).reshape(-1, 3),
+        ghosts,
+        duplicates,
+        unscored,
+    )
+
+
+def _ratio(num: float, den: float) -> float:
+    return num / den if den else math.nan
+
+
+def evaluate(traj: Trajectories, truth: Truth, rig: Rig | None = None, gate_mm: float = 20.0) -> EvalReport:
+    """Score ``traj`` against ``truth`` (see the module docstring for the definitions).
+
+    Args:
+        traj: reconstructed trajectories, metres; frame k is truth frame ``k + traj.first_frame``.
+        truth: the take's ground truth.
+        rig: calibration for the Cramér–Rao reference; default: the one stored in the truth.
+        gate_mm: largest distance at which an output point can be the truth marker, mm.
+
+    Raises:
+        MocapError: rates or frame ranges disagree, a bad gate, or a calibration without the truth's cameras.
+    """
+    if not (math.isfinite(gate_mm) and gate_mm > 0):
+        raise MocapError(f"--gate-mm must be a positive distance in mm, got {gate_mm}")
+    frames = _aligned_frames(traj, truth)
+    truth_pos = truth.positions[frames] * 1000.0
+    visible = truth.visible[frames]
+    required = (visible.sum(axis=1) >= 2) & np.isfinite(truth_pos).all(axis=2)  # (F, M)
+    acc = mm.MOTAccumulator(auto_id=True)
+    m = _match(traj.positions * 1000.0, truth_pos, required, gate_mm, acc)
+
+    n_req, n_match = int(required.sum()), len(m.frame)
+    sq = (m.error**2).sum(axis=1)
+    dist = np.sqrt(sq)
+    rmse = math.sqrt(sq.mean()) if n_match else math.nan
+    out_points = int(traj.valid.sum())
+    mot = _mot_summary(acc)
+    switch_oids = _switch_objects(acc)
+
+    crlb = math.nan
+    rig = rig if rig is not None else rig_from_truth(truth)
+    if rig is not None and n_match:
+        rig = _truth_rig(rig, truth)
+        vis = visible[m.frame, :, m.marker]  # (K, C)
+        sigma = truth.sigma_px[frames][m.frame, :, m.marker]
+        cov = crlb_covariance(rig, truth_pos[m.frame, m.marker] / 1000.0, vis, sigma)
+        crlb = math.sqrt(float(np.nanmean(np.trace(cov, axis1=1, axis2=2)))) * 1000.0
+
+    M = truth.positions.shape[1]
+    req_per = required.sum(axis=0)
+    match_per = np.bincount(m.marker, minlength=M)
+    sq_per = np.bincount(m.marker, weights=sq, minlength=M)
+    switches_per = np.bincount(switch_oids, minlength=M)
+    per_marker = [
+        MarkerScore(
+            label=truth.labels[j],
+            required=int(req_per[j]),
+            matched=int(match_per[j]),
+            completeness=_ratio(match_per[j], req_per[j]),
+            rmse_mm=math.sqrt(_ratio(sq_per[j], match_per[j])),
+            switches=int(switches_per[j]),
+        )
+        for j in range(M)
+    ]
+    return EvalReport(
+        frames=traj.n_frames,
+        first_frame=traj.first_frame,
+        fps=float(truth.fps),
+        gate_mm=float(gate_mm),
+        truth_markers=M,
+        output_tracks=traj.n_markers,
+        required=n_req,
+        matched=n_match,
+        completeness=_ratio(n_match, n_req),
+        output_points=out_points,
+        ghosts=m.ghosts,
+        duplicates=m.duplicates,
+        unscored=m.unscored,
+        ghost_rate=_ratio(m.ghosts, out_points),
+        rmse_mm=rmse,
+        median_mm=float(np.median(dist)) if n_match else math.nan,
+        p95_mm=float(np.percentile(dist, 95)) if n_match else math.nan,
+        max_mm=float(dist.max()) if n_match else math.nan,
+        rmse_axis_mm=np.sqrt((m.error**2).mean(axis=0)).tolist() if n_match else [math.nan] * 3,
+        switches=int(mot["num_switches"]),
+        switches_per_10k=_ratio(1e4 * mot["num_switches"], n_req),
+        idf1=mot["idf1"],
+        idp=mot["idp"],
+        idr=mot["idr"],
+        mota=mot["mota"],
+        crlb_rmse_mm=crlb,
+        rmse_over_crlb=rmse / crlb,
+        per_marker=per_marker,
+    )
+
+
+def _mot_summary(acc: mm.MOTAccumulator) -> dict[str, float]:
+    """Switches, IDF1, IDP, IDR and MOTA from py-motmetrics (NaN where undefined)."""
+    summary = mm.metrics.create().compute(acc, metrics=_MOT_METRICS, name="take")
+    return {name: float(summary[name].iloc[0]) for name in _MOT_METRICS}
+
+
+def _switch_objects(acc: mm.MOTAccumulator) -> np.ndarray:
+    """(S,) truth marker index of every ID switch py-motmetrics counted."""
+    events = acc.mot_events
+    return events.loc[events["Type"] == "SWITCH", "OId"].to_numpy(dtype=np.intp)
+
+
+# ---------------------------------------------------------------------------- CLI
+def configure_parser(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("output", metavar="OUT.c3d", help="reconstructed trajectories (C3D)")
+    parser.add_argument("--truth", required=True, metavar="TRUTH.npz", help="ground truth written by mocap synth")
+    parser.add_argument("--json", metavar="OUT.json", help="also write every figure (and per marker) as JSON")
+    parser.add_argument("--gate-mm", type=float, default=20.0, help="matching gate, mm (default 20)")
+    parser.add_argument(
+        "--calibration", metavar="calibration.toml", help="rig for the Cramér–Rao reference (default: the truth's)"
+    )
+    parser.add_argument("--per-marker", action="store_true", help="print one line per truth marker")
+
+
+def run(args: argparse.Namespace) -> int:
+    if args.json:
+        check_output_path(args.json)
+    truth = load_truth(args.truth)
+    traj = read_c3d(args.output)
+    rig = load_rig(args.calibration) if args.calibration else None
+    try:
+        report = evaluate(traj, truth, rig, args.gate_mm)
+    except MocapError as exc:
+        raise MocapError(f"{args.output} against {args.truth}: {exc}") from None
+    print(report.table(per_marker=args.per_marker))
+    if args.json:
+        atomic_write_bytes(args.json, (json.dumps(report.to_dict(), indent=2) + "\n").encode("utf-8"))
+    return 0

@@ -1,0 +1,283 @@
+"""`mocap evaluate`: scores against hand-made truth, the Cramér–Rao bound against Monte Carlo."""
+
+from __future__ import annotations
+
+import json
+import math
+
+import numpy as np
+import pytest
+
+from mocap.camera import Rig, rig_to_toml, save_rig
+from mocap.cli import main
+from mocap.crlb import crlb_covariance
+from mocap.errors import MocapError
+from mocap.evaluate import evaluate
+from mocap.export.c3d import read_c3d, write_c3d
+from mocap.geometry import triangulate_weighted
+from mocap.trajectories import Trajectories
+from mocap.truth import Truth, save_truth
+from tests.conftest import ring_rig
+
+FPS = 100.0
+
+
+def make_truth(rig: Rig, frames: int = 60, markers: int = 8, seed: int = 0) -> Truth:
+    """Markers circling (0, 0, 1) m >= 0.2 m apart; random visibility (some marker-frames seen by
+    0 or 1 camera), random per-blob sigma, and one gap in the source motion (marker 3, frames 5-9)."""
+    rng = np.random.default_rng(seed)
+    t = np.arange(frames) / FPS
+    angle = 2 * np.pi * np.arange(markers) / markers
+    phase = angle[None, :] + 2.0 * t[:, None]  # (F, M)
+    radius = 0.5 + 0.05 * np.sin(3 * t)[:, None]
+    positions = np.stack(
+        [radius * np.cos(phase), radius * np.sin(phase), 1.0 + 0.3 * np.cos(angle)[None, :] + 0 * phase], axis=2
+    )
+    positions[5:10, 3] = np.nan
+    C = len(rig)
+    uv = rig.project(positions.reshape(-1, 3)).reshape(C, frames, markers, 2).transpose(1, 0, 2, 3)
+    inside = np.stack([cam.in_image(uv[:, c].reshape(-1, 2)).reshape(frames, markers) for c, cam in enumerate(rig)], 1)
+    # Few cameras per marker-frame so that 0-, 1- and 2-view cases all occur.
+    visible = inside & (rng.random((frames, C, markers)) < 0.45)
+    sigma = np.where(visible, rng.uniform(0.05, 0.3, (frames, C, markers)), np.nan)
+    return Truth(
+        labels=[f"T{j}" for j in range(markers)],
+        fps=FPS,
+        positions=positions,
+        camera_names=rig.names,
+        uv=uv,
+        visible=visible,
+        sigma_px=sigma,
+        settings={"calibration_toml": rig_to_toml(rig)},
+    )
+
+
+@pytest.fixture(scope="module")
+def truth() -> Truth:
+    return make_truth(ring_rig())
+
+
+def output_of(positions: np.ndarray, first_frame: int = 0) -> Trajectories:
+    return Trajectories([f"O{j}" for j in range(positions.shape[1])], FPS, positions, first_frame=first_frame)
+
+
+def required(truth: Truth) -> np.ndarray:
+    return (truth.views >= 2) & np.isfinite(truth.positions).all(axis=2)
+
+
+def test_truth_fixture_has_every_view_count(truth: Truth) -> None:
+    exists = np.isfinite(truth.positions).all(axis=2)
+    for views in (0, 1, 2):
+        assert ((truth.views == views) & exists).any()
+
+
+def test_perfect_output_through_c3d(truth: Truth, tmp_path) -> None:
+    write_c3d(output_of(truth.positions), tmp_path / "out.c3d")
+    report = evaluate(read_c3d(tmp_path / "out.c3d"), truth)
+    req = required(truth)
+    assert report.rmse_mm < 1e-3  # C3D stores float32 mm
+    assert report.max_mm < 1e-3
+    assert report.required == report.matched == int(req.sum())
+    assert report.completeness == 1.0
+    assert report.switches == 0 and report.switches_per_10k == 0.0
+    assert report.idf1 == report.idp == report.idr == report.mota == 1.0
+    assert report.ghosts == report.duplicates == 0 and report.ghost_rate == 0.0
+    # Samples on markers seen by 0 or 1 camera are neither scored nor ghosts.
+    exists = np.isfinite(truth.positions).all(axis=2)
+    assert report.unscored == int((exists & ~req).sum())
+    assert report.output_points == int(exists.sum())
+    assert [m.completeness for m in report.per_marker] == [1.0] * len(truth.labels)
+
+
+def test_swapped_labels_count_two_switches(truth: Truth) -> None:
+    k = 25
+    pos = truth.positions.copy()
+    pos[k:, [0, 1]] = pos[k:, [1, 0]]
+    report = evaluate(output_of(pos), truth)
+    # py-motmetrics counts a SWITCH per truth object whose matched hypothesis changes: markers 0
+    # and 1 each change output track once (they are >= 0.2 m apart, beyond the gate) -> 2.
+    assert report.switches == 2
+    assert [m.switches for m in report.per_marker] == [1, 1] + [0] * (len(truth.labels) - 2)
+    req = required(truth)
+    assert report.switches_per_10k == pytest.approx(2e4 / req.sum())
+    assert report.completeness == 1.0 and report.rmse_mm == 0.0
+    # IDF1: the global one-to-one track assignment keeps the longer half of markers 0 and 1;
+    # every hypothesis sits on a required marker, so IDF1 = IDP = IDR = IDTP / required.
+    idtp = req[:, 2:].sum() + max(req[:k, :2].sum(), req[k:, :2].sum())
+    assert report.idf1 == pytest.approx(idtp / req.sum())
+    assert report.idp == pytest.approx(idtp / req.sum()) and report.idr == pytest.approx(idtp / req.sum())
+    assert report.mota == pytest.approx(1 - 2 / req.sum())
+
+
+def test_dropping_samples_lowers_completeness_exactly(truth: Truth) -> None:
+    rng = np.random.default_rng(1)
+    req = required(truth)
+    exists = np.isfinite(truth.positions).all(axis=2)
+    req_idx = np.argwhere(req)[rng.choice(req.sum(), 37, replace=False)]
+    other_idx = np.argwhere(exists & ~req)[:5]  # dropping unscored samples changes nothing scored
+    pos = truth.positions.copy()
+    pos[req_idx[:, 0], req_idx[:, 1]] = np.nan
+    pos[other_idx[:, 0], other_idx[:, 1]] = np.nan
+    report = evaluate(output_of(pos), truth)
+    assert report.matched == req.sum() - 37
+    assert report.completeness == (req.sum() - 37) / req.sum()
+    assert report.unscored == (exists & ~req).sum() - 5
+    per = report.per_marker
+    dropped = np.bincount(req_idx[:, 1], minlength=len(per))
+    assert [m.matched for m in per] == (req.sum(axis=0) - dropped).tolist()
+    assert report.ghost_rate == 0.0 and report.switches == 0
+
+
+def test_ghosts_and_duplicates(truth: Truth) -> None:
+    F, M = truth.positions.shape[:2]
+    rng = np.random.default_rng(2)
+    extra = np.full((F, 3, 3), np.nan)
+    ghost_frames = rng.choice(F, 20, replace=False)
+    extra[ghost_frames, 0] = [0.0, 0.0, 3.0]  # far above every marker
+    extra[::2, 1] = truth.positions[::2, 2] + [0.0, 0.012, 0.0]  # 12 mm from marker 2: a duplicate
+    extra[10:14, 2] = truth.positions[10:14, 5] + [0.0, 0.0, 0.021]  # 21 mm: beyond the 20 mm gate
+    out = output_of(np.concatenate([truth.positions, extra], axis=1))
+    report = evaluate(out, truth)
+    exists_2 = np.isfinite(truth.positions[::2, 2]).all(axis=1)
+    assert report.ghosts == 20 + 4
+    assert report.duplicates == int(exists_2.sum())
+    assert report.output_points == int(out.valid.sum())
+    assert report.ghost_rate == 24 / out.valid.sum()
+    assert report.completeness == 1.0 and report.rmse_mm < 1e-9
+    # With a 25 mm gate the 21 mm points become duplicates.
+    wide = evaluate(out, truth, gate_mm=25.0)
+    assert wide.ghosts == 20 and wide.duplicates == report.duplicates + 4
+
+
+def test_noisy_output_rmse_is_sigma_sqrt3() -> None:
+    rig = ring_rig()
+    truth = make_truth(rig, frames=300, seed=3)
+    sigma_mm = 2.0
+    rng = np.random.default_rng(4)
+    pos = truth.positions + rng.normal(0.0, sigma_mm / 1000.0, truth.positions.shape)
+    report = evaluate(output_of(pos), truth)
+    assert report.matched > 1000
+    assert report.rmse_mm == pytest.approx(sigma_mm * math.sqrt(3), rel=0.05)
+    assert report.rmse_axis_mm == pytest.approx([sigma_mm] * 3, rel=0.07)
+    assert report.median_mm == pytest.approx(1.5382 * sigma_mm, rel=0.07)  # median of a Maxwell distribution
+    assert report.p95_mm == pytest.approx(2.7955 * sigma_mm, rel=0.07)  # sqrt(chi2_3 95 % quantile)
+    assert report.completeness == 1.0 and report.switches == 0
+
+
+def _noisy_triangulations(rig: Rig, X: np.ndarray, vis: np.ndarray, sigma: np.ndarray, trials: int, seed: int):
+    """``trials`` weighted triangulations of each point from centroids with Gaussian noise.
+
+    X (N, 3), vis/sigma (N, C) -> (trials, N, 3) estimates."""
+    rng = np.random.default_rng(seed)
+    N, C = vis.shape
+    uv = rig.project(X)  # (C, N, 2) distorted px
+    noisy = uv[:, None] + rng.normal(size=(C, trials, N, 2)) * sigma.T[:, None, :, None]
+    noisy[~np.broadcast_to(vis.T[:, None], (C, trials, N))] = np.nan
+    ideal = np.stack([cam.undistort(noisy[c].reshape(-1, 2)) for c, cam in enumerate(rig)])
+    cov2 = np.broadcast_to((sigma.T**2)[:, None, :, None, None] * np.eye(2), (C, trials, N, 2, 2)).reshape(-1, 2, 2)
+    est, _, _ = triangulate_weighted(rig.projection_matrices(), ideal, cov2.reshape(C, trials * N, 2, 2))
+    return est.reshape(trials, N, 3)
+
+
+def test_crlb_matches_monte_carlo_triangulation() -> None:
+    rig = ring_rig()
+    X = np.array([[0.0, 0.0, 1.0], [0.4, -0.3, 1.5], [-0.5, 0.2, 0.3], [0.2, 0.6, 1.8]])
+    vis = np.array([[1, 1, 0, 0, 0, 0], [1, 0, 1, 0, 1, 0], [1, 1, 1, 1, 1, 1], [0, 0, 1, 0, 0, 1]], dtype=bool)
+    sigma = np.where(vis, np.random.default_rng(5).uniform(0.05, 0.5, vis.shape), np.nan)
+    est = _noisy_triangulations(rig, X, vis, sigma, trials=4000, seed=6)
+    err = est - X
+    mse = (err**2).sum(axis=2).mean(axis=0)  # (N,) m^2
+    bound = np.trace(crlb_covariance(rig, X, vis, sigma), axis1=1, axis2=2)
+    np.testing.assert_allclose(mse, bound, rtol=0.10)
+    # The full covariance agrees too (largest eigen-direction, where the bound is loosest to sample).
+    emp = np.einsum("tni,tnj->nij", err, err) / len(err)
+    np.testing.assert_allclose(np.linalg.eigvalsh(emp)[:, -1], np.linalg.eigvalsh(crlb_covariance(
+        rig, X, vis, sigma))[:, -1], rtol=0.10)
+
+
+def test_crlb_is_nan_without_two_views() -> None:
+    rig = ring_rig()
+    X = np.array([[0.0, 0.0, 1.0], [0.1, 0.0, 1.0]])
+    vis = np.array([[1, 0, 0, 0, 0, 0], [0, 0, 0, 0, 0, 0]], dtype=bool)
+    cov = crlb_covariance(rig, X, vis, np.full(vis.shape, 0.1))
+    assert np.isnan(cov).all()
+
+
+def test_triangulated_output_reaches_the_crlb_reference() -> None:
+    """End to end: triangulating the truth's own noisy centroids scores RMSE/CRLB ~ 1."""
+    rig = ring_rig()
+    truth = make_truth(rig, frames=300, seed=7)
+    F, C, M = truth.visible.shape
+    X = truth.positions.reshape(-1, 3)
+    vis = truth.visible.transpose(0, 2, 1).reshape(-1, C)
+    sigma = truth.sigma_px.transpose(0, 2, 1).reshape(-1, C)
+    ok = np.isfinite(X).all(axis=1) & (vis.sum(axis=1) >= 2)
+    est = np.full_like(X, np.nan)
+    est[ok] = _noisy_triangulations(rig, X[ok], vis[ok], sigma[ok], trials=1, seed=8)[0]
+    report = evaluate(output_of(est.reshape(F, M, 3)), truth)
+    assert report.completeness == 1.0
+    assert report.rmse_over_crlb == pytest.approx(1.0, abs=0.1)
+    assert report.crlb_rmse_mm == pytest.approx(
+        math.sqrt(np.nanmean(np.trace(crlb_covariance(rig, X[ok], vis[ok], sigma[ok]), axis1=1, axis2=2))) * 1e3
+    )
+
+
+def test_output_of_a_frame_range(truth: Truth) -> None:
+    report = evaluate(output_of(truth.positions[10:40], first_frame=10), truth)
+    assert report.frames == 30 and report.first_frame == 10
+    assert report.required == required(truth)[10:40].sum() == report.matched
+
+
+def test_bad_inputs(truth: Truth) -> None:
+    with pytest.raises(MocapError, match="not inside the truth"):
+        evaluate(output_of(np.zeros((truth.n_frames + 1, 2, 3))), truth)
+    with pytest.raises(MocapError, match="not inside the truth"):
+        evaluate(output_of(truth.positions[:20], first_frame=50), truth)
+    with pytest.raises(MocapError, match="frame rates differ"):
+        evaluate(Trajectories(["a"], 2 * FPS, truth.positions[:, :1]), truth)
+    with pytest.raises(MocapError, match="gate"):
+        evaluate(output_of(truth.positions), truth, gate_mm=0.0)
+    other = ring_rig(4)
+    with pytest.raises(MocapError, match="does not match the truth's cameras"):
+        evaluate(output_of(truth.positions), truth, rig=Rig([c for c in other][:3]))
+
+
+def test_no_calibration_leaves_crlb_undefined(truth: Truth) -> None:
+    bare = Truth(**{**truth.__dict__, "settings": {}})
+    report = evaluate(output_of(truth.positions), bare)
+    assert math.isnan(report.crlb_rmse_mm)
+    assert report.to_dict()["crlb_rmse_mm"] is None
+    assert "no calibration" in report.table()
+
+
+def test_cli_writes_table_and_json(truth: Truth, tmp_path, capsys) -> None:
+    save_truth(truth, tmp_path / "take.truth.npz")
+    save_rig(ring_rig(), tmp_path / "calibration.toml")
+    write_c3d(output_of(truth.positions), tmp_path / "out.c3d")
+    code = main(["evaluate", str(tmp_path / "out.c3d"), "--truth", str(tmp_path / "take.truth.npz"),
+                 "--json", str(tmp_path / "score.json"), "--calibration", str(tmp_path / "calibration.toml"),
+                 "--per-marker"])
+    assert code == 0
+    printed = capsys.readouterr().out
+    assert "RMSE" in printed and "IDF1 1.0000" in printed and "T7" in printed
+    data = json.loads((tmp_path / "score.json").read_text())
+    assert data["completeness"] == 1.0 and data["switches"] == 0
+    assert data["required"] == int(required(truth).sum())
+    assert [m["label"] for m in data["per_marker"]] == truth.labels
+    assert data["crlb_rmse_mm"] > 0
+
+
+def test_cli_missing_truth_is_a_clear_error(tmp_path, capsys) -> None:
+    write_c3d(output_of(np.zeros((3, 1, 3)) + 1.0), tmp_path / "out.c3d")
+    code = main(["evaluate", str(tmp_path / "out.c3d"), "--truth", str(tmp_path / "absent.npz")])
+    assert code == 2
+    assert "absent.npz: truth file not found" in capsys.readouterr().err
+
+
+def test_cli_frame_mismatch_names_both_files(truth: Truth, tmp_path, capsys) -> None:
+    save_truth(truth, tmp_path / "take.truth.npz")
+    write_c3d(output_of(np.ones((truth.n_frames + 5, 2, 3))), tmp_path / "out.c3d")
+    code = main(["evaluate", str(tmp_path / "out.c3d"), "--truth", str(tmp_path / "take.truth.npz")])
+    assert code == 2
+    err = capsys.readouterr().err
+    assert "out.c3d against" in err and "take.truth.npz" in err and "frame counts must agree" in err
