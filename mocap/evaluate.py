@@ -24,9 +24,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
-import tempfile
 from dataclasses import asdict, dataclass, field
-from pathlib import Path
 from typing import Any
 
 import motmetrics as mm
@@ -34,7 +32,7 @@ import numpy as np
 from scipy.optimize import linear_sum_assignment
 
 from mocap.atomic import atomic_write_bytes, check_output_path
-from mocap.camera import Rig, load_rig
+from mocap.camera import Rig, load_rig, parse_rig
 from mocap.crlb import crlb_covariance
 from mocap.errors import MocapError
 from mocap.export.c3d import read_c3d
@@ -62,7 +60,8 @@ class MarkerScore:
 class EvalReport:
     """Scores of one output against its truth; distances in mm, NaN where undefined.
 
-    ``rmse_axis_mm`` is (x, y, z). ``crlb_rmse_mm`` is NaN when no calibration was available.
+    ``rmse_axis_mm`` is (x, y, z). ``crlb_rmse_mm`` is NaN without a calibration (``has_calibration``) or
+    without matches.
     """
 
     frames: int
@@ -92,6 +91,7 @@ class EvalReport:
     mota: float
     crlb_rmse_mm: float
     rmse_over_crlb: float
+    has_calibration: bool
     per_marker: list[MarkerScore] = field(default_factory=list)
 
     def to_dict(self) -> dict[str, Any]:
@@ -102,11 +102,12 @@ class EvalReport:
         """A short human-readable summary (optionally one line per truth marker)."""
         f = _fmt
         axes = " / ".join(f(v, 3) for v in self.rmse_axis_mm)
-        crlb = (
-            f"{f(self.crlb_rmse_mm, 3)} mm   RMSE/CRLB {f(self.rmse_over_crlb, 2)}"
-            if math.isfinite(self.crlb_rmse_mm)
-            else "n/a (no calibration: pass --calibration)"
-        )
+        if not self.has_calibration:
+            crlb = "n/a (no calibration: pass --calibration)"
+        elif not math.isfinite(self.crlb_rmse_mm):
+            crlb = "n/a (no marker-frame matched)"
+        else:
+            crlb = f"{f(self.crlb_rmse_mm, 3)} mm   RMSE/CRLB {f(self.rmse_over_crlb, 2)}"
         last = self.first_frame + self.frames - 1
         lines = [
             f"frames {self.first_frame}..{last} ({self.frames} at {self.fps:g} Hz), "
@@ -145,19 +146,12 @@ def _json_ready(value: Any) -> Any:
     return value
 
 
-def rig_from_truth(truth: Truth) -> Rig | None:
+def rig_from_truth(truth: Truth, where: str = "truth") -> Rig | None:
     """The rig stored in ``truth.settings["calibration_toml"]`` (None when absent)."""
     text = truth.settings.get("calibration_toml")
     if not text:
         return None
-    with tempfile.TemporaryDirectory() as tmp:
-        path = Path(tmp) / "calibration.toml"
-        path.write_text(str(text), encoding="utf-8")
-        try:
-            return load_rig(path)
-        except MocapError as exc:
-            message = str(exc).replace(str(path), "truth settings['calibration_toml']")
-            raise MocapError(f"{message} (pass a good calibration with --calibration)") from None
+    return parse_rig(str(text), f"{where} settings['calibration_toml'] (or pass --calibration)")
 
 
 def _truth_rig(rig: Rig, truth: Truth) -> Rig:
@@ -279,8 +273,9 @@ def evaluate(traj: Trajectories, truth: Truth, rig: Rig | None = None, gate_mm: 
 
     crlb = math.nan
     rig = rig if rig is not None else rig_from_truth(truth)
-    if rig is not None and n_match:
+    if rig is not None:
         rig = _truth_rig(rig, truth)
+    if rig is not None and n_match:
         vis = visible[m.frame, :, m.marker]  # (K, C)
         sigma = truth.sigma_px[frames][m.frame, :, m.marker]
         cov = crlb_covariance(rig, truth_pos[m.frame, m.marker] / 1000.0, vis, sigma)
@@ -329,6 +324,7 @@ def evaluate(traj: Trajectories, truth: Truth, rig: Rig | None = None, gate_mm: 
         idr=mot["idr"],
         mota=mot["mota"],
         crlb_rmse_mm=crlb,
+        has_calibration=rig is not None,
         rmse_over_crlb=rmse / crlb,
         per_marker=per_marker,
     )

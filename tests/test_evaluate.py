@@ -242,6 +242,20 @@ def test_bad_inputs(truth: Truth) -> None:
         evaluate(output_of(truth.positions), truth, rig=Rig([c for c in other][:3]))
 
 
+def test_broken_calibration_in_truth_is_named(truth: Truth) -> None:
+    broken = Truth(**{**truth.__dict__, "settings": {"calibration_toml": "[cam_1]\nname = 'cam1'\n"}})
+    with pytest.raises(MocapError, match=r"truth settings\['calibration_toml'\].*missing field"):
+        evaluate(output_of(truth.positions), broken)
+
+
+def test_empty_output_scores_zero(truth: Truth) -> None:
+    report = evaluate(output_of(np.full((truth.n_frames, 2, 3), np.nan)), truth)
+    assert report.matched == 0 and report.completeness == 0.0 and report.output_points == 0
+    assert math.isnan(report.rmse_mm) and math.isnan(report.ghost_rate) and report.mota == 0.0
+    assert "no marker-frame matched" in report.table()
+    assert json.loads(json.dumps(report.to_dict(), allow_nan=False))["rmse_mm"] is None
+
+
 def test_no_calibration_leaves_crlb_undefined(truth: Truth) -> None:
     bare = Truth(**{**truth.__dict__, "settings": {}})
     report = evaluate(output_of(truth.positions), bare)
