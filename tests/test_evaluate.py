@@ -109,6 +109,21 @@ def test_swapped_labels_count_two_switches(truth: Truth) -> None:
     assert report.mota == pytest.approx(1 - 2 / req.sum())
 
 
+def test_restarted_track_is_one_switch_and_a_gap_none(truth: Truth) -> None:
+    F = truth.n_frames
+    restarted = np.concatenate([truth.positions, np.full((F, 1, 3), np.nan)], axis=1)
+    restarted[30:, -1] = restarted[30:, 0]  # marker 0 continues under a new identity from frame 30
+    restarted[30:, 0] = np.nan
+    report = evaluate(output_of(restarted), truth)
+    assert report.switches == 1 and report.per_marker[0].switches == 1
+    assert report.completeness == 1.0
+    gap = truth.positions.copy()
+    gap[20:25, 0] = np.nan  # same identity after the gap
+    report = evaluate(output_of(gap), truth)
+    assert report.switches == 0
+    assert report.per_marker[0].matched == required(truth)[:, 0].sum() - required(truth)[20:25, 0].sum()
+
+
 def test_dropping_samples_lowers_completeness_exactly(truth: Truth) -> None:
     rng = np.random.default_rng(1)
     req = required(truth)
