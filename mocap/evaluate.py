@@ -239,7 +239,7 @@ def _match(
 
 
 def _ratio(num: float, den: float) -> float:
-    return num / den if den else math.nan
+    return float(num) / float(den) if den else math.nan
 
 
 def evaluate(traj: Trajectories, truth: Truth, rig: Rig | None = None, gate_mm: float = 20.0) -> EvalReport:

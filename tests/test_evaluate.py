@@ -271,6 +271,13 @@ def test_empty_output_scores_zero(truth: Truth) -> None:
     assert json.loads(json.dumps(report.to_dict(), allow_nan=False))["rmse_mm"] is None
 
 
+def test_calibration_camera_order_does_not_matter(truth: Truth) -> None:
+    rig = ring_rig()
+    default = evaluate(output_of(truth.positions), truth)
+    reordered = evaluate(output_of(truth.positions), truth, rig=Rig(rig.cameras[::-1]))
+    assert reordered.crlb_rmse_mm == pytest.approx(default.crlb_rmse_mm, rel=1e-12)
+
+
 def test_no_calibration_leaves_crlb_undefined(truth: Truth) -> None:
     bare = Truth(**{**truth.__dict__, "settings": {}})
     report = evaluate(output_of(truth.positions), bare)
