@@ -1,0 +1,211 @@
+"""Marker motion to render: loaded from any C3D (any units, any up axis), windowed, resampled.
+
+World frame of every :class:`Motion`: z up, metres, the motion centred over the floor origin.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import warnings
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from mocap.errors import MocapError
+from mocap.export.c3d import read_c3d
+from mocap.synth.occlusion import Capsules, capsules_from_markers
+
+__all__ = ["Motion", "load_motion", "motion_from_c3d", "detect_up_axis", "to_z_up", "UP_AXES"]
+
+log = logging.getLogger(__name__)
+
+# Right-handed rotations taking each possible "up" direction of a file to +z.
+UP_AXES: dict[str, np.ndarray] = {
+    "z": np.eye(3),
+    "-z": np.diag([1.0, -1.0, -1.0]),
+    "y": np.array([[1.0, 0, 0], [0, 0, -1], [0, 1, 0]]),
+    "-y": np.array([[1.0, 0, 0], [0, 0, 1], [0, -1, 0]]),
+    "x": np.array([[0.0, 0, -1], [0, 1, 0], [1, 0, 0]]),
+    "-x": np.array([[0.0, 0, 1], [0, 1, 0], [-1, 0, 0]]),
+}
+FLOOR_SNAP_M = 0.15  # a detected floor further than this from z = 0 is moved to z = 0
+
+
+@dataclass(eq=False)
+class Motion:
+    """Marker positions to render.
+
+    Attributes:
+        labels: (M,) marker names.
+        fps: frame rate, Hz.
+        positions: (F, M, 3) positions, m, z up; NaN in gaps.
+        capsules: the body for occlusion over the same frames, or None to approximate it from the
+            markers (:func:`mocap.synth.occlusion.capsules_from_markers`).
+        info: facts about where the motion came from and what was done to it (goes into the settings).
+    """
+
+    labels: list[str]
+    fps: float
+    positions: np.ndarray
+    capsules: Capsules | None = None
+    info: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def n_frames(self) -> int:
+        return self.positions.shape[0]
+
+    def window(self, start: int = 0, frames: int | None = None) -> Motion:
+        """Frames ``start : start + frames`` (all remaining when ``frames`` is None)."""
+        if start < 0 or start >= self.n_frames:
+            raise MocapError(f"--start {start}: the motion has frames 0..{self.n_frames - 1}")
+        if frames is not None and frames < 1:
+            raise MocapError(f"--frames {frames}: render at least one frame")
+        stop = self.n_frames if frames is None else min(self.n_frames, start + frames)
+        caps = self.capsules.window(start, stop) if self.capsules is not None else None
+        info = dict(self.info, first_source_frame=start + int(self.info.get("first_source_frame", 0)))
+        return replace(self, positions=self.positions[start:stop], capsules=caps, info=info)
+
+    def resampled(self, fps: float) -> Motion:
+        """The motion at another frame rate, by linear interpolation (a gap stays a gap)."""
+        if fps <= 0:
+            raise MocapError(f"--fps {fps}: the frame rate must be positive")
+        if np.isclose(fps, self.fps):
+            return self
+        t_in = np.arange(self.n_frames) / self.fps
+        t_out = np.arange(int(np.floor(t_in[-1] * fps + 1e-9)) + 1) / fps
+        pos = _interp_with_gaps(t_in, self.positions, t_out)
+        caps = None
+        if self.capsules is not None:
+            caps = Capsules(_interp_with_gaps(t_in, self.capsules.a, t_out),
+                            _interp_with_gaps(t_in, self.capsules.b, t_out), self.capsules.radius, self.capsules.names)
+        return replace(self, fps=float(fps), positions=pos, capsules=caps,
+                       info=dict(self.info, resampled_from_fps=self.fps))
+
+    def body(self) -> Capsules:
+        """The occlusion capsules: the motion's own, else the marker-based approximation."""
+        if self.capsules is not None:
+            return self.capsules
+        return capsules_from_markers(self.labels, self.positions)
+
+
+def _interp_with_gaps(t_in: np.ndarray, values: np.ndarray, t_out: np.ndarray) -> np.ndarray:
+    """Linear interpolation of (F, ..., 3) ``values`` along axis 0; NaN if either neighbour is NaN."""
+    idx = np.clip(np.searchsorted(t_in, t_out, side="right") - 1, 0, len(t_in) - 1)
+    nxt = np.minimum(idx + 1, len(t_in) - 1)
+    span = np.where(nxt > idx, t_in[nxt] - t_in[idx], 1.0)
+    w = ((t_out - t_in[idx]) / span).reshape((-1,) + (1,) * (values.ndim - 1))
+    return (1 - w) * values[idx] + w * values[nxt]
+
+
+def detect_up_axis(positions: np.ndarray, labels: list[str] | None = None) -> str:
+    """Guess which file axis points up: one of :data:`UP_AXES`.
+
+    Axis: people are taller than they are wide, and a take's samples hug the floor. Per subject
+    (``Subject:`` label prefixes, so two people far apart do not count as one wide body) and frame,
+    the extent of the markers along each axis is measured; the up axis has the largest median
+    extent. Sign: the floor is a hard edge: many samples (feet, wheels) sit just above it, so the
+    lowest 5 % of the samples along the up axis span a much shorter distance than the highest 5 %
+    (hands, head). When the two ends look alike (within a factor 1.5), the side of the origin where
+    the samples lie decides (labs put the origin on the floor).
+
+    Args:
+        positions: (F, M, 3) positions in file axes (any units), NaN in gaps.
+        labels: (M,) labels, to split subjects.
+
+    Raises:
+        MocapError: too few samples to tell.
+    """
+    positions = np.asarray(positions, dtype=np.float64)
+    labels = labels or [f"M{i}" for i in range(positions.shape[1])]
+    groups: dict[str, list[int]] = {}
+    for i, label in enumerate(labels):
+        groups.setdefault(label.split(":", 1)[0] if ":" in label else "", []).append(i)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        extents = []
+        for idx in groups.values():
+            p = positions[:, idx]
+            extents.append(np.nanmedian(np.nanmax(p, axis=1) - np.nanmin(p, axis=1), axis=0))
+        extent = np.nanmedian(np.array(extents), axis=0)
+        if not np.isfinite(extent).all():
+            raise MocapError("too few marker samples to tell which axis is up; pass --up")
+        axis = int(np.argmax(extent))
+        values = positions[..., axis]
+        values = values[np.isfinite(values)]
+        q = np.percentile(values, [0.5, 5, 95, 99.5])
+        edge_low, edge_high = q[1] - q[0], q[3] - q[2]
+        if max(edge_low, edge_high) > 1.5 * min(edge_low, edge_high):
+            sign = 1.0 if edge_low < edge_high else -1.0
+        else:
+            sign = 1.0 if abs(q[3]) >= abs(q[0]) else -1.0
+    return ("" if sign > 0 else "-") + "xyz"[axis]
+
+
+def to_z_up(positions: np.ndarray, up: str) -> np.ndarray:
+    """(F, M, 3) positions with ``up`` (a key of :data:`UP_AXES`) turned to +z (a proper rotation)."""
+    if up not in UP_AXES:
+        raise MocapError(f"--up {up!r}: expected one of {sorted(UP_AXES)}")
+    return np.asarray(positions, dtype=np.float64) @ UP_AXES[up].T
+
+
+def _centre(positions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Shift (F, M, 3) z-up positions: horizontal mid-range to the origin, floor to z = 0 if far off.
+
+    Returns the shifted positions and the shift (3,), m.
+    """
+    flat = positions.reshape(-1, 3)
+    flat = flat[np.isfinite(flat).all(axis=1)]
+    lo, hi = np.percentile(flat, [0.5, 99.5], axis=0)
+    shift = np.zeros(3)
+    shift[:2] = -(lo[:2] + hi[:2]) / 2
+    if abs(lo[2]) > FLOOR_SNAP_M:
+        shift[2] = -lo[2]
+    return positions + shift, shift
+
+
+def load_motion(path: str | os.PathLike, up: str | None = None) -> tuple[list[str], float, np.ndarray]:
+    """Marker motion from a C3D file, in the synthetic world frame.
+
+    Units come from POINT:UNITS; the up axis is detected (:func:`detect_up_axis`) unless ``up``
+    is given; the motion is centred horizontally on the origin (mid-range of the samples) and, if
+    its floor is more than 15 cm from z = 0, lifted or lowered onto it. Gaps stay NaN.
+
+    Args:
+        path: the C3D file.
+        up: the file's up axis ("x", "y", "z", "-x", "-y", "-z"); None to detect it.
+
+    Returns:
+        labels (M,), fps, positions (F, M, 3) in metres, z up.
+    """
+    motion = motion_from_c3d(path, up)
+    return motion.labels, motion.fps, motion.positions
+
+
+def motion_from_c3d(path: str | os.PathLike, up: str | None = None) -> Motion:
+    """Like :func:`load_motion`, as a :class:`Motion` whose ``info`` records the up axis and the shift."""
+    path = Path(path)
+    traj = read_c3d(path)
+    if traj.n_frames == 0 or traj.n_markers == 0:
+        raise MocapError(f"{path}: the C3D file holds no marker samples ({traj.n_frames} frames, "
+                         f"{traj.n_markers} markers); give a file with 3D points")
+    valid = traj.valid
+    if not valid.any():
+        raise MocapError(f"{path}: every marker sample is missing (all gaps); nothing to render")
+    keep = valid.any(axis=0)
+    labels = [label for label, k in zip(traj.labels, keep, strict=True) if k]
+    raw = traj.positions[:, keep]
+    source = "--up"
+    if up is None:
+        try:
+            up = detect_up_axis(raw, labels)
+        except MocapError as exc:
+            raise MocapError(f"{path}: {exc}") from None
+        source = "detected"
+    positions, shift = _centre(to_z_up(raw, up))
+    info = {"source": str(path), "source_fps": traj.fps, "up_axis": up, "up_axis_from": source,
+            "shift_m": shift.tolist(), "markers_dropped_never_seen": int((~keep).sum()),
+            "missing_fraction": float(1 - valid[:, keep].mean())}
+    return Motion(labels, traj.fps, positions, None, info)
