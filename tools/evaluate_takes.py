@@ -61,7 +61,8 @@ def main() -> None:
         truth = args.work / f"{name}.truth.npz"
         out = args.work / f"{name}.c3d"
         report = args.work / f"{name}.json"
-        synth = ["mocap", "synth", str(take), "--frames", str(args.frames), "--truth", str(truth), "--seed", "1"]
+        synth = ["mocap", "synth", str(take), "--frames", str(args.frames), "--truth", str(truth), "--seed", "1",
+                 "--force"]
         if motion is not None:
             synth += ["--motion", str(motion)]
         t_synth = _run(synth + args.synth_args.split())
