@@ -84,6 +84,26 @@ class Motion:
         return replace(self, fps=float(fps), positions=pos, capsules=caps,
                        info=dict(self.info, resampled_from_fps=self.fps))
 
+    def centred(self) -> Motion:
+        """The motion shifted horizontally so the mid-range of its samples is over the origin.
+
+        The floor (z) is left alone; ``info["shift_m"]`` accumulates every shift applied.
+        """
+        pts = self.positions.reshape(-1, 3)
+        pts = pts[np.isfinite(pts).all(axis=1)]
+        if len(pts) == 0:
+            return self
+        lo, hi = np.percentile(pts[:, :2], [0.5, 99.5], axis=0)
+        shift = np.zeros(3)
+        shift[:2] = -(lo + hi) / 2
+        caps = None
+        if self.capsules is not None:
+            caps = Capsules(self.capsules.a + shift, self.capsules.b + shift, self.capsules.radius,
+                            self.capsules.names)
+        total = np.asarray(self.info.get("shift_m", np.zeros(3))) + shift
+        return replace(self, positions=self.positions + shift, capsules=caps,
+                       info=dict(self.info, shift_m=total.tolist()))
+
     def body(self) -> Capsules:
         """The occlusion capsules: the motion's own, else the marker-based approximation."""
         if self.capsules is not None:
