@@ -1,0 +1,221 @@
+"""Synthetic calibration takes with known truth: a wand waved through the volume, and an L-frame.
+
+The wand (default: 3 markers at 0, 0.15 and 0.5 m along a rod) is carried along a smooth path
+that sweeps the capture volume while it turns about every axis; the L-frame (default: 4 markers,
+corner at the origin, long arm along +x, short arm along +y, marker centres on z = 0) lies still
+on the floor. Both go through the synth's camera model (:func:`mocap.synth.simulate.plan_take`:
+projection, dropouts, ghost reflections, Cramér-Rao centroid noise of each blob), so the
+calibration sees what the detector would deliver.
+
+Centroid level (:func:`centroid_frames`): each visible marker's blob centroid is its true
+position plus Gaussian noise of its Cramér-Rao std ``truth.sigma_px``; two markers whose discs
+touch in an image come out as ONE blob at their mean (as a detector merges them); the ghosts
+that are on in a frame are extra blobs.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import tomli_w
+
+from mocap.atomic import atomic_write_bytes
+from mocap.camera import Rig, save_rig
+from mocap.detections import Detections
+from mocap.synth.motion import Motion
+from mocap.synth.rig import ring_rig
+from mocap.synth.settings import SynthSettings
+from mocap.synth.simulate import TakePlan, plan_take
+from mocap.truth import Truth, save_truth
+
+__all__ = [
+    "DEFAULT_WAND_M",
+    "DEFAULT_LFRAME_M",
+    "WandTake",
+    "wand_motion",
+    "lframe_motion",
+    "centroid_frames",
+    "simulate_wand_take",
+    "render_wand_take",
+]
+
+DEFAULT_WAND_M = (0.0, 0.15, 0.5)
+DEFAULT_LFRAME_M = ((0.0, 0.0, 0.0), (0.2, 0.0, 0.0), (0.5, 0.0, 0.0), (0.0, 0.35, 0.0))
+
+
+def wand_motion(n_frames: int = 1200, fps: float = 120.0, offsets: tuple[float, ...] = DEFAULT_WAND_M,
+                seed: int = 0, centre: tuple[float, float, float] = (0.0, 0.0, 1.0),
+                reach: tuple[float, float, float] = (1.3, 1.3, 0.75)) -> Motion:
+    """A wand wave: the wand's middle follows a smooth seeded path through a box, turning all the while.
+
+    Args:
+        n_frames, fps: length and rate of the take.
+        offsets: (K,) marker positions along the wand, m.
+        seed: seed of the path.
+        centre: centre of the swept box, m.
+        reach: half sizes of the swept box, m.
+
+    Returns:
+        A :class:`Motion` with markers ``wand0..``; no body (nothing occludes the wand).
+    """
+    rng = np.random.default_rng(seed)
+    t = np.arange(n_frames) / fps
+    duration = max(n_frames / fps, 1.0)
+    # Slow sweeps (a few passes over the take) for the position, faster turns for the direction.
+    freq_pos = rng.uniform(1.5, 4.0, (3, 2)) / duration
+    phase = rng.uniform(0, 2 * np.pi, (3, 2))
+    path = np.sin(2 * np.pi * freq_pos[..., None] * t + phase[..., None]).mean(axis=1)  # (3, F) in [-1, 1]
+    middle = np.asarray(centre) + np.asarray(reach) * np.clip(1.3 * path.T, -1.0, 1.0)  # (F, 3)
+    freq_dir = rng.uniform(0.15, 0.45, 3)
+    phase_dir = rng.uniform(0, 2 * np.pi, 3)
+    direction = np.sin(2 * np.pi * freq_dir[:, None] * t + phase_dir[:, None]).T + np.array([0.0, 0.0, 0.3])
+    direction /= np.linalg.norm(direction, axis=1, keepdims=True)
+    o = np.asarray(offsets, dtype=np.float64)
+    positions = middle[:, None, :] + (o - o[-1] / 2)[None, :, None] * direction[:, None, :]
+    info = {"kind": "wand", "wand_offsets_m": o.tolist(), "seed": int(seed), "centre_m": list(centre),
+            "reach_m": list(reach)}
+    return Motion([f"wand{k}" for k in range(len(o))], float(fps), positions, None, info)
+
+
+def lframe_motion(n_frames: int = 30, fps: float = 120.0,
+                  points: tuple[tuple[float, float, float], ...] = DEFAULT_LFRAME_M) -> Motion:
+    """An L-frame lying still at the origin for ``n_frames`` frames (markers ``lframe0..``)."""
+    p = np.asarray(points, dtype=np.float64)
+    positions = np.broadcast_to(p, (n_frames,) + p.shape).copy()
+    info = {"kind": "lframe", "lframe_m": p.tolist()}
+    return Motion([f"lframe{k}" for k in range(len(p))], float(fps), positions, None, info)
+
+
+def centroid_frames(plan: TakePlan, seed: int = 0, extra_noise_px: float = 0.0) -> list[list[Detections]]:
+    """Per frame, per camera: the blobs a detector would report (noisy centroids, merges, ghosts).
+
+    Args:
+        plan: the simulated take.
+        seed: seed of the centroid noise.
+        extra_noise_px: std of further centroid noise per axis, px, added in quadrature to the
+            Cramér-Rao std (a detector's own imperfections).
+
+    Returns:
+        ``frames[f][c]`` :class:`Detections` with ``cov = sigma^2 I`` (the noise variance actually used).
+    """
+    truth = plan.truth
+    rng = np.random.default_rng(seed)
+    F, C, M = truth.visible.shape
+    std = np.sqrt(truth.sigma_px**2 + extra_noise_px**2)
+    noise = rng.standard_normal((F, C, M, 2)) * std[..., None]
+    frames: list[list[Detections]] = []
+    for f in range(F):
+        row = []
+        for c in range(C):
+            vis = np.flatnonzero(truth.visible[f, c])
+            xy = truth.uv[f, c, vis] + noise[f, c, vis]
+            sigma = std[f, c, vis]
+            r = plan.radius_px[f, c, vis]
+            # Discs that touch merge into one blob at their mean.
+            gap = np.linalg.norm(xy[:, None] - xy[None], axis=2) - (r[:, None] + r[None] + 1.0)
+            np.fill_diagonal(gap, np.inf)
+            merged = (gap < 0).any(axis=1)
+            blobs = [xy[~merged]]
+            sig = [sigma[~merged]]
+            if merged.any():
+                blobs.append(xy[merged].mean(axis=0, keepdims=True))
+                sig.append(np.array([sigma[merged].max()]))
+            on = plan.ghost_on[f, c]
+            blobs.append(plan.ghost_uv[c, on])
+            sig.append(np.full(int(on.sum()), 0.1))
+            s = np.concatenate(sig)
+            row.append(Detections(np.concatenate(blobs), cov=s[:, None, None] ** 2 * np.eye(2)))
+        frames.append(row)
+    return frames
+
+
+@dataclass(eq=False)
+class WandTake:
+    """A simulated calibration session: the wand wave and the L-frame, their truths and blobs.
+
+    Attributes:
+        rig: the true calibration.
+        wand: truth of the wand wave (markers ``wand0..``).
+        wand_frames: blobs per frame per camera of the wave.
+        lframe: truth of the L-frame take.
+        lframe_frames: blobs per frame per camera of the L-frame take.
+        wand_offsets: (K,) the wand, m.
+        lframe_points: (P, 3) the L-frame, m.
+    """
+
+    rig: Rig
+    wand: Truth
+    wand_frames: list[list[Detections]]
+    lframe: Truth
+    lframe_frames: list[list[Detections]]
+    wand_offsets: tuple[float, ...]
+    lframe_points: tuple[tuple[float, float, float], ...]
+
+
+def simulate_wand_take(rig: Rig | None = None, n_frames: int = 1200, fps: float = 120.0,
+                       wand: tuple[float, ...] = DEFAULT_WAND_M,
+                       lframe: tuple[tuple[float, float, float], ...] = DEFAULT_LFRAME_M,
+                       settings: SynthSettings | None = None, lframe_frames: int = 30,
+                       extra_noise_px: float = 0.0) -> WandTake:
+    """Simulate a wand wave and an L-frame take at centroid level (no images).
+
+    Args:
+        rig: the cameras (default: ``mocap.synth.rig.ring_rig(seed=settings.seed)``, six cameras).
+        n_frames, fps: length and rate of the wave.
+        wand: marker positions along the wand, m.
+        lframe: L-frame marker positions, m.
+        settings: sensor and artefact settings (occlusion is off: no body carries the wand).
+        lframe_frames: frames of the L-frame take.
+        extra_noise_px: centroid noise beyond the Cramér-Rao bound, px (see :func:`centroid_frames`).
+    """
+    settings = (settings or SynthSettings()).replace(occlusion=False)
+    rig = rig if rig is not None else ring_rig(seed=settings.seed)
+    wave = plan_take(rig, wand_motion(n_frames, fps, wand, settings.seed), settings)
+    still = plan_take(rig, lframe_motion(lframe_frames, fps, lframe), settings.replace(seed=settings.seed + 1))
+    return WandTake(rig, wave.truth, centroid_frames(wave, settings.seed, extra_noise_px), still.truth,
+                    centroid_frames(still, settings.seed + 1, extra_noise_px), tuple(wand), tuple(lframe))
+
+
+def render_wand_take(out_dir: str | os.PathLike, rig: Rig | None = None, n_frames: int = 1200,
+                     fps: float = 120.0, settings: SynthSettings | None = None) -> WandTake:
+    """Write a simulated calibration session at centroid level.
+
+    Layout of ``out_dir``: ``rig_true.toml`` (the truth: keep it away from the calibration),
+    ``wand.npz`` and ``lframe.npz`` (blobs: arrays ``frame`` (N,), ``camera`` (N,), ``xy`` (N, 2),
+    ``sigma`` (N,), plus ``camera_names`` and ``size`` (C, 2)), ``wand.truth.npz`` and
+    ``lframe.truth.npz`` (:func:`mocap.truth.save_truth`), and ``session.toml`` (the wand, the
+    L-frame and the rates: the facts a user states to ``mocap calibrate wand``).
+    """
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    take = simulate_wand_take(rig, n_frames, fps, settings=settings)
+    save_rig(take.rig, out / "rig_true.toml")
+    for name, truth, frames in (("wand", take.wand, take.wand_frames), ("lframe", take.lframe, take.lframe_frames)):
+        save_truth(truth, out / f"{name}.truth.npz")
+        atomic_write_bytes(out / f"{name}.npz", blobs_npz(take.rig, frames))
+    facts = {"fps": fps, "wand_m": list(take.wand_offsets), "lframe_m": [list(p) for p in take.lframe_points],
+             "settings": json.loads(json.dumps(take.wand.settings.get("motion", {})))}
+    atomic_write_bytes(out / "session.toml", tomli_w.dumps(facts).encode("utf-8"))
+    return take
+
+
+def blobs_npz(rig: Rig, frames: list[list[Detections]]) -> bytes:
+    """Blobs of a take as ``.npz`` bytes (the layout :func:`render_wand_take` documents)."""
+    import io
+
+    frame_idx, cam_idx, xy, sigma = [], [], [], []
+    for f, row in enumerate(frames):
+        for c, det in enumerate(row):
+            frame_idx.append(np.full(len(det), f))
+            cam_idx.append(np.full(len(det), c))
+            xy.append(det.xy)
+            sigma.append(np.sqrt(det.cov[:, 0, 0]))
+    buf = io.BytesIO()
+    np.savez_compressed(buf, frame=np.concatenate(frame_idx), camera=np.concatenate(cam_idx),
+                        xy=np.concatenate(xy), sigma=np.concatenate(sigma), n_frames=np.int64(len(frames)),
+                        camera_names=np.array(rig.names), size=np.array([c.size for c in rig]))
+    return buf.getvalue()
