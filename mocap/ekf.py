@@ -1,0 +1,150 @@
+"""Batched constant-acceleration extended Kalman filters (many filters at once, numpy).
+
+State layout, per filter, for ``d`` spatial axes (d = 2 for an image filter in pixels, d = 3 for a
+world filter in metres): ``(p_1..p_d, v_1..v_d, a_1..a_d)``, so n = 3 d. The motion model is the
+paper's constant acceleration, ``p' = p + v dt + a dt^2 / 2``, ``v' = v + a dt``, ``a' = a``, with
+the discrete white-noise-jerk process noise (Bar-Shalom, Li & Kirubarajan, *Estimation with
+Applications to Tracking and Navigation*, sec. 6.3.3, "Wiener-sequence acceleration").
+
+The filters are plain arrays owned by the caller: ``x`` (K, n), ``P`` (K, n, n). :func:`predict` and
+:func:`update` return new arrays; the update takes any measurement function through its predicted
+value ``hx`` (K, m) and Jacobian ``H`` (K, m, n) (or a shared (m, n)), i.e. it is a true EKF, and is
+identical, step for step, to ``filterpy.kalman.ExtendedKalmanFilter`` (Joseph-form covariance update).
+
+:class:`RunningError` is the paper's search-region sizing: exponentially smoothed magnitudes of the
+position, velocity and acceleration prediction errors.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+__all__ = [
+    "ca_transition",
+    "ca_process_noise",
+    "predict",
+    "update",
+    "position_jacobian",
+    "init_state",
+    "RunningError",
+]
+
+
+def ca_transition(dt: float, dims: int) -> np.ndarray:
+    """(n, n) constant-acceleration transition matrix, n = 3 ``dims``; ``dt`` in seconds."""
+    block = np.array([[1.0, dt, 0.5 * dt * dt], [0.0, 1.0, dt], [0.0, 0.0, 1.0]])
+    return np.kron(block, np.eye(dims))
+
+
+def ca_process_noise(dt: float, dims: int, jerk_std: float) -> np.ndarray:
+    """(n, n) process noise of a piecewise-constant jerk with std ``jerk_std`` (units/s^3) per axis.
+
+    ``Q = G G^T sigma_j^2`` with ``G = (dt^3/6, dt^2/2, dt)`` per axis (Bar-Shalom sec. 6.3.3).
+    """
+    g = np.array([dt**3 / 6.0, dt**2 / 2.0, dt])
+    return np.kron(np.outer(g, g) * jerk_std**2, np.eye(dims))
+
+
+def position_jacobian(dims: int) -> np.ndarray:
+    """(d, 3d) measurement Jacobian of a direct position measurement ``z = p``."""
+    return np.eye(dims, 3 * dims)
+
+
+def init_state(position: np.ndarray, position_var: np.ndarray, velocity: np.ndarray | None = None,
+               velocity_std: float = 1.0, accel_std: float = 10.0) -> tuple[np.ndarray, np.ndarray]:
+    """Start K filters at measured positions.
+
+    Args:
+        position: (K, d) positions.
+        position_var: (K, d, d) their covariances.
+        velocity: (K, d) initial velocities (default zero).
+        velocity_std: prior std of the velocity, units/s.
+        accel_std: prior std of the acceleration, units/s^2.
+
+    Returns:
+        ``x`` (K, 3d) and ``P`` (K, 3d, 3d).
+    """
+    K, d = position.shape
+    x = np.zeros((K, 3 * d))
+    x[:, :d] = position
+    if velocity is not None:
+        x[:, d:2 * d] = velocity
+    P = np.zeros((K, 3 * d, 3 * d))
+    P[:, :d, :d] = position_var
+    eye = np.eye(d)
+    P[:, d:2 * d, d:2 * d] = eye * velocity_std**2
+    P[:, 2 * d:, 2 * d:] = eye * accel_std**2
+    return x, P
+
+
+def predict(x: np.ndarray, P: np.ndarray, F: np.ndarray, Q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Prior of K filters: ``x' = F x``, ``P' = F P F^T + Q``.
+
+    Args:
+        x: (K, n) states.  P: (K, n, n) covariances.  F: (n, n) transition.  Q: (n, n) process noise.
+
+    Returns:
+        ``x'`` (K, n), ``P'`` (K, n, n).
+    """
+    return x @ F.T, F @ P @ F.T + Q
+
+
+def update(x: np.ndarray, P: np.ndarray, z: np.ndarray, hx: np.ndarray, H: np.ndarray, R: np.ndarray
+           ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """EKF measurement update of K filters (filterpy's equations, Joseph form).
+
+    ``S = H P H^T + R``, ``K = P H^T S^-1``, ``x' = x + K (z - h(x))``,
+    ``P' = (I - K H) P (I - K H)^T + K R K^T``.
+
+    Args:
+        x: (K, n) prior states.
+        P: (K, n, n) prior covariances.
+        z: (K, m) measurements.
+        hx: (K, m) predicted measurements h(x).
+        H: (K, m, n) or (m, n) Jacobians of h at x.
+        R: (K, m, m) or (m, m) measurement covariances.
+
+    Returns:
+        ``x'`` (K, n), ``P'`` (K, n, n), innovation ``y`` (K, m) and its covariance ``S`` (K, m, m).
+    """
+    Ht = np.swapaxes(H, -1, -2)
+    PHt = P @ Ht
+    S = H @ PHt + R
+    gain = PHt @ np.linalg.inv(S)
+    y = z - hx
+    x_new = x + (gain @ y[..., None])[..., 0]
+    I_KH = np.eye(x.shape[1]) - gain @ H
+    P_new = I_KH @ P @ np.swapaxes(I_KH, -1, -2) + gain @ R @ np.swapaxes(gain, -1, -2)
+    return x_new, P_new, y, S
+
+
+@dataclass
+class RunningError:
+    """Exponentially smoothed prediction-error magnitudes that size a search region (paper 004).
+
+    For each filter: ``e_p`` the position error |measured - predicted|, ``e_v`` the error of the
+    predicted velocity against the measured displacement per second, ``e_a`` that of the
+    acceleration; each smoothed as ``e = alpha |err| + (1 - alpha) e``.
+
+    The search radius ``m`` frames after the last measurement (m = 1: the next frame) is
+
+        r = scale * (e_p + e_v t + e_a t^2 / 2) + floor,    t = (m - 1) dt
+
+    so it widens while the marker is unseen, as the paper's variable threshold does.
+    Arrays are (K,) and owned by the caller; the methods return new arrays.
+    """
+
+    alpha: float = 0.3
+    scale: float = 3.0
+
+    def step(self, e: np.ndarray, err: np.ndarray) -> np.ndarray:
+        """Smooth the running error ``e`` (K,) with new error magnitudes ``err`` (K,)."""
+        return self.alpha * err + (1.0 - self.alpha) * e
+
+    def radius(self, e_p: np.ndarray, e_v: np.ndarray, e_a: np.ndarray, since: np.ndarray, dt: float,
+               floor: float) -> np.ndarray:
+        """(K,) search radius ``since`` (K,) frames after each filter's last measurement."""
+        t = np.maximum(since - 1, 0) * dt
+        return self.scale * (e_p + e_v * t + 0.5 * e_a * t * t) + floor

@@ -1,0 +1,262 @@
+"""Multi-view fusion: one 3D point per track from all its cameras, new markers, re-identification.
+
+Paper 004 fuses the pairs' 3D results by averaging (case 1) and builds ad-hoc pairs from single
+cameras of different pairs (case 2). Here both are one step: every camera that holds a detection for
+the track, from whichever pair, enters a covariance-weighted multi-view triangulation (the maximum
+likelihood point, better than averaging pair results), with per-camera outlier rejection so that a
+merged blob or a ghost in one camera cannot drag the point (:func:`robust_triangulate`). Cameras
+without a detection are then offered the free detection nearest to the point's reprojection
+(:func:`repick`), which is the candidate closest to all the partners' epipolar lines at once.
+
+"New markers" (case 3) come from the detections no track used: all-pairs epipolar matching,
+triangulation, and a multi-view consistency test — a point must be supported (reprojection within a
+few pixels of a free detection) by ``min_views`` cameras, or by every camera whose image it falls in
+when fewer do (:func:`new_points`). Their identities are decided by :func:`reidentify`.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.optimize import linear_sum_assignment
+
+from mocap.geometry import reprojection_jacobians
+from mocap.pairs import CameraPairs
+from mocap.stereo import match_pairs, triangulate_matches
+
+__all__ = ["Triangulated", "robust_triangulate", "repick", "new_points", "reidentify"]
+
+
+@dataclass
+class Triangulated:
+    """Multi-view points of K tracks.
+
+    Attributes:
+        X: (K, 3) m; NaN where fewer than two cameras agree.
+        cov: (K, 3, 3) m^2 (inverse Fisher information of the used cameras).
+        rms_px: (K,) RMS reprojection error over the used cameras, pixels.
+        used: (K, C) bool, cameras that entered the point.
+        proj: (C, K, 2) reprojection of X, ideal pixels.
+        depth: (C, K) depth of X in each camera, m.
+    """
+
+    X: np.ndarray
+    cov: np.ndarray
+    rms_px: np.ndarray
+    used: np.ndarray
+    proj: np.ndarray
+    depth: np.ndarray
+
+
+def _gauss_newton(P: np.ndarray, uv: np.ndarray, W: np.ndarray, X: np.ndarray, iterations: int
+                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Weighted Gauss-Newton refinement of K points from a start ``X`` (K, 3).
+
+    ``uv`` (C, K, 2) is zero where unseen and ``W`` (C, K, 2, 2) zero there. Returns X, cov (K, 3, 3),
+    reprojection (C, K, 2), residual vectors (C, K, 2) and depth (C, K).
+    """
+    for step in range(iterations + 1):
+        proj, J = reprojection_jacobians(P, X)
+        r = uv - proj
+        JtW = np.einsum("ckai,ckab->ckib", J, W)
+        H = np.einsum("ckib,ckbj->kij", JtW, J)
+        H[np.abs(np.linalg.det(H)) < 1e-30] = np.eye(3)
+        if step == iterations:
+            break
+        g = np.einsum("ckib,ckb->ki", JtW, r)
+        X = X + np.linalg.solve(H, g[..., None])[..., 0]
+    depth = np.einsum("cj,kj->ck", P[:, 2, :3], X) + P[:, 2, 3][:, None]
+    return X, np.linalg.inv(H), proj, r, depth
+
+
+def robust_triangulate(P: np.ndarray, uv: np.ndarray, cov: np.ndarray, start: np.ndarray,
+                       outlier_sigma: float, outlier_min_px: float, iterations: int = 2) -> Triangulated:
+    """Covariance-weighted triangulation with per-camera outlier rejection.
+
+    Starting from ``start`` (the tracks' predictions), Gauss-Newton over the cameras that hold a
+    detection; then, while some camera's reprojection error exceeds
+    ``max(outlier_sigma * sigma_c, outlier_min_px)`` and at least three cameras remain, the worst
+    camera of each such track is dropped and the point recomputed. A two-camera point whose
+    cameras disagree is dropped (NaN).
+
+    Args:
+        P: (C, 3, 4) ideal-pixel projection matrices.
+        uv: (C, K, 2) detections per camera and track, ideal pixels; NaN where none.
+        cov: (C, K, 2, 2) their covariances, px^2.
+        start: (K, 3) starting points, m (finite).
+        outlier_sigma: rejection threshold in centroid standard deviations.
+        outlier_min_px: rejection threshold floor, pixels.
+        iterations: Gauss-Newton steps per solve.
+    """
+    C, K = uv.shape[:2]
+    used = np.isfinite(uv[..., 0])  # (C, K)
+    sigma = np.sqrt(0.5 * (cov[..., 0, 0] + cov[..., 1, 1]))
+    limit = np.maximum(outlier_sigma * sigma, outlier_min_px)
+    uvz = np.where(used[..., None], uv, 0.0)
+    Winv = np.linalg.inv(np.where(used[..., None, None], cov, np.eye(2)))
+    X = start
+    for _ in range(C):
+        W = Winv * used[..., None, None]
+        X, cov3, proj, r, depth = _gauss_newton(P, uvz, W, X, iterations)
+        err = np.where(used, np.hypot(r[..., 0], r[..., 1]), 0.0)
+        bad = err > limit
+        n = used.sum(axis=0)
+        worst = np.argmax(np.where(used, err / limit, -1.0), axis=0)  # (K,)
+        drop = bad.any(axis=0) & (n >= 3)
+        if not drop.any():
+            break
+        used[worst[drop], np.flatnonzero(drop)] = False
+    n = used.sum(axis=0)
+    fail = (n < 2) | (bad.any(axis=0) & (n < 3)) | ~np.isfinite(X).all(axis=1)
+    used[:, fail] = False
+    err = np.where(used, np.hypot(r[..., 0], r[..., 1]), 0.0)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        rms = np.sqrt((err**2).sum(axis=0) / used.sum(axis=0))
+    X = X.copy()
+    X[fail] = np.nan
+    cov3[fail] = np.nan
+    rms[fail] = np.nan
+    return Triangulated(X, cov3, rms, used.T.copy(), proj, depth)
+
+
+def repick(tri: Triangulated, D: np.ndarray, free: np.ndarray, limit_px: np.ndarray | float
+           ) -> np.ndarray:
+    """Offer each track's unused cameras the free detection nearest to its reprojection.
+
+    Args:
+        tri: the tracks' points (tracks with NaN X get nothing).
+        D: (C, N, 2) padded detections, ideal pixels.
+        free: (C, N) bool, detections no track holds (and not flagged merged).
+        limit_px: largest distance, pixels (scalar or (C, N) per detection).
+
+    Returns:
+        (K, C) detection index picked (each detection at most once: the nearest track wins), -1: none.
+    """
+    K, C = tri.used.shape
+    out = np.full((K, C), -1, dtype=np.intp)
+    if K == 0 or D.shape[1] == 0:
+        return out
+    want = ~tri.used.T & np.isfinite(tri.X[:, 0])[None, :]  # (C, K)
+    diff = tri.proj[:, :, None, :] - D[:, None, :, :]  # (C, K, N, 2)
+    d = np.sqrt((diff * diff).sum(axis=3))
+    limit = np.broadcast_to(np.asarray(limit_px, dtype=float), free.shape)[:, None, :]
+    ok = want[..., None] & free[:, None, :] & (d < limit)
+    d = np.where(ok, d, np.inf)
+    best = np.argmin(d, axis=2)  # (C, K)
+    dbest = np.take_along_axis(d, best[..., None], axis=2)[..., 0]
+    # A detection wanted by several tracks goes to the nearest one.
+    nearest_track = np.argmin(d, axis=1)  # (C, N)
+    won = np.take_along_axis(nearest_track, best, axis=1) == np.arange(K)[None, :]
+    take = np.isfinite(dbest) & won
+    out.T[take] = best[take]
+    return out
+
+
+@dataclass
+class NewPoints:
+    """Candidate new markers: ``X`` (L, 3) m, ``cov`` (L, 3, 3), ``rms_px`` (L,), ``det`` (L, C) index or -1."""
+
+    X: np.ndarray
+    cov: np.ndarray
+    rms_px: np.ndarray
+    det: np.ndarray
+
+
+def new_points(P: np.ndarray, pairs: CameraPairs, D: np.ndarray, cov: np.ndarray, free: np.ndarray,
+               sizes: np.ndarray, epipolar_px: float, support_px: float, min_views: int,
+               outlier_sigma: float, outlier_min_px: float) -> NewPoints:
+    """3D points explained by free detections in several cameras (multi-view consistent).
+
+    All-pairs epipolar matching gives candidate correspondences; each is triangulated and projected
+    into every camera; a camera supports it when a free detection lies within ``support_px``.
+    Candidates are accepted greedily (most supporting cameras, then smallest epipolar distance),
+    each detection used once, if supported by ``min_views`` cameras, or by every camera (>= 2) whose
+    image the point falls in when fewer than ``min_views`` do. The accepted point is re-triangulated
+    over its supporting detections with outlier rejection.
+
+    Args:
+        P: (C, 3, 4) ideal-pixel projection matrices.
+        pairs: the stereo pairs.
+        D: (C, N, 2) padded detections, ideal pixels.  cov: (C, N, 2, 2) their covariances.
+        free: (C, N) bool, detections to use.
+        sizes: (C, 2) image width, height, pixels.
+        epipolar_px, support_px: matching tolerances, pixels.
+        min_views: supporting cameras required where that many cameras frame the point.
+        outlier_sigma, outlier_min_px: see :func:`robust_triangulate`.
+    """
+    C = len(P)
+    empty = NewPoints(np.zeros((0, 3)), np.zeros((0, 3, 3)), np.zeros(0), np.zeros((0, C), dtype=np.intp))
+    pair, n1, n2, dist = match_pairs(pairs, D, free, epipolar_px)
+    if pair.size == 0:
+        return empty
+    X, _, _ = triangulate_matches(P, pairs, D, cov, pair, n1, n2)
+    ok = np.isfinite(X).all(axis=1)
+    pair, n1, n2, dist, X = pair[ok], n1[ok], n2[ok], dist[ok], X[ok]
+    if pair.size == 0:
+        return empty
+    proj, _ = reprojection_jacobians(P, X)  # (C, L, 2)
+    depth = np.einsum("cj,lj->cl", P[:, 2, :3], X) + P[:, 2, 3][:, None]
+    framed = (depth > 0) & (proj >= 0).all(axis=2) & (proj < sizes[:, None, :]).all(axis=2)  # (C, L)
+    diff = proj[:, :, None, :] - D[:, None, :, :]
+    d = np.where(free[:, None, :], np.sqrt((diff * diff).sum(axis=3)), np.inf)  # (C, L, N)
+    nearest = np.argmin(d, axis=2)
+    near_d = np.take_along_axis(d, nearest[..., None], axis=2)[..., 0]
+    support = near_d < support_px  # (C, L)
+    rows = np.arange(len(pair))
+    for side, n in ((0, n1), (1, n2)):  # the pair's own detections support it by construction
+        cams = pairs.index[pair, side]
+        nearest[cams, rows] = n
+        support[cams, rows] = True
+    views = support.sum(axis=0)
+    need = np.maximum(np.minimum(min_views, framed.sum(axis=0)), 2)
+    order = np.lexsort((dist, -views))
+    order = order[views[order] >= need[order]]
+    used = np.zeros_like(free)
+    chosen = []
+    for idx in order:  # greedy over the (few) candidates: each detection once
+        cams = np.flatnonzero(support[:, idx])
+        dets = nearest[cams, idx]
+        if used[cams, dets].any():
+            continue
+        used[cams, dets] = True
+        chosen.append(idx)
+    if not chosen:
+        return empty
+    sel = np.array(chosen)
+    det = np.where(support[:, sel], nearest[:, sel], -1).T  # (L', C)
+    cams = np.arange(C)[None, :]
+    have = det >= 0
+    uv = np.where(have[..., None], D[cams, np.maximum(det, 0)], np.nan).swapaxes(0, 1)
+    S = np.where(have[..., None, None], cov[cams, np.maximum(det, 0)], np.eye(2)).swapaxes(0, 1)
+    tri = robust_triangulate(P, uv, S, X[sel], outlier_sigma, outlier_min_px)
+    keep = np.isfinite(tri.X).all(axis=1) & (tri.used.sum(axis=1) >= 2)
+    det = np.where(tri.used, det, -1)
+    return NewPoints(tri.X[keep], tri.cov[keep], tri.rms_px[keep], det[keep])
+
+
+def reidentify(points: np.ndarray, predicted: np.ndarray, radius: np.ndarray) -> np.ndarray:
+    """Match new points to lost tracks inside each track's own (variable) search radius.
+
+    Optimal assignment (``linear_sum_assignment``) of distance / radius; a pair is allowed only when
+    the point lies inside the track's radius.
+
+    Args:
+        points: (L, 3) new points, m.
+        predicted: (T, 3) the lost tracks' predicted positions, m.
+        radius: (T,) their search radii, m.
+
+    Returns:
+        (L,) index of the lost track each point re-identifies, -1 for none.
+    """
+    out = np.full(len(points), -1, dtype=np.intp)
+    if len(points) == 0 or len(predicted) == 0:
+        return out
+    q = np.linalg.norm(points[:, None, :] - predicted[None, :, :], axis=2) / radius[None, :]
+    inside = q < 1.0
+    if not inside.any():
+        return out
+    r, c = linear_sum_assignment(np.where(inside, q, 1e6))
+    ok = inside[r, c]
+    out[r[ok]] = c[ok]
+    return out

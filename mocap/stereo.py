@@ -1,0 +1,184 @@
+"""Per-camera-pair stage of the tracker: 2D gating, assignment, epipolar pruning, pair matching.
+
+Everything is vectorised over tracks, cameras and pairs and works on ideal (undistorted) pixels.
+Detections of one frame are held padded as ``D`` (C, N, 2) with NaN rows beyond each camera's count.
+
+* :func:`gate` — distance of every track's 2D prediction to every detection of the same camera,
+  normalised by the track's search radius there (paper 004: a region sized by the running
+  prediction errors); in the gate when < 1.
+* :func:`assign` — one detection per (track, camera) and one track per detection: unambiguous gates
+  are taken directly, the rest per camera by optimal assignment (``linear_sum_assignment``).
+* :func:`epipolar_consistency` — paper 004's epipolar pruning over the stereo pairs: a camera's
+  choice for a track must lie on the epipolar line of the track's point in a partner camera
+  (``l2 = F p1``); choices no partner supports are dropped (the fusion stage re-picks them from the
+  multi-view point, i.e. the candidate nearest to all partners' epipolar lines).
+* :func:`match_pairs` — all-pairs epipolar matching of leftover detections (the start of "new
+  markers"), and :func:`triangulate_matches` their two-view triangulation with covariance.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.optimize import linear_sum_assignment
+
+from mocap.geometry import triangulate_weighted
+from mocap.pairs import CameraPairs
+
+__all__ = ["gate", "assign", "epipolar_distance", "epipolar_consistency", "match_pairs", "triangulate_matches"]
+
+_FORBIDDEN = 1e6
+
+
+def gate(pred: np.ndarray, radius: np.ndarray, D: np.ndarray) -> np.ndarray:
+    """Normalised squared distances of predictions to detections.
+
+    Args:
+        pred: (K, C, 2) predicted ideal pixels of K tracks in C cameras (NaN: no prediction).
+        radius: (K, C) search radius, pixels.
+        D: (C, N, 2) padded detections, ideal pixels (NaN rows are padding).
+
+    Returns:
+        (K, C, N) ``|pred - det|^2 / radius^2``; inf where undefined. In the gate when < 1.
+    """
+    diff = pred[:, :, None, :] - D[None]
+    q = (diff * diff).sum(axis=3) / (radius * radius)[..., None]
+    return np.where(np.isnan(q), np.inf, q)
+
+
+def assign(q: np.ndarray, eligible: np.ndarray | None = None) -> np.ndarray:
+    """One-to-one assignment of detections to tracks in every camera.
+
+    Args:
+        q: (K, C, N) normalised costs from :func:`gate` (entries >= 1 are out of the gate).
+        eligible: (C, N) bool, detections still available (default: all).
+
+    Returns:
+        (K, C) detection index per track and camera, -1 where none.
+    """
+    K, C, N = q.shape
+    inside = q < 1.0
+    if eligible is not None:
+        inside &= eligible[None]
+    out = np.full((K, C), -1, dtype=np.intp)
+    if K == 0 or N == 0:
+        return out
+    per_row = inside.sum(axis=2)  # (K, C)
+    per_col = inside.sum(axis=0)  # (C, N)
+    # Unambiguous: the track's only candidate, and that detection's only track.
+    first = np.argmax(inside, axis=2)  # (K, C)
+    cam = np.arange(C)[None, :]
+    simple = (per_row == 1) & (per_col[cam, first] == 1)
+    out[simple] = first[simple]
+    hard = (per_row > 1) | ((per_row == 1) & ~simple)
+    for c in np.flatnonzero(hard.any(axis=0)):
+        rows = np.flatnonzero(hard[:, c])
+        cols = np.flatnonzero(inside[rows, c].any(axis=0))
+        sub = np.where(inside[np.ix_(rows, [c], cols)][:, 0], q[np.ix_(rows, [c], cols)][:, 0], _FORBIDDEN)
+        r, k = linear_sum_assignment(sub)
+        ok = sub[r, k] < _FORBIDDEN
+        out[rows[r[ok]], c] = cols[k[ok]]
+    return out
+
+
+def epipolar_distance(F: np.ndarray, p1: np.ndarray, p2: np.ndarray) -> np.ndarray:
+    """Symmetric point-to-epipolar-line distance, pixels, of matched points.
+
+    ``max(dist(p2, F p1), dist(p1, F^T p2))`` with ``dist(p, (a, b, c)) = |a u + b v + c| / sqrt(a^2 + b^2)``.
+
+    Args:
+        F: (..., 3, 3) fundamental matrices (image 1 -> image 2), broadcast against the points.
+        p1: (..., 2) ideal pixels in image 1.
+        p2: (..., 2) ideal pixels in image 2.
+
+    Returns:
+        (...) distances; NaN where a point is NaN.
+    """
+    h1 = np.concatenate([p1, np.ones(p1.shape[:-1] + (1,))], axis=-1)
+    h2 = np.concatenate([p2, np.ones(p2.shape[:-1] + (1,))], axis=-1)
+    l2 = (F @ h1[..., None])[..., 0]  # lines in image 2
+    l1 = (np.swapaxes(F, -1, -2) @ h2[..., None])[..., 0]  # lines in image 1
+    alg = np.abs((h2 * l2).sum(axis=-1))
+    return np.maximum(alg / np.hypot(l2[..., 0], l2[..., 1]), alg / np.hypot(l1[..., 0], l1[..., 1]))
+
+
+def epipolar_consistency(pairs: CameraPairs, uv: np.ndarray, tol_px: float) -> tuple[np.ndarray, np.ndarray]:
+    """Which cameras' choices for each track agree with a partner camera's.
+
+    Args:
+        pairs: the stereo pairs.
+        uv: (K, C, 2) each track's chosen detection per camera, ideal pixels (NaN: none).
+        tol_px: largest symmetric epipolar distance of an agreeing pair, pixels.
+
+    Returns:
+        ``supported`` (K, C) bool: the camera's point agrees with at least one partner's; and
+        ``tested`` (K, C) bool: the camera had a partner with a point to test against.
+    """
+    K, C = uv.shape[:2]
+    supported = np.zeros((K, C), dtype=bool)
+    tested = np.zeros((K, C), dtype=bool)
+    if len(pairs) == 0 or K == 0:
+        return supported, tested
+    i, j = pairs.index[:, 0], pairs.index[:, 1]
+    e = epipolar_distance(pairs.F[:, None], uv[:, i].swapaxes(0, 1), uv[:, j].swapaxes(0, 1))  # (P, K)
+    have = np.isfinite(e)
+    good = have & (e < tol_px)
+    for side in (i, j):  # scatter pair results onto their cameras
+        np.logical_or.at(supported.T, side, good)
+        np.logical_or.at(tested.T, side, have)
+    return supported, tested
+
+
+def match_pairs(pairs: CameraPairs, D: np.ndarray, free: np.ndarray, tol_px: float
+                ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """All-pairs epipolar matching of the free detections.
+
+    Args:
+        pairs: the stereo pairs.
+        D: (C, N, 2) padded detections, ideal pixels.
+        free: (C, N) bool, detections to consider.
+        tol_px: largest symmetric epipolar distance of a match, pixels.
+
+    Returns:
+        ``pair`` (L,) pair index, ``n1`` (L,) detection index in the pair's first camera, ``n2`` (L,)
+        in its second, ``dist`` (L,) epipolar distance, pixels.
+    """
+    out: list[tuple[np.ndarray, ...]] = []
+    for p, (i, j) in enumerate(pairs.index):
+        a = np.flatnonzero(free[i])
+        b = np.flatnonzero(free[j])
+        if a.size == 0 or b.size == 0:
+            continue
+        e = epipolar_distance(pairs.F[p], D[i, a][:, None, :], D[j, b][None, :, :])
+        r, s = np.nonzero(e < tol_px)
+        out.append((np.full(r.size, p), a[r], b[s], e[r, s]))
+    if not out:
+        empty = np.zeros(0, dtype=np.intp)
+        return empty, empty, empty, np.zeros(0)
+    pair, n1, n2, dist = (np.concatenate(col) for col in zip(*out, strict=True))
+    return pair.astype(np.intp), n1.astype(np.intp), n2.astype(np.intp), dist
+
+
+def triangulate_matches(projections: np.ndarray, pairs: CameraPairs, D: np.ndarray, cov: np.ndarray,
+                        pair: np.ndarray, n1: np.ndarray, n2: np.ndarray
+                        ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Two-view weighted triangulation of matches from :func:`match_pairs`.
+
+    Args:
+        projections: (C, 3, 4) ideal-pixel projection matrices.
+        pairs: the stereo pairs.
+        D: (C, N, 2) padded detections, ideal pixels.  cov: (C, N, 2, 2) their covariances, px^2.
+        pair, n1, n2: (L,) the matches.
+
+    Returns:
+        ``X`` (L, 3) m, ``cov3`` (L, 3, 3) m^2, ``rms`` (L,) reprojection RMS, pixels.
+    """
+    C = len(projections)
+    L = len(pair)
+    uv = np.full((C, L, 2), np.nan)
+    S = np.broadcast_to(np.eye(2), (C, L, 2, 2)).copy()
+    rows = np.arange(L)
+    for side, n in ((0, n1), (1, n2)):
+        cams = pairs.index[pair, side]
+        uv[cams, rows] = D[cams, n]
+        S[cams, rows] = cov[cams, n]
+    return triangulate_weighted(projections, uv, S)
