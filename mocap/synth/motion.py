@@ -126,10 +126,12 @@ def detect_up_axis(positions: np.ndarray, labels: list[str] | None = None) -> st
     Axis: people are taller than they are wide, and a take's samples hug the floor. Per subject
     (``Subject:`` label prefixes, so two people far apart do not count as one wide body) and frame,
     the extent of the markers along each axis is measured; the up axis has the largest median
-    extent. Sign: the floor is a hard edge: many samples (feet, wheels) sit just above it, so the
-    lowest 5 % of the samples along the up axis span a much shorter distance than the highest 5 %
-    (hands, head). When the two ends look alike (within a factor 1.5), the side of the origin where
-    the samples lie decides (labs put the origin on the floor).
+    extent. Sign: the floor is where things rest. The marker lowest along the up axis in each
+    frame (a foot in stance, a wheelchair frame) moves much less than the highest one (head,
+    hands): the median speeds of the two ends decide if they differ by 30 %. Else the floor is
+    a hard edge: the lowest 5 % of the samples span a shorter distance than the highest 5 % (by
+    50 % or more). Else the side of the origin where the samples lie decides (labs put the origin
+    on the floor).
 
     Args:
         positions: (F, M, 3) positions in file axes (any units), NaN in gaps.
@@ -153,15 +155,29 @@ def detect_up_axis(positions: np.ndarray, labels: list[str] | None = None) -> st
         if not np.isfinite(extent).all():
             raise MocapError("too few marker samples to tell which axis is up; pass --up")
         axis = int(np.argmax(extent))
-        values = positions[..., axis]
-        values = values[np.isfinite(values)]
-        q = np.percentile(values, [0.5, 5, 95, 99.5])
-        edge_low, edge_high = q[1] - q[0], q[3] - q[2]
-        if max(edge_low, edge_high) > 1.5 * min(edge_low, edge_high):
-            sign = 1.0 if edge_low < edge_high else -1.0
-        else:
-            sign = 1.0 if abs(q[3]) >= abs(q[0]) else -1.0
+        sign = _floor_side(positions, axis)
     return ("" if sign > 0 else "-") + "xyz"[axis]
+
+
+def _floor_side(positions: np.ndarray, axis: int) -> float:
+    """+1 if the floor is at the low end of ``axis`` of (F, M, 3) positions, -1 if at the high end."""
+    values = positions[..., axis]
+    speed = np.linalg.norm(np.diff(positions, axis=0), axis=2)  # (F-1, M), NaN across gaps
+    level = np.where(np.isfinite(speed), values[:-1], np.nan)
+    usable = np.isfinite(level).any(axis=1)
+    if usable.any():
+        rows = np.arange(int(usable.sum()))
+        lowest = np.argmin(np.where(np.isfinite(level[usable]), level[usable], np.inf), axis=1)
+        highest = np.argmax(np.where(np.isfinite(level[usable]), level[usable], -np.inf), axis=1)
+        at_rest = np.log(np.median(speed[usable][rows, highest]) + 1e-9) - np.log(
+            np.median(speed[usable][rows, lowest]) + 1e-9)
+        if abs(at_rest) > np.log(1.3):
+            return 1.0 if at_rest > 0 else -1.0
+    q = np.percentile(values[np.isfinite(values)], [0.5, 5, 95, 99.5])
+    edge = np.log((q[3] - q[2] + 1e-9) / (q[1] - q[0] + 1e-9))
+    if abs(edge) > np.log(1.5):
+        return 1.0 if edge > 0 else -1.0
+    return 1.0 if abs(q[3]) >= abs(q[0]) else -1.0
 
 
 def to_z_up(positions: np.ndarray, up: str) -> np.ndarray:

@@ -74,10 +74,11 @@ def segment_distance(p0: np.ndarray, p1: np.ndarray, q0: np.ndarray, q1: np.ndar
     b = np.einsum("...i,...i", d1, d2)
     denom = a * e - b * b
     with np.errstate(divide="ignore", invalid="ignore"):
+        s_lo = np.where(a > _EPS, np.clip(-c / a, 0.0, 1.0), 0.0)  # closest to q0 (also: q is a point)
+        s_hi = np.where(a > _EPS, np.clip((b - c) / a, 0.0, 1.0), 0.0)  # closest to q1
         s = np.where(denom > _EPS * np.maximum(a * e, _EPS), np.clip((b * f - c * e) / denom, 0.0, 1.0), 0.0)
+        s = np.where(e > _EPS, s, s_lo)
         t = np.where(e > _EPS, (b * s + f) / e, 0.0)
-        s_lo = np.where(a > _EPS, np.clip(-c / a, 0.0, 1.0), 0.0)
-        s_hi = np.where(a > _EPS, np.clip((b - c) / a, 0.0, 1.0), 0.0)
     s = np.where(t < 0, s_lo, np.where(t > 1, s_hi, s))
     t = np.clip(t, 0.0, 1.0)
     return np.linalg.norm(p0 + s[..., None] * d1 - q0 - t[..., None] * d2, axis=-1)

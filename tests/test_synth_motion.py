@@ -1,0 +1,157 @@
+"""Motion for synthetic takes: real C3D files (units, up axis, gaps), the marching body, capsule occlusion."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from mocap.errors import MocapError
+from mocap.export.c3d import read_c3d, write_c3d
+from mocap.synth.body import MARKERS, marching_body, marching_motion
+from mocap.synth.motion import UP_AXES, detect_up_axis, load_motion, motion_from_c3d
+from mocap.synth.occlusion import Capsules, capsules_from_markers, occluded, segment_distance
+from mocap.trajectories import Trajectories
+from tests.conftest import require_shared_data
+
+C3D_FILES = ["kinematics_tennis_serve.c3d", "kinematics_tennis_serve_2players.c3d", "walkingOptiTrack.c3d",
+             "kinematics_basket_sprint.c3d"]
+
+
+@pytest.mark.parametrize("name", C3D_FILES)
+def test_real_c3d_loads_upright_centred_with_gaps_kept(name):
+    path = require_shared_data("c3d") / name
+    raw = read_c3d(path)
+    labels, fps, positions = load_motion(path)
+    assert fps == raw.fps
+    assert positions.shape == (raw.n_frames, len(labels), 3)
+    seen = raw.valid.any(axis=0)
+    assert labels == [label for label, s in zip(raw.labels, seen, strict=True) if s]
+    np.testing.assert_array_equal(np.isnan(positions[..., 0]), ~raw.valid[:, seen])  # gaps stay gaps
+    z = positions[..., 2]
+    assert np.nanpercentile(z, 1) > -0.05  # on or above the floor
+    assert np.nanpercentile(z, 99) < 2.3
+    # each file is z-up already (the shared README says y-up for tennis; the data say z): z is kept as is
+    np.testing.assert_allclose(z, raw.positions[:, seen, 2], atol=1e-12, equal_nan=True)
+    mid = (np.nanpercentile(positions[..., :2].reshape(-1, 2), 0.5, axis=0)
+           + np.nanpercentile(positions[..., :2].reshape(-1, 2), 99.5, axis=0)) / 2
+    np.testing.assert_allclose(mid, 0.0, atol=1e-9)
+
+
+def test_tennis_player_stands_upright():
+    labels, _, positions = load_motion(require_shared_data("c3d") / "kinematics_tennis_serve.c3d")
+    head = positions[:, labels.index("Derrick:LFHD"), 2]
+    ankle = positions[:, labels.index("Derrick:LANK"), 2]
+    assert np.median(head - ankle) > 1.2
+
+
+@pytest.mark.parametrize("up", sorted(UP_AXES))
+def test_up_axis_is_detected_for_every_orientation(up):
+    motion = motion_from_c3d(require_shared_data("c3d") / "kinematics_tennis_serve_2players.c3d")
+    in_file_axes = motion.positions @ UP_AXES[up]  # inverse rotation: z-up -> a file with `up` up
+    assert detect_up_axis(in_file_axes - [0.3, -0.2, 0.9], motion.labels) == up  # origin off the floor too
+    body = marching_motion(240, seed=4)
+    assert detect_up_axis(body.positions @ UP_AXES[up], body.labels) == up
+
+
+def test_y_up_millimetre_file_with_gaps_round_trips(tmp_path):
+    labels, fps, z_up = marching_body(200, fps=100, n_markers=30, seed=2)
+    z_up = z_up + [1.5, -2.0, 0.0]
+    z_up[50:60, 3] = np.nan
+    y_up = z_up @ UP_AXES["y"]  # the same motion as a y-up recording
+    write_c3d(Trajectories(labels, fps, y_up), tmp_path / "yup.c3d")  # stored in mm
+    got_labels, got_fps, got = load_motion(tmp_path / "yup.c3d")
+    assert got_labels == labels and got_fps == fps
+    assert np.isnan(got[50:60, 3]).all() and np.isfinite(np.delete(got, 3, axis=1)).all()
+    offset = np.nanmean(got - z_up, axis=(0, 1))
+    np.testing.assert_allclose(got - offset, z_up, atol=1e-4)  # float32 mm storage
+    assert offset[2] == pytest.approx(0.0, abs=1e-6)  # the floor was already at z = 0
+    forced = motion_from_c3d(tmp_path / "yup.c3d", up="y")
+    assert forced.info["up_axis"] == "y" and forced.info["up_axis_from"] == "--up"
+
+
+def test_bad_motion_files_raise_user_errors(tmp_path):
+    with pytest.raises(MocapError, match="not found"):
+        load_motion(tmp_path / "missing.c3d")
+    (tmp_path / "junk.c3d").write_bytes(b"not a c3d at all" * 20)
+    with pytest.raises(MocapError, match="junk.c3d"):
+        load_motion(tmp_path / "junk.c3d")
+    write_c3d(Trajectories(["a", "b"], 100.0, np.full((10, 2, 3), np.nan)), tmp_path / "empty.c3d")
+    with pytest.raises(MocapError, match="missing"):
+        load_motion(tmp_path / "empty.c3d")
+    write_c3d(Trajectories(["a"], 100.0, np.ones((10, 1, 3))), tmp_path / "one.c3d")
+    with pytest.raises(MocapError, match="--up"):
+        motion_from_c3d(tmp_path / "one.c3d", up="sideways")
+
+
+def test_marching_body_is_a_marching_rigid_skeleton():
+    labels, fps, p = marching_body(240, fps=120, n_markers=40, seed=0)
+    assert fps == 120 and p.shape == (240, 40, 3) and len(set(labels)) == 40
+    assert np.isfinite(p).all()
+    z = {name: p[:, labels.index(name), 2] for name in ("LFHD", "LKNE", "RKNE", "LANK", "LTOE")}
+    assert 1.4 < np.median(z["LFHD"]) < 1.8 and np.median(z["LTOE"]) < 0.15
+    assert np.ptp(z["LKNE"]) > 0.12 and np.ptp(z["RKNE"]) > 0.12  # knees rise in turn
+    assert np.corrcoef(z["LKNE"], z["RKNE"])[0, 1] < 0  # ... alternately
+    assert np.ptp(p[..., :2].reshape(-1, 2), axis=0).max() < 1.5  # in place
+    shin = np.linalg.norm(p[:, labels.index("LTIB")] - p[:, labels.index("LANK")], axis=1)
+    assert np.ptp(shin) < 1e-9  # markers on one segment move rigidly
+    np.testing.assert_array_equal(marching_body(240, seed=0)[2], p)
+    assert not np.allclose(marching_body(240, seed=1)[2], p)
+    assert marching_body(5, n_markers=len(MARKERS))[2].shape[1] == len(MARKERS)
+    for bad in (0, len(MARKERS) + 1):
+        with pytest.raises(MocapError, match="--markers"):
+            marching_body(5, n_markers=bad)
+
+
+def test_body_markers_sit_on_the_skin_of_their_segment():
+    motion = marching_motion(60, n_markers=len(MARKERS), seed=1, marker_mm=14.0)
+    caps = motion.capsules
+    for m, (_, segment, t, _) in enumerate(MARKERS):
+        k = caps.names.index(segment)
+        axis = caps.b[:, k] - caps.a[:, k]
+        rel = motion.positions[:, m] - caps.a[:, k]
+        along = np.einsum("ij,ij->i", rel, axis) / np.einsum("ij,ij->i", axis, axis)
+        perp = np.linalg.norm(rel - along[:, None] * axis, axis=1)
+        np.testing.assert_allclose(along, t, atol=1e-9)
+        np.testing.assert_allclose(perp, caps.radius[k] + 0.007, atol=1e-9)
+
+
+def test_segment_distance_matches_dense_sampling():
+    rng = np.random.default_rng(5)
+    p0, p1, q0, q1 = (rng.normal(0, 1, (120, 3)) for _ in range(4))
+    q1[:20] = q0[:20]  # degenerate: a point
+    p1[20:30] = p0[20:30] + 1e-3 * (q1[20:30] - q0[20:30])  # nearly parallel, tiny
+    s = np.linspace(0, 1, 201)
+    a = p0[:, None] + s[None, :, None] * (p1 - p0)[:, None]
+    b = q0[:, None] + s[None, :, None] * (q1 - q0)[:, None]
+    brute = np.linalg.norm(a[:, :, None] - b[:, None, :], axis=-1).min(axis=(1, 2))
+    got = segment_distance(p0, p1, q0, q1)
+    assert (got <= brute + 1e-12).all()
+    np.testing.assert_allclose(got, brute, atol=1e-2)
+
+
+def test_a_capsule_hides_what_is_behind_it_but_not_markers_on_its_near_side():
+    # A vertical torso at the origin, radius 0.15 m; camera 4 m away on +x.
+    caps = Capsules(np.array([[[0.0, 0, 0.8]]]), np.array([[[0.0, 0, 1.4]]]), np.array([0.15]), ["torso"])
+    camera = np.array([4.0, 0.0, 1.1])
+    points = np.array([[[0.157, 0, 1.1],     # chest marker facing the camera
+                        [-0.157, 0, 1.1],    # back marker: hidden by its own body
+                        [-0.5, 0.0, 1.1],    # behind the body
+                        [-0.5, 0.5, 1.1],    # behind, but off to the side
+                        [0.0, 0.05, 1.1]]])  # inside the capsule (approximation error): never hidden by it
+    np.testing.assert_array_equal(occluded(camera, points, caps)[0], [False, True, True, False, False])
+    gap = points.copy()
+    caps_nan = Capsules(np.full((1, 1, 3), np.nan), np.full((1, 1, 3), np.nan), np.array([0.15]), ["gone"])
+    assert not occluded(camera, gap, caps_nan).any()
+
+
+def test_marker_capsules_for_recorded_motion():
+    motion = motion_from_c3d(require_shared_data("c3d") / "kinematics_tennis_serve_2players.c3d")
+    caps = capsules_from_markers(motion.labels, motion.positions[:50])
+    assert "Derrick torso" in caps.names and "Viktor torso" in caps.names
+    assert len(caps) > 40 and np.isfinite(caps.a).all()
+    k = caps.names.index("Derrick torso")
+    assert 0.08 <= caps.radius[k] <= 0.16
+    assert (caps.b[:, k, 2] > caps.a[:, k, 2] + 0.2).all()  # upright torso axis
+    walking = motion_from_c3d(require_shared_data("c3d") / "walkingOptiTrack.c3d")
+    legs = capsules_from_markers(walking.labels, walking.positions[:50])
+    assert not any("torso" in n for n in legs.names)  # leg clusters only: no torso to invent
