@@ -1,14 +1,21 @@
 """C3D reading and writing with ezc3d.
 
-Written files: POINT:UNITS "mm", POINT:RATE = fps, float storage (POINT:SCALE < 0);
-residuals in mm, quantised by C3D to steps of |POINT:SCALE| (chosen from the data so the
-largest residual fits the format's 8 bits); invalid samples have residual -1; the camera
-mask holds the first 7 cameras (a C3D limit).
+Written files: POINT:UNITS "mm", POINT:RATE = fps, float storage (POINT:SCALE < 0, also in
+the header, as the C3D spec and the ``c3d`` package require); residuals in mm, rounded by C3D
+to steps of |POINT:SCALE| (chosen from the data so the largest residual fits the format's 8
+bits); invalid samples have residual -1; the camera mask holds the first 7 cameras (a C3D
+limit). Labels must be printable ASCII.
+
+The residual/camera word follows the C3D spec (c3d.org, "Notes for programmers"): residual in
+the low byte, camera bits in the high byte. ezc3d 1.7 swaps the two bytes, so both are written
+and read here straight from the file's point records (Intel-format files; for DEC/MIPS files
+ezc3d's values are used).
 """
 
 from __future__ import annotations
 
 import os
+import struct
 from pathlib import Path
 
 import ezc3d
@@ -16,6 +23,7 @@ import numpy as np
 
 from mocap.atomic import atomic_output
 from mocap.errors import MocapError
+from mocap.export.common import check_labels
 from mocap.trajectories import Trajectories
 
 __all__ = ["write_c3d", "read_c3d", "UNIT_TO_METRES"]
@@ -23,6 +31,7 @@ __all__ = ["write_c3d", "read_c3d", "UNIT_TO_METRES"]
 UNIT_TO_METRES = {"mm": 1e-3, "cm": 1e-2, "dm": 1e-1, "m": 1.0, "in": 0.0254, "inch": 0.0254, "ft": 0.3048}
 _RESIDUAL_STEPS_MM = (0.001, 0.002, 0.005, 0.01, 0.02, 0.05, 0.1, 0.2, 0.5, 1.0, 2.0, 5.0)
 _C3D_CAMERA_BITS = 7
+_HEADER_SCALE_OFFSET = 12  # header words 7-8: the POINT scale factor, a float (Intel byte order)
 
 
 def _residual_scale(residuals_mm: np.ndarray) -> float:
@@ -37,13 +46,16 @@ def _residual_scale(residuals_mm: np.ndarray) -> float:
 
 def write_c3d(traj: Trajectories, path: str | os.PathLike) -> None:
     """Write ``traj`` to a C3D file atomically (positions in mm)."""
+    check_labels(traj.labels, path, "C3D")
     F, M = traj.n_frames, traj.n_markers
     valid = traj.valid
     points = np.zeros((4, M, F))
     points[:3] = np.transpose(np.where(valid[..., None], traj.positions * 1000.0, np.nan), (2, 1, 0))
     points[3] = valid.T
     step = _residual_scale(traj.residuals)
-    residuals = np.where(valid, np.clip(np.nan_to_num(traj.residuals, nan=0.0), 0.0, 255 * step), -1.0)
+    # ezc3d truncates residual / step: hand it the middle of the nearest step so the file holds the rounded value
+    steps = np.clip(np.round(np.nan_to_num(traj.residuals, nan=0.0) / step), 0, 255)
+    residuals = np.where(valid, (steps + 0.5) * step, -1.0)
     bits = (traj.camera_masks[..., None] >> np.arange(_C3D_CAMERA_BITS, dtype=np.uint32)) & 1  # (F, M, 7)
     masks = np.transpose(bits.astype(bool) & valid[..., None], (2, 1, 0))
     c3d = ezc3d.c3d()
@@ -58,6 +70,54 @@ def write_c3d(traj: Trajectories, path: str | os.PathLike) -> None:
     c3d["data"]["meta_points"] = {"residuals": residuals.T[None], "camera_masks": masks}
     with atomic_output(path) as tmp:
         c3d.write(str(tmp))
+        with open(tmp, "r+b") as f:  # ezc3d leaves the header's scale at -1; make it match POINT:SCALE
+            f.seek(_HEADER_SCALE_OFFSET)
+            f.write(struct.pack("<f", -step))
+        words = _point_words(tmp, M, F, mode="r+")
+        code = words.astype(np.int32)
+        words[:] = np.where(code < 0, -1.0, ((code & 0x7F) << 8) | (code >> 8))  # ezc3d's byte order -> the spec's
+        words.flush()
+
+
+def _point_words(path: Path, n_points: int, n_frames: int, mode: str = "r") -> np.memmap | None:
+    """(F, M) view of the residual/camera word of every point record, or None if not an Intel-format file.
+
+    Reads the header (data start block, analog words per frame) and the processor type
+    (parameter section byte 4: 84 = Intel) straight from the file.
+    """
+    with open(path, "rb") as f:
+        header = f.read(512)
+        f.seek((header[0] - 1) * 512 + 3)
+        processor = f.read(1)
+    if len(header) < 20 or processor != b"\x54":
+        return None
+    scale = struct.unpack("<f", header[12:16])[0]
+    analog_words = struct.unpack("<H", header[4:6])[0]
+    start = (struct.unpack("<H", header[16:18])[0] - 1) * 512
+    dtype = np.dtype("<f4") if scale < 0 else np.dtype("<i2")
+    stride = 4 * n_points + analog_words
+    if path.stat().st_size < start + n_frames * stride * dtype.itemsize or n_points == 0 or n_frames == 0:
+        return None
+    records = np.memmap(path, dtype=dtype, mode=mode, offset=start, shape=(n_frames, stride))
+    return records[:, 3:4 * n_points:4]
+
+
+def _residuals_and_masks(path: Path, c3d: ezc3d.c3d, n_points: int, n_frames: int) -> tuple[np.ndarray, np.ndarray]:
+    """(F, M) residuals (in POINT:UNITS, -1 where invalid) and (F, M) uint32 camera masks, per the C3D spec."""
+    words = _point_words(path, n_points, n_frames)
+    if words is not None:
+        code = np.asarray(words).astype(np.int32)
+        scale = abs(float(c3d["parameters"]["POINT"]["SCALE"]["value"][0]))
+        residuals = np.where(code < 0, -1.0, (code & 0xFF) * scale)
+        return residuals, np.where(code < 0, 0, (code >> 8) & 0x7F).astype(np.uint32)
+    meta = c3d["data"].get("meta_points", {})
+    residuals = np.asarray(meta.get("residuals", np.zeros((1, n_points, n_frames))), dtype=np.float64)[0].T
+    masks = np.zeros(residuals.shape, dtype=np.uint32)
+    if "camera_masks" in meta:
+        cm = np.asarray(meta["camera_masks"], dtype=bool)  # (7, M, F)
+        weights = (1 << np.arange(cm.shape[0], dtype=np.uint32))[:, None, None]
+        masks = (cm * weights).sum(axis=0).T.astype(np.uint32)
+    return residuals, masks
 
 
 def read_c3d(path: str | os.PathLike) -> Trajectories:
@@ -82,16 +142,13 @@ def read_c3d(path: str | os.PathLike) -> Trajectories:
     pts = np.asarray(c3d["data"]["points"], dtype=np.float64)  # (4, M, F)
     labels = labels[: pts.shape[1]] + [f"M{i:03d}" for i in range(len(labels), pts.shape[1])]
     positions = np.transpose(pts[:3], (2, 1, 0)) * UNIT_TO_METRES[units]
-    meta = c3d["data"].get("meta_points", {})
-    residuals = np.asarray(meta.get("residuals", np.zeros((1,) + pts.shape[1:])), dtype=np.float64)[0].T
+    residuals, masks = _residuals_and_masks(path, c3d, pts.shape[1], pts.shape[2])
+    residuals = np.where(residuals < 0, residuals, residuals * UNIT_TO_METRES[units] * 1000.0)  # -> mm
     invalid = (residuals < 0) | ~np.isfinite(positions).all(axis=2) | (positions == 0).all(axis=2)
     positions[invalid] = np.nan
     residuals = np.where(invalid, np.nan, residuals)
-    masks = np.zeros(residuals.shape, dtype=np.uint32)
-    if "camera_masks" in meta:
-        cm = np.asarray(meta["camera_masks"], dtype=bool)  # (7, M, F)
-        weights = (1 << np.arange(cm.shape[0], dtype=np.uint32))[:, None, None]
-        masks = (cm * weights).sum(axis=0).T.astype(np.uint32)
+    masks[invalid] = 0
     cameras = params.get("CAMERAS", {}).get("value", [])
     first = int(c3d["header"]["points"].get("first_frame", 0))
-    return Trajectories(labels, fps, positions, residuals, masks, [str(c) for c in cameras], first)
+    return Trajectories(labels, fps, positions, residuals, masks, [str(c) for c in cameras], first,
+                        {"units": units})
