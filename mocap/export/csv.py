@@ -132,7 +132,8 @@ def read_csv(path: str | os.PathLike, up_axis: str | None = None) -> Trajectorie
     positions *= MOTIVE_UNITS[units]
     if up == "Y":
         positions = y_up_to_z_up(positions)
-    return Trajectories(labels, fps, positions, first_frame=first)
+    return Trajectories(labels, fps, positions, first_frame=first,
+                        metadata={"units": units, "up_axis": up})
 
 
 def _marker_columns(rows: dict[str, list[str]], path: Path) -> tuple[np.ndarray, list[str]]:

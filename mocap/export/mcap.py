@@ -435,5 +435,5 @@ def read_mcap_trajectories(path: str | os.PathLike) -> Trajectories:
     take = scan.metadata.get("take", {})
     cameras = json.loads(scan.metadata.get("mocap.log", {}).get("cameras", "[]")) or json.loads(
         take.get("camera_names", "[]"))
-    meta = {k: v for k, v in take.items() if k != "camera_names"}
+    meta = {**{k: v for k, v in take.items() if k != "camera_names"}, "units": "m"}
     return Trajectories(labels, fps, positions, residuals, masks, cameras, first, meta)

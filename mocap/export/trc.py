@@ -122,7 +122,7 @@ def read_trc(path: str | os.PathLike, y_up: bool = False) -> Trajectories:
     if header.get("NumFrames", str(len(rows))) != str(len(rows)):
         log.info("%s: header says NumFrames %s, the file holds %d rows; using the rows", path,
                  header.get("NumFrames"), len(rows))
-    return Trajectories(labels, fps, positions, first_frame=first - 1)
+    return Trajectories(labels, fps, positions, first_frame=first - 1, metadata={"units": units})
 
 
 def _frame_numbers(column: np.ndarray, path: Path) -> np.ndarray:
