@@ -201,7 +201,7 @@ def bundle_adjust(rig: Rig, obs: np.ndarray, points: np.ndarray, offsets: np.nda
     f_scale = options.f_scale * max(scale, 1e-12) if options.loss != "linear" else 1.0
     sol = least_squares(problem.residuals, x0, jac_sparsity=problem.sparsity(), loss=options.loss,
                         f_scale=min(f_scale, options.f_scale * 1e3), x_scale="jac", method="trf",
-                        tr_solver="lsmr", max_nfev=options.max_nfev, xtol=1e-10, ftol=1e-9, gtol=1e-10, verbose=1)
+                        tr_solver="lsmr", max_nfev=options.max_nfev, xtol=1e-10, ftol=1e-9, gtol=1e-10)
     cams, X = problem.unpack(sol.x)
     F, C, K = obs.shape[:3]
     all_points = np.full((F, K, 3), np.nan)

@@ -15,8 +15,8 @@ that are on in a frame are extra blobs.
 
 from __future__ import annotations
 
-import json
 import os
+import tomllib
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -24,13 +24,14 @@ import numpy as np
 import tomli_w
 
 from mocap.atomic import atomic_write_bytes
-from mocap.camera import Rig, save_rig
+from mocap.camera import Rig, load_rig, save_rig
 from mocap.detections import Detections
 from mocap.synth.motion import Motion
 from mocap.synth.rig import ring_rig
 from mocap.synth.settings import SynthSettings
 from mocap.synth.simulate import TakePlan, plan_take
-from mocap.truth import Truth, save_truth
+from mocap.synth.writer import default_truth_path, render_take, staged_directory
+from mocap.truth import Truth
 
 __all__ = [
     "DEFAULT_WAND_M",
@@ -49,7 +50,7 @@ DEFAULT_LFRAME_M = ((0.0, 0.0, 0.0), (0.2, 0.0, 0.0), (0.5, 0.0, 0.0), (0.0, 0.3
 
 def wand_motion(n_frames: int = 1200, fps: float = 120.0, offsets: tuple[float, ...] = DEFAULT_WAND_M,
                 seed: int = 0, centre: tuple[float, float, float] = (0.0, 0.0, 1.0),
-                reach: tuple[float, float, float] = (1.3, 1.3, 0.75)) -> Motion:
+                reach: tuple[float, float, float] = (1.8, 1.8, 0.85)) -> Motion:
     """A wand wave: the wand's middle follows a smooth seeded path through a box, turning all the while.
 
     Args:
@@ -180,42 +181,53 @@ def simulate_wand_take(rig: Rig | None = None, n_frames: int = 1200, fps: float 
                     centroid_frames(still, settings.seed + 1, extra_noise_px), tuple(wand), tuple(lframe))
 
 
-def render_wand_take(out_dir: str | os.PathLike, rig: Rig | None = None, n_frames: int = 1200,
-                     fps: float = 120.0, settings: SynthSettings | None = None) -> WandTake:
-    """Write a simulated calibration session at centroid level.
+def _strip_poses(take: Path, facts: dict[str, object]) -> None:
+    """Replace a rendered take's calibration by its intrinsics alone and add ``facts`` to its take.toml."""
+    rig = load_rig(take / "calibration.toml")
+    unposed = Rig([cam.with_pose(np.zeros(3), np.zeros(3)) for cam in rig],
+                  {"made_by": "mocap synth", "extrinsics": "unknown: run mocap calibrate wand"})
+    save_rig(unposed, take / "calibration.toml")
+    record = tomllib.loads((take / "take.toml").read_text(encoding="utf-8"))
+    record.update(facts)
+    atomic_write_bytes(take / "take.toml", tomli_w.dumps(record).encode("utf-8"))
 
-    Layout of ``out_dir``: ``rig_true.toml`` (the truth: keep it away from the calibration),
-    ``wand.npz`` and ``lframe.npz`` (blobs: arrays ``frame`` (N,), ``camera`` (N,), ``xy`` (N, 2),
-    ``sigma`` (N,), plus ``camera_names`` and ``size`` (C, 2)), ``wand.truth.npz`` and
-    ``lframe.truth.npz`` (:func:`mocap.truth.save_truth`), and ``session.toml`` (the wand, the
-    L-frame and the rates: the facts a user states to ``mocap calibrate wand``).
+
+def render_wand_take(out_dir: str | os.PathLike, rig: Rig | None = None, settings: SynthSettings | None = None,
+                     n_frames: int = 1200, fps: float = 120.0, truth_path: str | os.PathLike | None = None,
+                     progress: bool = True, force: bool = False, lframe_frames: int = 30) -> Truth:
+    """Render a calibration session: two takes, a wand wave and a still L-frame.
+
+    Layout: ``out_dir/wand/`` and ``out_dir/lframe/`` are ordinary takes (DESIGN.md sec. 1) whose
+    ``calibration.toml`` holds the cameras' intrinsics with zero poses (the extrinsics are what the
+    calibration must find) and whose ``take.toml`` states the wand (``wand_m``, marker positions
+    along it, m) and the L-frame (``lframe_m``, marker coordinates, m). The truths go beside
+    ``out_dir``: ``truth_path`` (default ``<out_dir>.truth.npz``: the wave, whose settings hold the
+    true ``calibration_toml``) and the same name with ``.lframe.truth.npz`` for the L-frame.
+
+    Args:
+        out_dir: folder to create.
+        rig: the cameras (default: six-camera ``ring_rig``).
+        settings: rendering settings (occlusion is turned off: no body carries the wand).
+        n_frames, fps: length and rate of the wave.
+        truth_path: where the wave's truth goes.
+        progress: show progress bars.
+        force: replace an existing non-empty ``out_dir``.
+        lframe_frames: frames of the L-frame take.
+
+    Returns:
+        The wave's truth.
     """
-    out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
-    take = simulate_wand_take(rig, n_frames, fps, settings=settings)
-    save_rig(take.rig, out / "rig_true.toml")
-    for name, truth, frames in (("wand", take.wand, take.wand_frames), ("lframe", take.lframe, take.lframe_frames)):
-        save_truth(truth, out / f"{name}.truth.npz")
-        atomic_write_bytes(out / f"{name}.npz", blobs_npz(take.rig, frames))
-    facts = {"fps": fps, "wand_m": list(take.wand_offsets), "lframe_m": [list(p) for p in take.lframe_points],
-             "settings": json.loads(json.dumps(take.wand.settings.get("motion", {})))}
-    atomic_write_bytes(out / "session.toml", tomli_w.dumps(facts).encode("utf-8"))
-    return take
-
-
-def blobs_npz(rig: Rig, frames: list[list[Detections]]) -> bytes:
-    """Blobs of a take as ``.npz`` bytes (the layout :func:`render_wand_take` documents)."""
-    import io
-
-    frame_idx, cam_idx, xy, sigma = [], [], [], []
-    for f, row in enumerate(frames):
-        for c, det in enumerate(row):
-            frame_idx.append(np.full(len(det), f))
-            cam_idx.append(np.full(len(det), c))
-            xy.append(det.xy)
-            sigma.append(np.sqrt(det.cov[:, 0, 0]))
-    buf = io.BytesIO()
-    np.savez_compressed(buf, frame=np.concatenate(frame_idx), camera=np.concatenate(cam_idx),
-                        xy=np.concatenate(xy), sigma=np.concatenate(sigma), n_frames=np.int64(len(frames)),
-                        camera_names=np.array(rig.names), size=np.array([c.size for c in rig]))
-    return buf.getvalue()
+    settings = (settings or SynthSettings()).replace(occlusion=False)
+    rig = rig if rig is not None else ring_rig(seed=settings.seed)
+    out_dir = Path(out_dir)
+    truth_path = Path(truth_path) if truth_path is not None else default_truth_path(out_dir)
+    lframe_truth = truth_path.with_name(truth_path.name.removesuffix(".truth.npz") + ".lframe.truth.npz")
+    facts = {"wand_m": list(DEFAULT_WAND_M), "lframe_m": [list(p) for p in DEFAULT_LFRAME_M]}
+    with staged_directory(out_dir, force) as folder:
+        truth = render_take(folder / "wand", rig, wand_motion(n_frames, fps, DEFAULT_WAND_M, settings.seed),
+                            settings, truth_path, progress)
+        render_take(folder / "lframe", rig, lframe_motion(lframe_frames, fps), settings.replace(seed=settings.seed + 1),
+                    lframe_truth, progress)
+        for name in ("wand", "lframe"):
+            _strip_poses(folder / name, facts)
+    return truth
