@@ -155,12 +155,18 @@ def repick(tri: Triangulated, D: np.ndarray, free: np.ndarray, limit_px: np.ndar
 
 @dataclass
 class NewPoints:
-    """Candidate new markers: ``X`` (L, 3) m, ``cov`` (L, 3, 3), ``rms_px`` (L,), ``det`` (L, C) index or -1."""
+    """Candidate new markers: ``X`` (L, 3) m, ``cov`` (L, 3, 3), ``rms_px`` (L,), ``det`` (L, C) index or -1,
+    ``strong`` (L,) bool: supported by enough cameras to start a new track (weak points may only
+    re-acquire a known identity)."""
 
     X: np.ndarray
     cov: np.ndarray
     rms_px: np.ndarray
     det: np.ndarray
+    strong: np.ndarray
+
+    def subset(self, index: np.ndarray) -> NewPoints:
+        return NewPoints(self.X[index], self.cov[index], self.rms_px[index], self.det[index], self.strong[index])
 
 
 def new_points(P: np.ndarray, pairs: CameraPairs, D: np.ndarray, cov: np.ndarray, free: np.ndarray,
@@ -171,9 +177,9 @@ def new_points(P: np.ndarray, pairs: CameraPairs, D: np.ndarray, cov: np.ndarray
     All-pairs epipolar matching gives candidate correspondences; each is triangulated and projected
     into every camera; a camera supports it when a free detection lies within ``support_px``.
     Candidates are accepted greedily (most supporting cameras, then smallest epipolar distance),
-    each detection used once, if supported by ``min_views`` cameras, or by every camera (>= 2) whose
-    image the point falls in when fewer than ``min_views`` do. The accepted point is re-triangulated
-    over its supporting detections with outlier rejection.
+    each detection used once; a point is ``strong`` when supported by ``min_views`` cameras, or by
+    every camera (>= 2) whose image it falls in when fewer than ``min_views`` do. The accepted point is
+    re-triangulated over its supporting detections with outlier rejection.
 
     Args:
         P: (C, 3, 4) ideal-pixel projection matrices.
@@ -186,7 +192,8 @@ def new_points(P: np.ndarray, pairs: CameraPairs, D: np.ndarray, cov: np.ndarray
         outlier_sigma, outlier_min_px: see :func:`robust_triangulate`.
     """
     C = len(P)
-    empty = NewPoints(np.zeros((0, 3)), np.zeros((0, 3, 3)), np.zeros(0), np.zeros((0, C), dtype=np.intp))
+    empty = NewPoints(np.zeros((0, 3)), np.zeros((0, 3, 3)), np.zeros(0), np.zeros((0, C), dtype=np.intp),
+                      np.zeros(0, dtype=bool))
     pair, n1, n2, dist = match_pairs(pairs, D, free, epipolar_px)
     if pair.size == 0:
         return empty
@@ -211,7 +218,6 @@ def new_points(P: np.ndarray, pairs: CameraPairs, D: np.ndarray, cov: np.ndarray
     views = support.sum(axis=0)
     need = np.maximum(np.minimum(min_views, framed.sum(axis=0)), 2)
     order = np.lexsort((dist, -views))
-    order = order[views[order] >= need[order]]
     used = np.zeros_like(free)
     chosen = []
     for idx in order:  # greedy over the (few) candidates: each detection once
@@ -232,19 +238,24 @@ def new_points(P: np.ndarray, pairs: CameraPairs, D: np.ndarray, cov: np.ndarray
     tri = robust_triangulate(P, uv, S, X[sel], outlier_sigma, outlier_min_px)
     keep = np.isfinite(tri.X).all(axis=1) & (tri.used.sum(axis=1) >= 2)
     det = np.where(tri.used, det, -1)
-    return NewPoints(tri.X[keep], tri.cov[keep], tri.rms_px[keep], det[keep])
+    strong = tri.used.sum(axis=1) >= need[sel]
+    return NewPoints(tri.X[keep], tri.cov[keep], tri.rms_px[keep], det[keep], strong[keep])
 
 
-def reidentify(points: np.ndarray, predicted: np.ndarray, radius: np.ndarray) -> np.ndarray:
+def reidentify(points: np.ndarray, predicted: np.ndarray, radius: np.ndarray, last_seen: np.ndarray | None = None
+               ) -> np.ndarray:
     """Match new points to lost tracks inside each track's own (variable) search radius.
 
-    Optimal assignment (``linear_sum_assignment``) of distance / radius; a pair is allowed only when
-    the point lies inside the track's radius.
+    The distance of a point to a track is the smaller of its distances to the track's prediction and
+    to where the track was last seen (paper 004: "position or prediction"; a long extrapolation can
+    run away). Optimal assignment (``linear_sum_assignment``) of distance / radius; a pair is
+    allowed only when the point lies inside the track's radius.
 
     Args:
         points: (L, 3) new points, m.
         predicted: (T, 3) the lost tracks' predicted positions, m.
         radius: (T,) their search radii, m.
+        last_seen: (T, 3) their last measured positions, m (optional).
 
     Returns:
         (L,) index of the lost track each point re-identifies, -1 for none.
@@ -252,7 +263,10 @@ def reidentify(points: np.ndarray, predicted: np.ndarray, radius: np.ndarray) ->
     out = np.full(len(points), -1, dtype=np.intp)
     if len(points) == 0 or len(predicted) == 0:
         return out
-    q = np.linalg.norm(points[:, None, :] - predicted[None, :, :], axis=2) / radius[None, :]
+    d = np.linalg.norm(points[:, None, :] - predicted[None, :, :], axis=2)
+    if last_seen is not None:
+        d = np.fmin(d, np.linalg.norm(points[:, None, :] - last_seen[None, :, :], axis=2))
+    q = d / radius[None, :]
     inside = q < 1.0
     if not inside.any():
         return out

@@ -28,7 +28,7 @@ its residual is the RMS reprojection error back-projected to the marker's depth 
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
 
 import numpy as np
 
@@ -36,7 +36,7 @@ from mocap.camera import Rig
 from mocap.detections import Detections
 from mocap.ekf import RunningError, ca_process_noise, ca_transition, init_state, position_jacobian, predict, update
 from mocap.errors import MocapError
-from mocap.fusion import new_points, reidentify, repick, robust_triangulate
+from mocap.fusion import NewPoints, new_points, reidentify, repick, robust_triangulate
 from mocap.geometry import reprojection_jacobians
 from mocap.pairs import camera_pairs
 from mocap.stereo import assign, epipolar_consistency, gate
@@ -69,7 +69,10 @@ class TrackerConfig:
         support_px: a free detection this close to a new point's reprojection supports it, pixels.
         new_min_views: cameras that must support a new marker (fewer when fewer cameras frame it).
         min_separation_m: a new point closer than this to a measured track is that track's, not new.
-        merged_variance_scale: centroid variance multiplier of blobs flagged as merged markers.
+        merge_px: two tracks predicted closer than this in an image may share one merged blob there, pixels.
+        merged_variance_scale: centroid variance multiplier of blobs flagged as merged (by the detector,
+            or by two tracks predicted within ``merge_px``). A point is output only when two cameras
+            without such blobs support it; otherwise it just updates its filter.
     """
 
     confirm_frames: int = 4
@@ -91,6 +94,7 @@ class TrackerConfig:
     support_px: float = 2.0
     new_min_views: int = 3
     min_separation_m: float = 0.012
+    merge_px: float = 6.0
     merged_variance_scale: float = 100.0
 
     def __post_init__(self) -> None:
@@ -126,43 +130,118 @@ class FrameResult:
     assignments: list[np.ndarray] = field(default_factory=list)
 
 
-class _Records:
-    """Growable columns of per-frame measurements (amortised doubling; no per-frame objects)."""
-
-    def __init__(self) -> None:
-        self.n = 0
-        self.frame = np.zeros(1024, dtype=np.int64)
-        self.uid = np.zeros(1024, dtype=np.int64)
-        self.pos = np.zeros((1024, 3))
-        self.res = np.zeros(1024, dtype=np.float32)
-        self.mask = np.zeros(1024, dtype=np.uint32)
-
-    def append(self, frame: int, uid: np.ndarray, pos: np.ndarray, res: np.ndarray, mask: np.ndarray) -> None:
-        k = len(uid)
-        if self.n + k > len(self.frame):
-            size = max(2 * len(self.frame), self.n + k)
-            for name in ("frame", "uid", "pos", "res", "mask"):
-                old = getattr(self, name)
-                new = np.zeros((size,) + old.shape[1:], dtype=old.dtype)
-                new[: self.n] = old[: self.n]
-                setattr(self, name, new)
-        s = slice(self.n, self.n + k)
-        self.frame[s] = frame
-        self.uid[s] = uid
-        self.pos[s] = pos
-        self.res[s] = res
-        self.mask[s] = mask
-        self.n += k
-
-
 # Prior std of a (re)started image filter's velocity (px/s) and acceleration (px/s^2); the gates come from
 # the running errors, so these only set the first gains.
 _IMAGE_VELOCITY_STD = 1e3
 _IMAGE_ACCEL_STD = 1e5
 
-# Per-track arrays, first axis = track; kept in step by _keep() when tracks are removed.
-_TRACK_FIELDS = ("uid", "ident", "cand", "hits", "since", "x3", "P3", "e3", "last_X", "last_v",
-                 "x2", "P2", "lock2", "e2", "last_uv", "last_uvv")
+
+class _Records:
+    """Growable columns of per-frame measurements (amortised doubling; no per-frame objects)."""
+
+    _COLUMNS = (("frame", (), np.int64), ("uid", (), np.int64), ("pos", (3,), np.float64),
+                ("res", (), np.float32), ("mask", (), np.uint32))
+
+    def __init__(self) -> None:
+        self.n = 0
+        self.cols = {name: np.zeros((1024,) + shape, dtype=dtype) for name, shape, dtype in self._COLUMNS}
+
+    def append(self, **values: np.ndarray) -> None:
+        k = len(values["uid"])
+        size = len(self.cols["uid"])
+        if self.n + k > size:
+            for name, col in self.cols.items():
+                grown = np.zeros((max(2 * size, self.n + k),) + col.shape[1:], dtype=col.dtype)
+                grown[: self.n] = col[: self.n]
+                self.cols[name] = grown
+        for name, value in values.items():
+            self.cols[name][self.n : self.n + k] = value
+        self.n += k
+
+    def __getitem__(self, name: str) -> np.ndarray:
+        return self.cols[name][: self.n]
+
+
+@dataclass
+class _Tracks:
+    """The live tracks as parallel arrays (first axis: track)."""
+
+    uid: np.ndarray  # (K,) unique per track start; keys the records
+    ident: np.ndarray  # (K,) identity, -1 while tentative
+    cand: np.ndarray  # (K,) lost identity a tentative track may inherit, -1: none
+    hits: np.ndarray  # (K,) consecutive measured frames
+    since: np.ndarray  # (K,) frames since the last measurement (0: this frame)
+    x3: np.ndarray  # (K, 9) world CA state, m
+    P3: np.ndarray  # (K, 9, 9)
+    e3: np.ndarray  # (K, 3) running errors: position m, velocity m/s, acceleration m/s^2
+    last_X: np.ndarray  # (K, 3) last measured position, m
+    last_v: np.ndarray  # (K, 3) last measured velocity (finite differences), NaN: unknown
+    x2: np.ndarray  # (K, C, 6) image CA states, ideal px
+    P2: np.ndarray  # (K, C, 6, 6)
+    lock2: np.ndarray  # (K, C) image filter found the marker in the previous frame
+    e2: np.ndarray  # (K, C, 3) running image errors: px, px/s, px/s^2
+    last_uv: np.ndarray  # (K, C, 2) last measured image position, px
+    last_uvv: np.ndarray  # (K, C, 2) last measured image velocity, px/s
+
+    @classmethod
+    def empty(cls, C: int) -> _Tracks:
+        i = np.zeros(0, dtype=np.intp)
+        return cls(i, i, i, i, i, np.zeros((0, 9)), np.zeros((0, 9, 9)), np.zeros((0, 3)), np.zeros((0, 3)),
+                   np.zeros((0, 3)), np.zeros((0, C, 6)), np.zeros((0, C, 6, 6)), np.zeros((0, C), dtype=bool),
+                   np.zeros((0, C, 3)), np.zeros((0, C, 2)), np.zeros((0, C, 2)))
+
+    def __len__(self) -> int:
+        return len(self.uid)
+
+    def keep(self, mask: np.ndarray) -> None:
+        for f in fields(self):
+            setattr(self, f.name, getattr(self, f.name)[mask])
+
+    def extend(self, other: _Tracks) -> None:
+        for f in fields(self):
+            setattr(self, f.name, np.concatenate([getattr(self, f.name), getattr(other, f.name)]))
+
+
+@dataclass
+class _Measurements:
+    """This frame's measurements of the K live tracks (row k: track k)."""
+
+    ok: np.ndarray  # (K,) measured: the filters take it
+    out: np.ndarray  # (K,) reliable (two clean cameras): it is output
+    X: np.ndarray  # (K, 3) m
+    cov: np.ndarray  # (K, 3, 3) m^2
+    rms_px: np.ndarray  # (K,) reprojection RMS, px
+    asg: np.ndarray  # (K, C) detection used per camera, -1: none
+
+    @classmethod
+    def empty(cls, K: int, C: int) -> _Measurements:
+        return cls(np.zeros(K, dtype=bool), np.zeros(K, dtype=bool), np.full((K, 3), np.nan),
+                   np.full((K, 3, 3), np.nan), np.full(K, np.nan), np.full((K, C), -1, dtype=np.intp))
+
+    def put(self, rows: np.ndarray, other: _Measurements) -> None:
+        """Copy ``other``'s rows (len(rows) of them) into ``rows``."""
+        for f in fields(self):
+            getattr(self, f.name)[rows] = getattr(other, f.name)
+
+    def keep(self, mask: np.ndarray) -> None:
+        for f in fields(self):
+            setattr(self, f.name, getattr(self, f.name)[mask])
+
+    def extend(self, other: _Measurements) -> None:
+        for f in fields(self):
+            setattr(self, f.name, np.concatenate([getattr(self, f.name), getattr(other, f.name)]))
+
+
+@dataclass
+class _Frame:
+    """One frame's detections, padded: ``D`` (C, N, 2) ideal px, ``S`` (C, N, 2, 2) px^2, ``valid``,
+    ``merged`` (C, N) bool, ``counts`` per camera."""
+
+    D: np.ndarray
+    S: np.ndarray
+    valid: np.ndarray
+    merged: np.ndarray
+    counts: list[int]
 
 
 class Tracker:
@@ -179,11 +258,9 @@ class Tracker:
             raise MocapError(f"frame rate must be a positive number of frames per second, got {fps}")
         self._rig = rig
         self._fps = float(fps)
-        self._cfg = config or TrackerConfig()
-        cfg = self._cfg
+        self._cfg = cfg = config or TrackerConfig()
         self._dt = dt = 1.0 / self._fps
-        C = len(rig)
-        self._C = C
+        self._C = C = len(rig)
         self._P = rig.projection_matrices()
         self._pairs = camera_pairs(rig)
         self._focal = np.array([0.5 * (c.matrix[0, 0] + c.matrix[1, 1]) for c in rig.cameras])
@@ -193,23 +270,7 @@ class Tracker:
         self._H3, self._H2 = position_jacobian(3), position_jacobian(2)
         self._running = RunningError(cfg.error_alpha, cfg.gate_scale)
         self._keep_lost = max(1, int(round(cfg.keep_lost_s * self._fps)))
-        # Track state (K live tracks).
-        self.uid = np.zeros(0, dtype=np.int64)  # unique per track start, keys the records
-        self.ident = np.zeros(0, dtype=np.intp)  # identity, -1 while tentative
-        self.cand = np.zeros(0, dtype=np.intp)  # lost identity a tentative track may inherit, -1: none
-        self.hits = np.zeros(0, dtype=np.intp)  # consecutive measured frames
-        self.since = np.zeros(0, dtype=np.intp)  # frames since the last measurement (0: this frame)
-        self.x3 = np.zeros((0, 9))
-        self.P3 = np.zeros((0, 9, 9))
-        self.e3 = np.zeros((0, 3))  # running errors: position m, velocity m/s, acceleration m/s^2
-        self.last_X = np.zeros((0, 3))
-        self.last_v = np.zeros((0, 3))  # last measured velocity (finite differences), NaN: unknown
-        self.x2 = np.zeros((0, C, 6))
-        self.P2 = np.zeros((0, C, 6, 6))
-        self.lock2 = np.zeros((0, C), dtype=bool)  # image filter found the marker in the previous frame
-        self.e2 = np.zeros((0, C, 3))  # running image errors: px, px/s, px/s^2
-        self.last_uv = np.zeros((0, C, 2))
-        self.last_uvv = np.zeros((0, C, 2))
+        self._t = _Tracks.empty(C)
         self._next_uid = 0
         self._uid_ident = np.full(256, -1, dtype=np.intp)
         self._n_ident = 0
@@ -225,53 +286,45 @@ class Tracker:
         if self._first is None:
             self._first = frame_index
         self._last = max(self._last, frame_index)
-        cfg, C = self._cfg, self._C
-        D, S, valid, merged, counts = self._prepare(detections)
-        self.since += 1
+        t, C = self._t, self._C
+        fr = self._prepare(detections)
+        t.since += 1
         self._predict()
-        K = len(self.uid)
-        asg = np.full((K, C), -1, dtype=np.intp)
-        play = (self.since - 1 <= cfg.coast_frames) & ((self.ident >= 0) | (self.since == 1))
-        if K and D.shape[1]:
+        K = len(t)
+        meas = _Measurements.empty(K, C)
+        play = self._in_play()
+        crowded = np.zeros((K, C), dtype=bool)
+        if K and fr.D.shape[1]:
             pred, radius = self._search_regions()
-            q = gate(pred, radius, D)
-            conf = np.flatnonzero(play & (self.ident >= 0))
-            tent = np.flatnonzero(play & (self.ident < 0))
-            asg[conf] = assign(q[conf], valid)
+            crowded = self._crowded(pred, play)
+            q = gate(pred, radius, fr.D)
+            conf = np.flatnonzero(play & (t.ident >= 0))
+            tent = np.flatnonzero(play & (t.ident < 0))
+            meas.asg[conf] = assign(q[conf], fr.valid)
             if tent.size:
-                taken = np.zeros_like(valid)
-                taken[np.nonzero(asg[conf] >= 0)[1], asg[conf][asg[conf] >= 0]] = True
-                asg[tent] = assign(q[tent], valid & ~taken)
-        measured = self._measure(asg, D, S, valid, merged)
-        self._update_filters(measured)
-        taken = np.zeros_like(valid)
-        kk, cc = np.nonzero(asg >= 0)
-        taken[cc, asg[kk, cc]] = True
-        self._new_markers(D, S, valid & ~taken, measured)
-        self._lifecycle()
-        return self._record(frame_index, counts)
+                meas.asg[tent] = assign(q[tent], fr.valid & ~_taken(meas.asg, fr.valid.shape))
+            self._measure(fr, crowded, meas)
+            self._update(fr, meas, np.flatnonzero(meas.ok))
+        self._new_markers(fr, fr.valid & ~_taken(meas.asg, fr.valid.shape), meas)
+        self._lifecycle(meas)
+        return self._record(frame_index, fr, meas)
 
     def predicted_rois(self) -> list[np.ndarray]:
         """Per camera (K, 4) int ``x0, y0, x1, y1`` search windows (distorted pixels) for the next frame."""
-        cfg = self._cfg
-        live = (self.since <= cfg.coast_frames) & ((self.ident >= 0) | (self.since == 0))
+        t, cfg = self._t, self._cfg
+        live = (t.since <= cfg.coast_frames) & ((t.ident >= 0) | (t.since == 0))
+        x3, _ = predict(t.x3[live], t.P3[live], self._F3, self._Q3)
+        r3 = np.minimum(self._running.radius(*t.e3[live].T, t.since[live] + 1, self._dt, cfg.gate_floor_m),
+                        cfg.reid_max_m)
         out = []
-        if not live.any():
-            return [np.zeros((0, 4), dtype=np.int64) for _ in range(self._C)]
-        x3, P3 = predict(self.x3[live], self.P3[live], self._F3, self._Q3)
-        since = self.since[live] + 1
-        r3 = self._running.radius(*self.e3[live].T, since, self._dt, cfg.gate_floor_m)
-        r3 = np.minimum(r3, cfg.reid_max_m)
         for c, cam in enumerate(self._rig.cameras):
             uv = cam.project(x3[:, :3])
             depth = cam.world_to_camera(x3[:, :3])[:, 2]
-            with np.errstate(divide="ignore", invalid="ignore"):
-                r = np.clip(r3 * self._focal[c] / depth, cfg.gate_floor_px, cfg.gate_max_px) + 2.0
             ok = np.isfinite(uv).all(axis=1) & (depth > 0)
-            box = np.concatenate([uv[ok] - r[ok, None], uv[ok] + r[ok, None]], axis=1)
+            r = np.clip(r3[ok] * self._focal[c] / depth[ok], cfg.gate_floor_px, cfg.gate_max_px) + 2.0
+            box = np.concatenate([uv[ok] - r[:, None], uv[ok] + r[:, None]], axis=1)
             w, h = cam.size
-            box = np.clip(np.round(box), 0, [w - 1, h - 1, w - 1, h - 1]).astype(np.int64)
-            out.append(box)
+            out.append(np.clip(np.round(box), 0, [w - 1, h - 1, w - 1, h - 1]).astype(np.int64))
         return out
 
     def finish(self) -> Trajectories:
@@ -283,25 +336,20 @@ class Tracker:
         res = np.full((F, M), np.nan)
         mask = np.zeros((F, M), dtype=np.uint32)
         rec = self._records
-        n = rec.n
-        ident = self._uid_ident[rec.uid[:n]]
+        ident = self._uid_ident[rec["uid"]]
         ok = ident >= 0
-        rows = rec.frame[:n][ok] - first
-        cols = ident[ok]
-        pos[rows, cols] = rec.pos[:n][ok]
-        res[rows, cols] = rec.res[:n][ok]
-        mask[rows, cols] = rec.mask[:n][ok]
+        rows, cols = rec["frame"][ok] - first, ident[ok]
+        pos[rows, cols] = rec["pos"][ok]
+        res[rows, cols] = rec["res"][ok]
+        mask[rows, cols] = rec["mask"][ok]
         labels = [f"M{i + 1:03d}" for i in range(M)]
         return Trajectories(labels, self._fps, pos, res, mask, self._rig.names, first,
                             {"tracker": "mocap.tracker", "identities": M})
 
     # ------------------------------------------------------------------ stages
-    def _prepare(self, detections: list[Detections]
-                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, list[int]]:
-        """Padded ideal-pixel detections ``D`` (C, N, 2), covariances (C, N, 2, 2), valid, merged (C, N)."""
+    def _prepare(self, detections: list[Detections]) -> _Frame:
         counts = [len(d) for d in detections]
-        N = max(counts, default=0)
-        C = self._C
+        N, C = max(counts, default=0), self._C
         D = np.full((C, N, 2), np.nan)
         S = np.broadcast_to(np.eye(2), (C, N, 2, 2)).copy()
         merged = np.zeros((C, N), dtype=bool)
@@ -313,282 +361,260 @@ class Tracker:
                 merged[c, :n] = det.merged
         valid = np.isfinite(D).all(axis=2)
         S[merged] *= self._cfg.merged_variance_scale
-        return D, S, valid, merged, counts
+        return _Frame(D, S, valid, merged, counts)
+
+    def _in_play(self) -> np.ndarray:
+        """(K,) tracks that search their own gates: confirmed ones for ``coast_frames`` after their last
+        measurement, tentative ones only in consecutive frames."""
+        t = self._t
+        return (t.since - 1 <= self._cfg.coast_frames) & ((t.ident >= 0) | (t.since == 1))
 
     def _predict(self) -> None:
-        K, C = len(self.uid), self._C
+        t, K, C = self._t, len(self._t), self._C
         if K == 0:
             return
-        self.x3, self.P3 = predict(self.x3, self.P3, self._F3, self._Q3)
-        x2, P2 = predict(self.x2.reshape(K * C, 6), self.P2.reshape(K * C, 6, 6), self._F2, self._Q2)
-        self.x2, self.P2 = x2.reshape(K, C, 6), P2.reshape(K, C, 6, 6)
+        t.x3, t.P3 = predict(t.x3, t.P3, self._F3, self._Q3)
+        x2, P2 = predict(t.x2.reshape(K * C, 6), t.P2.reshape(K * C, 6, 6), self._F2, self._Q2)
+        t.x2, t.P2 = x2.reshape(K, C, 6), P2.reshape(K, C, 6, 6)
 
     def _search_regions(self) -> tuple[np.ndarray, np.ndarray]:
         """Predicted ideal pixels (K, C, 2) and search radii (K, C), pixels."""
-        cfg = self._cfg
-        proj, _ = reprojection_jacobians(self._P, self.x3[:, :3])  # (C, K, 2)
-        depth = np.einsum("cj,kj->kc", self._P[:, 2, :3], self.x3[:, :3]) + self._P[:, 2, 3]
-        r3 = self._running.radius(*self.e3.T, self.since, self._dt, cfg.gate_floor_m)
-        r3 = np.minimum(r3, cfg.reid_max_m)
+        t, cfg = self._t, self._cfg
+        proj, _ = reprojection_jacobians(self._P, t.x3[:, :3])  # (C, K, 2)
+        depth = np.einsum("cj,kj->kc", self._P[:, 2, :3], t.x3[:, :3]) + self._P[:, 2, 3]
+        r3 = np.minimum(self._running.radius(*t.e3.T, t.since, self._dt, cfg.gate_floor_m), cfg.reid_max_m)
         with np.errstate(divide="ignore", invalid="ignore"):
             r3px = r3[:, None] * self._focal[None, :] / depth
-        r2 = self._running.radius(*np.moveaxis(self.e2, 2, 0), np.ones_like(self.lock2, dtype=np.intp),
-                                  self._dt, cfg.gate_floor_px)
-        pred = np.where(self.lock2[..., None], self.x2[..., :2], proj.swapaxes(0, 1))
-        radius = np.clip(np.where(self.lock2, r2, r3px), cfg.gate_floor_px, cfg.gate_max_px)
+        r2 = self._running.radius(*np.moveaxis(t.e2, 2, 0), 1, self._dt, cfg.gate_floor_px)
+        pred = np.where(t.lock2[..., None], t.x2[..., :2], proj.swapaxes(0, 1))
+        radius = np.clip(np.where(t.lock2, r2, r3px), cfg.gate_floor_px, cfg.gate_max_px)
         pred[depth <= 0] = np.nan
         return pred, radius
 
-    def _measure(self, asg: np.ndarray, D: np.ndarray, S: np.ndarray, valid: np.ndarray, merged: np.ndarray
-                 ) -> dict[str, np.ndarray]:
-        """Epipolar pruning + robust fusion + re-pick; fills ``asg`` (K, C) in place with the cameras used."""
-        cfg, C = self._cfg, self._C
-        K = len(asg)
-        cams = np.arange(C)[None, :]
-        uv = np.where((asg >= 0)[..., None], D[cams, np.maximum(asg, 0)], np.nan)  # (K, C, 2)
+    def _crowded(self, pred: np.ndarray, play: np.ndarray) -> np.ndarray:
+        """(K, C) bool: another track in play is predicted within ``merge_px`` in that image."""
+        p = np.where(play[:, None, None], pred, np.nan).swapaxes(0, 1)  # (C, K, 2)
+        diff = p[:, :, None, :] - p[:, None, :, :]
+        d2 = (diff * diff).sum(axis=3)
+        K = len(play)
+        d2[:, np.arange(K), np.arange(K)] = np.inf
+        with np.errstate(invalid="ignore"):
+            return (d2 < self._cfg.merge_px**2).any(axis=2).T
+
+    def _measure(self, fr: _Frame, crowded: np.ndarray, meas: _Measurements) -> None:
+        """Epipolar pruning, robust fusion and re-pick of the assigned detections ``meas.asg``; fills ``meas``."""
+        cfg = self._cfg
+        asg = meas.asg
+        uv = _gather(fr.D, asg)
         supported, tested = epipolar_consistency(self._pairs, uv, cfg.epipolar_px)
         asg[tested & ~supported] = -1
         uv[asg < 0] = np.nan
-        cov = S[cams, np.maximum(asg, 0)]
-        tri = robust_triangulate(self._P, uv.swapaxes(0, 1), cov.swapaxes(0, 1), self.x3[:, :3],
-                                 cfg.outlier_sigma, cfg.outlier_min_px)
+        suspect = crowded & ~_gather(fr.merged, asg)  # merged blobs are down-weighted already
+        inflate = np.where(suspect, cfg.merged_variance_scale, 1.0)[..., None, None]
+        tri = robust_triangulate(self._P, uv.swapaxes(0, 1), (_gather(fr.S, asg) * inflate).swapaxes(0, 1),
+                                 self._t.x3[:, :3], cfg.outlier_sigma, cfg.outlier_min_px)
         asg[~tri.used] = -1
-        if K and D.shape[1]:
-            free = valid & ~merged
-            kk, cc = np.nonzero(asg >= 0)
-            free[cc, asg[kk, cc]] = False
-            extra = repick(tri, D, free, cfg.repick_px)
-            more = (extra >= 0).any(axis=1)
-            if more.any():
-                asg[more] = np.where(extra[more] >= 0, extra[more], asg[more])
-                sub = asg[more]
-                uv2 = np.where((sub >= 0)[..., None], D[cams, np.maximum(sub, 0)], np.nan)
-                cov2 = S[cams, np.maximum(sub, 0)]
-                t2 = robust_triangulate(self._P, uv2.swapaxes(0, 1), cov2.swapaxes(0, 1), tri.X[more],
-                                        cfg.outlier_sigma, cfg.outlier_min_px)
-                idx = np.flatnonzero(more)
-                tri.X[idx], tri.cov[idx], tri.rms_px[idx], tri.used[idx] = t2.X, t2.cov, t2.rms_px, t2.used
-                tri.depth[:, idx] = t2.depth
-                asg[~tri.used] = -1
-        ok = np.isfinite(tri.X).all(axis=1)
-        with np.errstate(invalid="ignore"):
-            scale = np.where(tri.used, tri.depth.T / self._focal[None, :], 0.0).sum(axis=1)
-            scale = scale / np.maximum(tri.used.sum(axis=1), 1)
-        bits = (tri.used.astype(np.uint32) << np.arange(C, dtype=np.uint32)[None, :]).sum(axis=1)
-        return {"ok": ok, "X": tri.X, "cov": tri.cov, "res_mm": tri.rms_px * scale * 1000.0,
-                "mask": bits.astype(np.uint32), "asg": asg, "D": D, "S": S}
+        free = fr.valid & ~fr.merged & ~_taken(asg, fr.valid.shape)
+        extra = repick(tri, fr.D, free, cfg.repick_px)
+        more = np.flatnonzero((extra >= 0).any(axis=1))
+        if more.size:
+            asg[more] = np.where(extra[more] >= 0, extra[more], asg[more])
+            sub = asg[more]
+            inflate = np.where(crowded[more], cfg.merged_variance_scale, 1.0)[..., None, None]
+            t2 = robust_triangulate(self._P, _gather(fr.D, sub).swapaxes(0, 1),
+                                    (_gather(fr.S, sub) * inflate).swapaxes(0, 1), tri.X[more],
+                                    cfg.outlier_sigma, cfg.outlier_min_px)
+            tri.X[more], tri.cov[more], tri.rms_px[more], tri.used[more] = t2.X, t2.cov, t2.rms_px, t2.used
+            asg[~tri.used] = -1
+        meas.ok = np.isfinite(tri.X).all(axis=1)
+        clean = tri.used & ~crowded & ~_gather(fr.merged, asg)
+        meas.out = meas.ok & (clean.sum(axis=1) >= 2)
+        meas.X, meas.cov, meas.rms_px = tri.X, tri.cov, tri.rms_px
 
-    def _update_filters(self, m: dict[str, np.ndarray]) -> None:
-        """Kalman and running-error updates of the measured tracks (3D and image filters)."""
-        ok = m["ok"]
-        self._last_measure = m
-        if not ok.any():
+    def _update(self, fr: _Frame, meas: _Measurements, idx: np.ndarray) -> None:
+        """Kalman and running-error updates of tracks ``idx`` with their measurements (3D and image filters)."""
+        if idx.size == 0:
             return
-        dt, C = self._dt, self._C
-        idx = np.flatnonzero(ok)
-        X = m["X"][idx]
-        R = m["cov"][idx] + np.eye(3) * 1e-12
-        consecutive = self.since[idx] == 1
-        x_prior = self.x3[idx]
-        x_new, P_new, y, _ = update(x_prior, self.P3[idx], X, x_prior[:, :3], self._H3, R)
-        # Running errors (paper 004) from consecutive frames only.
-        v_meas = (X - self.last_X[idx]) / dt
-        a_meas = (v_meas - self.last_v[idx]) / dt
-        err = np.stack([np.linalg.norm(y, axis=1), np.linalg.norm(v_meas - x_prior[:, 3:6], axis=1),
-                        np.linalg.norm(a_meas - x_prior[:, 6:9], axis=1)], axis=1)
-        err = np.where(np.isfinite(err), err, self.e3[idx])
-        e3 = np.where(consecutive[:, None], self._running.step(self.e3[idx], err), self.e3[idx])
-        self.x3[idx], self.P3[idx], self.e3[idx] = x_new, P_new, e3
-        self.last_v[idx] = np.where(consecutive[:, None], v_meas, np.nan)
-        self.last_X[idx] = X
-        self.hits[idx] = np.where(consecutive, self.hits[idx] + 1, 1)
-        self.since[idx] = 0
+        t, dt = self._t, self._dt
+        X = meas.X[idx]
+        R = meas.cov[idx] + np.eye(3) * 1e-12
+        consecutive = t.since[idx] == 1
+        prior = t.x3[idx]
+        x_new, P_new, y, _ = update(prior, t.P3[idx], X, prior[:, :3], self._H3, R)
+        # Running prediction errors (paper 004), from consecutive frames only.
+        v_meas = (X - t.last_X[idx]) / dt
+        a_meas = (v_meas - t.last_v[idx]) / dt
+        err = np.stack([np.linalg.norm(y, axis=1), np.linalg.norm(v_meas - prior[:, 3:6], axis=1),
+                        np.linalg.norm(a_meas - prior[:, 6:9], axis=1)], axis=1)
+        err = np.where(np.isfinite(err), err, t.e3[idx])
+        t.e3[idx] = np.where(consecutive[:, None], self._running.step(t.e3[idx], err), t.e3[idx])
+        t.x3[idx], t.P3[idx] = x_new, P_new
+        t.last_v[idx] = np.where(consecutive[:, None], v_meas, np.nan)
+        t.last_X[idx] = X
+        t.hits[idx] = np.where(consecutive, t.hits[idx] + 1, 1)
+        t.since[idx] = 0
         # Image filters of the cameras used.
-        asg = m["asg"][idx]
+        asg = meas.asg[idx]
         kk, cc = np.nonzero(asg >= 0)
         tk = idx[kk]
-        z = m["D"][cc, asg[kk, cc]]
-        Rz = m["S"][cc, asg[kk, cc]]
-        locked = self.lock2[tk, cc]
-        x2, P2 = self.x2[tk, cc], self.P2[tk, cc]
-        x2n, P2n, y2, _ = update(x2, P2, z, x2[:, :2], self._H2, Rz)
-        uvv = (z - self.last_uv[tk, cc]) / dt
-        uva = (uvv - self.last_uvv[tk, cc]) / dt
+        z = fr.D[cc, asg[kk, cc]]
+        Rz = fr.S[cc, asg[kk, cc]]
+        locked = t.lock2[tk, cc]
+        x2 = t.x2[tk, cc]
+        x2n, P2n, y2, _ = update(x2, t.P2[tk, cc], z, x2[:, :2], self._H2, Rz)
+        uvv = (z - t.last_uv[tk, cc]) / dt
+        uva = (uvv - t.last_uvv[tk, cc]) / dt
         err2 = np.stack([np.linalg.norm(y2, axis=1), np.linalg.norm(uvv - x2[:, 2:4], axis=1),
                          np.linalg.norm(uva - x2[:, 4:6], axis=1)], axis=1)
-        e2 = self.e2[tk, cc]
+        e2 = t.e2[tk, cc]
         e2 = np.where(locked[:, None] & np.isfinite(err2), self._running.step(e2, np.nan_to_num(err2)), e2)
-        if (~locked).any():  # (re)start image filters from the projected 3D state
-            nl = ~locked
-            _, J = reprojection_jacobians(self._P, self.x3[tk[nl], :3])  # (C, n, 2, 3)
-            Jn = J[cc[nl], np.arange(nl.sum())]
-            vel = (Jn @ self.x3[tk[nl], 3:6, None])[..., 0]
-            x0, P0 = init_state(z[nl], Rz[nl], vel, _IMAGE_VELOCITY_STD, _IMAGE_ACCEL_STD)
-            x2n[nl], P2n[nl] = x0, P0
+        nl = np.flatnonzero(~locked)
+        if nl.size:  # (re)start image filters from the projected 3D state
+            _, J = reprojection_jacobians(self._P, t.x3[tk[nl], :3])  # (C, n, 2, 3)
+            vel = (J[cc[nl], np.arange(nl.size)] @ t.x3[tk[nl], 3:6, None])[..., 0]
+            x2n[nl], P2n[nl] = init_state(z[nl], Rz[nl], vel, _IMAGE_VELOCITY_STD, _IMAGE_ACCEL_STD)
             e2[nl] = self._e2_from_3d(tk[nl], cc[nl])
-        self.x2[tk, cc], self.P2[tk, cc], self.e2[tk, cc] = x2n, P2n, e2
-        self.last_uvv[tk, cc] = np.where(locked[:, None], uvv, 0.0)
-        self.last_uv[tk, cc] = z
-        lock = np.zeros((len(self.uid), C), dtype=bool)
-        lock[tk, cc] = True
-        self.lock2 = lock
+        t.x2[tk, cc], t.P2[tk, cc], t.e2[tk, cc] = x2n, P2n, e2
+        t.last_uvv[tk, cc] = np.where(locked[:, None], uvv, 0.0)
+        t.last_uv[tk, cc] = z
+        t.lock2[idx] = asg >= 0
 
     def _e2_from_3d(self, tracks: np.ndarray, cams: np.ndarray) -> np.ndarray:
         """(n, 3) image running errors seeded from the tracks' 3D ones, scaled by f / depth."""
-        X = self.x3[tracks, :3]
+        X = self._t.x3[tracks, :3]
         depth = np.einsum("nj,nj->n", self._P[cams, 2, :3], X) + self._P[cams, 2, 3]
-        return self.e3[tracks] * (self._focal[cams] / np.maximum(depth, 1e-6))[:, None]
-
-    def _new_markers(self, D: np.ndarray, S: np.ndarray, free: np.ndarray, m: dict[str, np.ndarray]) -> None:
-        """Points from the free detections: re-acquire missed tracks, or start tentative tracks."""
-        cfg = self._cfg
-        if free.sum() < 2 or len(self._pairs) == 0:
-            return
-        pts = new_points(self._P, self._pairs, D, S, free, self._sizes, cfg.epipolar_px, cfg.support_px,
-                         cfg.new_min_views, cfg.outlier_sigma, cfg.outlier_min_px)
-        if len(pts.X) == 0:
-            return
-        measured = self.since == 0
-        if measured.any():  # duplicates of markers already measured this frame
-            d = np.linalg.norm(pts.X[:, None] - self.x3[measured, None, :3].swapaxes(0, 1), axis=2)
-            far = d.min(axis=1) > cfg.min_separation_m
-            pts.X, pts.cov, pts.rms_px, pts.det = pts.X[far], pts.cov[far], pts.rms_px[far], pts.det[far]
-        if len(pts.X) == 0:
-            return
-        # 1) tracks that missed this frame but are still searching: re-acquire directly.
-        missing = np.flatnonzero((self.since >= 1) & (self.since - 1 <= cfg.coast_frames)
-                                 & ((self.ident >= 0) | (self.since == 1)))
-        r = self._radius3(missing)
-        match = reidentify(pts.X, self.x3[missing, :3], r)
-        got = match >= 0
-        if got.any():
-            self._accept(missing[match[got]], pts, np.flatnonzero(got), D, S)
-        rest = np.flatnonzero(~got)
-        if rest.size == 0:
-            return
-        # 2) lost identities: a tentative track that inherits the identity when confirmed.
-        lost = np.flatnonzero((self.ident >= 0) & (self.since - 1 > cfg.coast_frames))
-        cand = np.full(rest.size, -1, dtype=np.intp)
-        if lost.size:
-            match = reidentify(pts.X[rest], self.x3[lost, :3], self._radius3(lost))
-            cand = np.where(match >= 0, self.ident[lost[np.maximum(match, 0)]], -1)
-        self._start(pts.X[rest], pts.cov[rest], cand, pts.det[rest], pts.rms_px[rest])
+        return self._t.e3[tracks] * (self._focal[cams] / np.maximum(depth, 1e-6))[:, None]
 
     def _radius3(self, tracks: np.ndarray) -> np.ndarray:
-        r = self._running.radius(*self.e3[tracks].T, self.since[tracks], self._dt, self._cfg.gate_floor_m)
-        return np.minimum(r, self._cfg.reid_max_m)
+        """(n,) 3D search radius of ``tracks``, m (widens with the frames since their last measurement)."""
+        t, cfg = self._t, self._cfg
+        return np.minimum(self._running.radius(*t.e3[tracks].T, t.since[tracks], self._dt, cfg.gate_floor_m),
+                          cfg.reid_max_m)
 
-    def _accept(self, tracks: np.ndarray, pts, rows: np.ndarray, D: np.ndarray, S: np.ndarray) -> None:
-        """Measure ``tracks`` with new points ``rows`` (re-acquisition after a miss)."""
-        C = self._C
-        K = len(self.uid)
-        asg = np.full((K, C), -1, dtype=np.intp)
-        asg[tracks] = pts.det[rows]
-        X = np.full((K, 3), np.nan)
-        X[tracks] = pts.X[rows]
-        cov = np.full((K, 3, 3), np.nan)
-        cov[tracks] = pts.cov[rows]
-        used = asg >= 0
-        depth = np.einsum("cj,kj->kc", self._P[:, 2, :3], np.nan_to_num(X)) + self._P[:, 2, 3]
-        scale = np.where(used, depth / self._focal[None, :], 0.0).sum(axis=1) / np.maximum(used.sum(axis=1), 1)
-        res = np.full(K, np.nan)
-        res[tracks] = pts.rms_px[rows] * scale[tracks] * 1000.0
-        bits = (used.astype(np.uint32) << np.arange(C, dtype=np.uint32)[None, :]).sum(axis=1).astype(np.uint32)
-        ok = np.zeros(K, dtype=bool)
-        ok[tracks] = True
-        self._merge_measurements({"ok": ok, "X": X, "cov": cov, "res_mm": res, "mask": bits, "asg": asg,
-                                  "D": D, "S": S})
+    def _new_markers(self, fr: _Frame, free: np.ndarray, meas: _Measurements) -> None:
+        """Points from the free detections: re-acquire missed tracks, or start tentative tracks."""
+        t, cfg = self._t, self._cfg
+        if free.sum() < 2 or len(self._pairs) == 0:
+            return
+        pts = new_points(self._P, self._pairs, fr.D, fr.S, free, self._sizes, cfg.epipolar_px, cfg.support_px,
+                         cfg.new_min_views, cfg.outlier_sigma, cfg.outlier_min_px)
+        measured = t.since == 0
+        if len(pts.X) and measured.any():  # duplicates of markers measured this frame
+            d = np.linalg.norm(pts.X[:, None] - t.x3[None, measured, :3], axis=2)
+            pts = pts.subset(d.min(axis=1) > cfg.min_separation_m)
+        if len(pts.X) == 0:
+            return
+        # 1) Tracks that missed this frame but still search: re-acquire them directly.
+        missing = np.flatnonzero((t.since >= 1) & self._in_play())
+        match = reidentify(pts.X, t.x3[missing, :3], self._radius3(missing))
+        got = np.flatnonzero(match >= 0)
+        if got.size:
+            rows = missing[match[got]]
+            clean = (pts.det[got] >= 0) & ~_gather(fr.merged, pts.det[got])
+            meas.put(rows, _Measurements(np.ones(got.size, dtype=bool), clean.sum(axis=1) >= 2, pts.X[got],
+                                         pts.cov[got], pts.rms_px[got], pts.det[got]))
+            self._update(fr, meas, rows)
+        rest = np.flatnonzero((match < 0) & pts.strong)
+        if rest.size == 0:
+            return
+        # 2) Identities not measured this frame: a tentative track inherits one if confirmed (_lifecycle).
+        lost = np.flatnonzero((t.ident >= 0) & (t.since >= 1))
+        cand = np.full(rest.size, -1, dtype=np.intp)
+        if lost.size:
+            match = reidentify(pts.X[rest], t.x3[lost, :3], self._radius3(lost), t.last_X[lost])
+            cand = np.where(match >= 0, t.ident[lost[np.maximum(match, 0)]], -1)
+        self._start(fr, pts.subset(rest), cand, meas)
 
-    def _merge_measurements(self, m: dict[str, np.ndarray]) -> None:
-        """Apply extra measurements ``m`` (tracks re-acquired from new points) after the main ones."""
-        prev = self._last_measure
-        lock = self.lock2.copy()
-        self._update_filters(m)
-        self.lock2 |= lock
-        ok = m["ok"]
-        for key in ("X", "cov", "res_mm", "mask", "asg"):
-            prev[key][ok] = m[key][ok]
-        prev["ok"] = prev["ok"] | ok
-        self._last_measure = prev
-
-    def _start(self, X: np.ndarray, cov: np.ndarray, cand: np.ndarray, det: np.ndarray, rms: np.ndarray) -> None:
-        """Append tentative tracks at points ``X`` (n, 3)."""
-        n, C = len(X), self._C
-        cfg = self._cfg
-        x3, P3 = init_state(X, cov + np.eye(3) * 1e-12, velocity_std=cfg.new_track_speed,
+    def _start(self, fr: _Frame, pts: NewPoints, cand: np.ndarray, meas: _Measurements) -> None:
+        """Append tentative tracks at new points ``pts`` (and their measurements to ``meas``)."""
+        n, C, cfg = len(pts.X), self._C, self._cfg
+        x3, P3 = init_state(pts.X, pts.cov + np.eye(3) * 1e-12, velocity_std=cfg.new_track_speed,
                             accel_std=cfg.new_track_speed * self._fps)
         uid = np.arange(self._next_uid, self._next_uid + n)
         self._next_uid += n
         if self._next_uid > len(self._uid_ident):
-            grow = np.full(max(2 * len(self._uid_ident), self._next_uid), -1, dtype=np.intp)
-            grow[: len(self._uid_ident)] = self._uid_ident
-            self._uid_ident = grow
+            grown = np.full(max(2 * len(self._uid_ident), self._next_uid), -1, dtype=np.intp)
+            grown[: len(self._uid_ident)] = self._uid_ident
+            self._uid_ident = grown
         e3 = np.zeros((n, 3))
-        e3[:, 0] = cfg.new_track_speed * self._dt / cfg.gate_scale
-        new = {
-            "uid": uid, "ident": np.full(n, -1, dtype=np.intp), "cand": cand, "hits": np.ones(n, dtype=np.intp),
-            "since": np.zeros(n, dtype=np.intp), "x3": x3, "P3": P3, "e3": e3, "last_X": X,
-            "last_v": np.full((n, 3), np.nan), "x2": np.zeros((n, C, 6)), "P2": np.broadcast_to(
-                np.eye(6), (n, C, 6, 6)).copy(), "lock2": np.zeros((n, C), dtype=bool),
-            "e2": np.zeros((n, C, 3)), "last_uv": np.zeros((n, C, 2)), "last_uvv": np.zeros((n, C, 2)),
-        }
-        for name in _TRACK_FIELDS:
-            setattr(self, name, np.concatenate([getattr(self, name), new[name]]))
-        prev = self._last_measure
-        D, S = prev["D"], prev["S"]
-        bits = ((det >= 0).astype(np.uint32) << np.arange(C, dtype=np.uint32)[None, :]).sum(axis=1)
-        used = det >= 0
+        e3[:, 0] = cfg.new_track_speed * self._dt / cfg.gate_scale  # first gate: new_track_speed x dt
+        used = pts.det >= 0
+        k, c = np.nonzero(used)
+        z = fr.D[c, pts.det[k, c]]
+        x2 = np.zeros((n, C, 6))
+        P2 = np.broadcast_to(np.eye(6), (n, C, 6, 6)).copy()
+        x2[k, c], P2[k, c] = init_state(z, fr.S[c, pts.det[k, c]], None, _IMAGE_VELOCITY_STD, _IMAGE_ACCEL_STD)
+        last_uv = np.zeros((n, C, 2))
+        last_uv[k, c] = z
+        i = np.zeros(n, dtype=np.intp)
+        new = _Tracks(uid, i - 1, cand, i + 1, i.copy(), x3, P3, e3, pts.X.copy(), np.full((n, 3), np.nan), x2, P2,
+                      used, np.zeros((n, C, 3)), last_uv, np.zeros((n, C, 2)))
+        base = len(self._t)
+        self._t.extend(new)
+        self._t.e2[base + k, c] = self._e2_from_3d(base + k, c)
+        clean = used & ~_gather(fr.merged, pts.det)
+        meas.extend(_Measurements(np.ones(n, dtype=bool), clean.sum(axis=1) >= 2, pts.X, pts.cov, pts.rms_px,
+                                  pts.det))
+
+    def _lifecycle(self, meas: _Measurements) -> None:
+        """Confirm tentative tracks, drop failed tentative ones and retired identities."""
+        t, cfg = self._t, self._cfg
+        t.lock2[t.since > 0] = False
+        tentative = t.ident < 0
+        confirm = np.flatnonzero(tentative & (t.since == 0) & (t.hits >= cfg.confirm_frames))
+        retire = np.zeros(len(t), dtype=bool)
+        for k in confirm:  # rare: once per new identity
+            owner = np.flatnonzero((t.ident == t.cand[k]) & (t.since >= 1)) if t.cand[k] >= 0 else []
+            if len(owner):
+                retire[owner] = True
+                t.ident[k] = t.cand[k]
+            else:
+                t.ident[k] = self._n_ident
+                self._n_ident += 1
+            self._uid_ident[t.uid[k]] = t.ident[k]
+        retire |= tentative & (t.since > 0) & (t.ident < 0)
+        retire |= (t.ident >= 0) & (t.since > self._keep_lost)
+        if retire.any():
+            t.keep(~retire)
+            meas.keep(~retire)
+
+    def _record(self, frame_index: int, fr: _Frame, meas: _Measurements) -> FrameResult:
+        t, C = self._t, self._C
+        rows = np.flatnonzero(meas.out & (t.since == 0))
+        X, asg = meas.X[rows], meas.asg[rows]
+        used = asg >= 0
         depth = np.einsum("cj,kj->kc", self._P[:, 2, :3], X) + self._P[:, 2, 3]
         scale = np.where(used, depth / self._focal[None, :], 0.0).sum(axis=1) / np.maximum(used.sum(axis=1), 1)
-        for key, value in (("ok", np.ones(n, dtype=bool)), ("X", X), ("cov", cov), ("res_mm", rms * scale * 1e3),
-                           ("mask", bits.astype(np.uint32)), ("asg", det)):
-            prev[key] = np.concatenate([prev[key], value])
-        # Image filters start at the detections.
-        k, c = np.nonzero(used)
-        z = D[c, det[k, c]]
-        x0, P0 = init_state(z, S[c, det[k, c]], velocity_std=_IMAGE_VELOCITY_STD, accel_std=_IMAGE_ACCEL_STD)
-        base = len(self.uid) - n
-        self.x2[base + k, c], self.P2[base + k, c] = x0, P0
-        self.e2[base + k, c] = self._e2_from_3d(base + k, c)
-        self.last_uv[base + k, c] = z
-        self.lock2[base + k, c] = True
+        res = meas.rms_px[rows] * scale * 1000.0
+        mask = (used.astype(np.uint32) << np.arange(C, dtype=np.uint32)).sum(axis=1).astype(np.uint32)
+        self._records.append(frame=frame_index, uid=t.uid[rows], pos=X, res=res, mask=mask)
+        conf = t.ident[rows] >= 0
+        ids = t.ident[rows][conf]
+        assignments = [np.full(n, -1, dtype=np.intp) for n in fr.counts]
+        kk, cc = np.nonzero(used[conf])
+        for c in range(C):
+            sel = cc == c
+            assignments[c][asg[conf][kk[sel], c]] = ids[kk[sel]]
+        return FrameResult(frame_index, ids, X[conf], res[conf], mask[conf], assignments)
 
-    def _lifecycle(self) -> None:
-        """Confirm tentative tracks, drop failed tentative ones and retired identities."""
-        cfg = self._cfg
-        tentative = self.ident < 0
-        confirm = np.flatnonzero(tentative & (self.since == 0) & (self.hits >= cfg.confirm_frames))
-        retire = np.zeros(len(self.uid), dtype=bool)
-        for k in confirm:  # rare: once per new identity
-            c = self.cand[k]
-            owner = np.flatnonzero(self.ident == c) if c >= 0 else np.zeros(0, dtype=np.intp)
-            if c >= 0 and owner.size and self.since[owner[0]] - 1 > cfg.coast_frames:
-                retire[owner] = True
-                self.ident[k] = c
-            else:
-                self.ident[k] = self._n_ident
-                self._n_ident += 1
-            self._uid_ident[self.uid[k]] = self.ident[k]
-        retire |= tentative & (self.since > 0) & (self.ident < 0)
-        retire |= (self.ident >= 0) & (self.since > self._keep_lost)
-        if retire.any():
-            keep = ~retire
-            for name in _TRACK_FIELDS:
-                setattr(self, name, getattr(self, name)[keep])
-            prev = self._last_measure
-            for key in ("ok", "X", "cov", "res_mm", "mask", "asg"):
-                prev[key] = prev[key][keep]
 
-    def _record(self, frame_index: int, counts: list[int]) -> FrameResult:
-        m = self._last_measure
-        ok = m["ok"] & (self.since == 0)
-        self._records.append(frame_index, self.uid[ok], m["X"][ok], m["res_mm"][ok], m["mask"][ok])
-        conf = ok & (self.ident >= 0)
-        ids = self.ident[conf]
-        assignments = [np.full(n, -1, dtype=np.intp) for n in counts]
-        asg = m["asg"][conf]
-        for c in range(self._C):
-            has = asg[:, c] >= 0
-            assignments[c][asg[has, c]] = ids[has]
-        return FrameResult(frame_index, ids.copy(), m["X"][conf].copy(), m["res_mm"][conf].copy(),
-                           m["mask"][conf].copy(), assignments)
+def _gather(values: np.ndarray, asg: np.ndarray) -> np.ndarray:
+    """Per-detection ``values`` (C, N, ...) picked by ``asg`` (K, C) -> (K, C, ...); NaN/False/0 where -1."""
+    C = values.shape[0]
+    if values.shape[1] == 0:
+        fill = np.nan if values.dtype.kind == "f" else 0
+        return np.full(asg.shape + values.shape[2:], fill, dtype=values.dtype)
+    got = values[np.arange(C)[None, :], np.maximum(asg, 0)]
+    if values.dtype == bool:
+        return got & (asg >= 0)
+    if values.ndim == 3:
+        return np.where((asg >= 0)[..., None], got, np.nan)
+    return got
+
+
+def _taken(asg: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
+    """(C, N) bool: detections used by some track in ``asg`` (K, C)."""
+    taken = np.zeros(shape, dtype=bool)
+    kk, cc = np.nonzero(asg >= 0)
+    taken[cc, asg[kk, cc]] = True
+    return taken
