@@ -8,7 +8,7 @@ import numpy as np
 
 from mocap.errors import MocapError
 
-__all__ = ["z_up_to_y_up", "y_up_to_z_up", "check_labels"]
+__all__ = ["z_up_to_y_up", "y_up_to_z_up", "check_labels", "identity_colors"]
 
 
 def z_up_to_y_up(points: np.ndarray) -> np.ndarray:
@@ -43,3 +43,12 @@ def check_labels(labels: list[str], path: str | os.PathLike, fmt: str, forbidden
                 f"ASCII{' without ' + repr(shown) if forbidden else ''}; rename the marker (for example "
                 f"{label.encode('ascii', 'replace').decode().replace('?', '_') or f'M{i:03d}'!r})"
             )
+
+
+def identity_colors(ids: np.ndarray) -> np.ndarray:
+    """(K,) integer identities -> (K, 4) RGBA in [0, 1]: hues spread by the golden ratio, full alpha."""
+    hue = (np.asarray(ids, dtype=np.float64) * 0.618033988749895) % 1.0
+    sector = hue * 6.0
+    rgb = np.clip(np.abs((sector[:, None] + np.array([0.0, 4.0, 2.0])) % 6.0 - 3.0) - 1.0, 0.0, 1.0)
+    rgb = 1.0 - 0.8 * (1.0 - rgb)  # saturation 0.8, value 1
+    return np.column_stack([rgb, np.ones(len(hue))])

@@ -26,7 +26,7 @@ from scipy.spatial.transform import Rotation
 from mocap.camera import Camera
 
 __all__ = [
-    "timestamp", "identity_colors", "frame_transform", "camera_calibration", "PointCloudLayout",
+    "timestamp", "frame_transform", "camera_calibration", "PointCloudLayout",
     "scene_update", "image_annotations", "padded_strings", "WORLD_FRAME",
 ]
 
@@ -112,15 +112,6 @@ def _color(field: int, rgba: np.ndarray) -> list[bytes | np.ndarray]:
     keys = _doubles(1, 2, 3, 4)
     return [_key(field, _LEN) + _varint(36), keys[0], rgba[:, 0], keys[1], rgba[:, 1], keys[2], rgba[:, 2],
             keys[3], rgba[:, 3]]
-
-
-def identity_colors(ids: np.ndarray) -> np.ndarray:
-    """(K,) integer identities -> (K, 4) RGBA in [0, 1]: hues spread by the golden ratio, full alpha."""
-    hue = (np.asarray(ids, dtype=np.float64) * 0.618033988749895) % 1.0
-    sector = hue * 6.0
-    rgb = np.clip(np.abs((sector[:, None] + np.array([0.0, 4.0, 2.0])) % 6.0 - 3.0) - 1.0, 0.0, 1.0)
-    rgb = 1.0 - 0.8 * (1.0 - rgb)  # saturation 0.8, value 1
-    return np.column_stack([rgb, np.ones(len(hue))])
 
 
 # ------------------------------------------------------------------ static messages

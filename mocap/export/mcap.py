@@ -55,6 +55,7 @@ from mocap.camera import Rig, parse_rig, rig_to_toml
 from mocap.detections import Detections
 from mocap.errors import MocapError
 from mocap.export import foxglove as fx
+from mocap.export.common import identity_colors
 from mocap.trajectories import Trajectories
 
 __all__ = ["McapLogger", "McapTake", "write_mcap", "read_mcap_take", "read_mcap_trajectories", "default_label"]
@@ -67,7 +68,7 @@ CENTROID_LAYOUT = [(name, "<f8") for name in
 MARKER_LAYOUT = [("x", "<f8"), ("y", "<f8"), ("z", "<f8"), ("residual_mm", "<f8"), ("id", "<u4"),
                  ("camera_mask", "<u4")]
 _TEXT_OFFSET_PX = np.array([8.0, -8.0])
-_PALETTE = fx.identity_colors(np.arange(256))
+_PALETTE = identity_colors(np.arange(256))
 
 
 def default_label(identity: int) -> str:
