@@ -30,8 +30,9 @@ import numpy as np
 
 from mocap.errors import MocapError
 from mocap.frontends.particles import normalise, predict_linear, systematic_resample, weighted_mean
+from mocap.frontends.skin import as_bgr, skin_mask
 
-__all__ = ["CueMode", "HeadConfig", "HeadTracker", "HeadEstimate", "skin_mask", "detect_head_box", "track_head"]
+__all__ = ["CueMode", "HeadConfig", "HeadTracker", "HeadEstimate", "detect_head_box", "track_head"]
 
 _BINS = 8
 _NBINS = _BINS**3
@@ -99,13 +100,6 @@ class HeadEstimate:
     similarity: float
 
 
-def skin_mask(image: np.ndarray) -> np.ndarray:
-    """(H, W, 3) uint8 BGR -> (H, W) uint8 mask (255 = skin), by fixed YCrCb thresholds, opened 3x3."""
-    ycrcb = cv2.cvtColor(image, cv2.COLOR_BGR2YCrCb)
-    mask = cv2.inRange(ycrcb, (40, 135, 80), (250, 178, 130))
-    return cv2.morphologyEx(mask, cv2.MORPH_OPEN, np.ones((3, 3), np.uint8))
-
-
 def detect_head_box(image: np.ndarray) -> tuple[float, float, float, float] | None:
     """A head box ``(x, y, w, h)`` px from the largest skin blob (the face), grown upward for the hair.
 
@@ -150,7 +144,7 @@ class HeadTracker:
         x, y, w, h = (float(v) for v in box)
         if not (w > 2 and h > 2):
             raise MocapError(f"head box {box}: width and height must be more than 2 px")
-        frame = _as_bgr(first_frame)
+        frame = as_bgr(first_frame)
         self.shape = frame.shape[:2]
         self.aspect = h / w
         cfg = self.config
@@ -233,7 +227,7 @@ class HeadTracker:
     # ----------------------------------------------------------------- update
     def update(self, frame: np.ndarray) -> HeadEstimate:
         """Predict, weight, estimate, adapt the cue weights and resample for one (H, W, 3) frame."""
-        frame = _as_bgr(frame)
+        frame = as_bgr(frame)
         if frame.shape[:2] != self.shape:
             raise MocapError(f"frame size {frame.shape[1]}x{frame.shape[0]} differs from the first frame's "
                              f"{self.shape[1]}x{self.shape[0]}; all frames of one video must have one size")
@@ -271,18 +265,6 @@ class HeadTracker:
         return k / k.sum()
 
 
-def _as_bgr(frame: np.ndarray) -> np.ndarray:
-    """Accept (H, W) grey or (H, W, 3) BGR uint8; return (H, W, 3) uint8."""
-    frame = np.asarray(frame)
-    if frame.dtype != np.uint8:
-        raise MocapError(f"frames must be 8-bit images, got dtype {frame.dtype}")
-    if frame.ndim == 2:
-        return cv2.cvtColor(frame, cv2.COLOR_GRAY2BGR)
-    if frame.ndim == 3 and frame.shape[2] == 3:
-        return frame
-    raise MocapError(f"frames must be (H, W) grey or (H, W, 3) colour images, got shape {frame.shape}")
-
-
 def track_head(frames: np.ndarray, box: tuple[float, float, float, float] | None = None,
                config: HeadConfig | None = None, seed: int = 0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Track a head through a whole video.
@@ -307,7 +289,7 @@ def track_head(frames: np.ndarray, box: tuple[float, float, float, float] | None
     start = 0
     if box is None:
         for start in range(n):
-            box = detect_head_box(_as_bgr(frames[start]))
+            box = detect_head_box(as_bgr(frames[start]))
             if box is not None:
                 break
         else:
