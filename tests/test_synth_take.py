@@ -235,3 +235,12 @@ def test_cli_renders_and_reports_user_errors(tmp_path, capsys):
     assert main(["synth", str(tmp_path / "w"), "--noise", "-1"]) == 2
     assert "--noise" in capsys.readouterr().err
     assert not (tmp_path / "u").exists() and not (tmp_path / "v").exists() and not (tmp_path / "w").exists()
+
+
+def test_committed_sample_take_matches_its_truth():
+    sample = Path(__file__).resolve().parents[1] / "datasets" / "samples" / "march_sample"
+    truth = load_truth(sample.with_name("march_sample.truth.npz"))
+    assert (sample / "calibration.toml").read_text() == truth.settings["calibration_toml"]
+    assert truth.n_frames == 24 and truth.settings["noise"] == 0
+    errors = centroid_errors(sample, truth)
+    assert len(errors) > 300 and np.median(errors) < 0.05
