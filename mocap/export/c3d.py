@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import os
 import struct
+from dataclasses import dataclass
 from pathlib import Path
 
 import ezc3d
@@ -32,6 +33,7 @@ UNIT_TO_METRES = {"mm": 1e-3, "cm": 1e-2, "dm": 1e-1, "m": 1.0, "in": 0.0254, "i
 _RESIDUAL_STEPS_MM = (0.001, 0.002, 0.005, 0.01, 0.02, 0.05, 0.1, 0.2, 0.5, 1.0, 2.0, 5.0)
 _C3D_CAMERA_BITS = 7
 _HEADER_SCALE_OFFSET = 12  # header words 7-8: the POINT scale factor, a float (Intel byte order)
+MAX_FRAMES = 65535  # the C3D header's 16-bit frame count; ezc3d 1.7 silently drops frames beyond it
 
 
 def _residual_scale(residuals_mm: np.ndarray) -> float:
@@ -48,6 +50,11 @@ def write_c3d(traj: Trajectories, path: str | os.PathLike) -> None:
     """Write ``traj`` to a C3D file atomically (positions in mm)."""
     check_labels(traj.labels, path, "C3D")
     F, M = traj.n_frames, traj.n_markers
+    if F > MAX_FRAMES:
+        raise MocapError(
+            f"{path}: {F} frames do not fit in a C3D file written by ezc3d (at most {MAX_FRAMES}, "
+            f"{MAX_FRAMES / traj.fps / 60:.1f} min at {traj.fps:g} Hz); split the take (mocap reconstruct "
+            f"--start/--stop) or write TRC, CSV or MCAP, which have no such limit")
     valid = traj.valid
     points = np.zeros((4, M, F))
     points[:3] = np.transpose(np.where(valid[..., None], traj.positions * 1000.0, np.nan), (2, 1, 0))
@@ -73,42 +80,57 @@ def write_c3d(traj: Trajectories, path: str | os.PathLike) -> None:
         with open(tmp, "r+b") as f:  # ezc3d leaves the header's scale at -1; make it match POINT:SCALE
             f.seek(_HEADER_SCALE_OFFSET)
             f.write(struct.pack("<f", -step))
-        words = _point_words(tmp, M, F, mode="r+")
+        words = _point_words(tmp, M, F, -step, mode="r+")
         code = words.astype(np.int32)
         words[:] = np.where(code < 0, -1.0, ((code & 0x7F) << 8) | (code >> 8))  # ezc3d's byte order -> the spec's
         words.flush()
 
 
-def _point_words(path: Path, n_points: int, n_frames: int, mode: str = "r") -> np.memmap | None:
-    """(F, M) view of the residual/camera word of every point record, or None if not an Intel-format file.
+@dataclass(frozen=True)
+class _Layout:
+    """Where a C3D file's point records are: byte offset, word type, words per frame, processor."""
 
-    Reads the header (data start block, analog words per frame) and the processor type
-    (parameter section byte 4: 84 = Intel) straight from the file.
-    """
-    with open(path, "rb") as f:
-        header = f.read(512)
-        f.seek((header[0] - 1) * 512 + 3)
-        processor = f.read(1)
-    if len(header) < 20 or processor != b"\x54":
+    start: int
+    dtype: np.dtype
+    frame_words: int
+    intel: bool
+    declared_frames: int
+
+    @classmethod
+    def of(cls, path: Path, n_points: int, scale: float) -> _Layout:
+        """Layout of ``path`` holding ``n_points`` points with POINT:SCALE ``scale`` (< 0: float words)."""
+        with open(path, "rb") as f:
+            header = f.read(512)
+            f.seek((header[0] - 1) * 512 + 3)
+            processor = f.read(1)
+        order = ">" if processor == b"\x56" else "<"  # MIPS is big-endian; Intel and DEC little-endian
+        dtype = np.dtype(f"{order}f4") if scale < 0 else np.dtype(f"{order}i2")
+        words = struct.unpack(f"{order}9H", header[:18])
+        return cls((words[8] - 1) * 512, dtype, 4 * n_points + words[2], processor == b"\x54",
+                   words[4] - words[3] + 1)
+
+    def frames_in(self, path: Path) -> int:
+        """Complete frames the file holds."""
+        return max(0, path.stat().st_size - self.start) // (self.frame_words * self.dtype.itemsize)
+
+
+def _point_words(path: Path, n_points: int, n_frames: int, scale: float, mode: str = "r") -> np.memmap | None:
+    """(F, M) view of the residual/camera word of every point record, or None if not an Intel-format file."""
+    layout = _Layout.of(path, n_points, scale)
+    if not layout.intel or n_points == 0 or n_frames == 0 or layout.frames_in(path) < n_frames:
         return None
-    scale = struct.unpack("<f", header[12:16])[0]
-    analog_words = struct.unpack("<H", header[4:6])[0]
-    start = (struct.unpack("<H", header[16:18])[0] - 1) * 512
-    dtype = np.dtype("<f4") if scale < 0 else np.dtype("<i2")
-    stride = 4 * n_points + analog_words
-    if path.stat().st_size < start + n_frames * stride * dtype.itemsize or n_points == 0 or n_frames == 0:
-        return None
-    records = np.memmap(path, dtype=dtype, mode=mode, offset=start, shape=(n_frames, stride))
+    records = np.memmap(path, dtype=layout.dtype, mode=mode, offset=layout.start,
+                        shape=(n_frames, layout.frame_words))
     return records[:, 3:4 * n_points:4]
 
 
 def _residuals_and_masks(path: Path, c3d: ezc3d.c3d, n_points: int, n_frames: int) -> tuple[np.ndarray, np.ndarray]:
     """(F, M) residuals (in POINT:UNITS, -1 where invalid) and (F, M) uint32 camera masks, per the C3D spec."""
-    words = _point_words(path, n_points, n_frames)
+    scale = float(c3d["parameters"]["POINT"]["SCALE"]["value"][0])
+    words = _point_words(path, n_points, n_frames, scale)
     if words is not None:
         code = np.asarray(words).astype(np.int32)
-        scale = abs(float(c3d["parameters"]["POINT"]["SCALE"]["value"][0]))
-        residuals = np.where(code < 0, -1.0, (code & 0xFF) * scale)
+        residuals = np.where(code < 0, -1.0, (code & 0xFF) * abs(scale))
         return residuals, np.where(code < 0, 0, (code >> 8) & 0x7F).astype(np.uint32)
     meta = c3d["data"].get("meta_points", {})
     residuals = np.asarray(meta.get("residuals", np.zeros((1, n_points, n_frames))), dtype=np.float64)[0].T
@@ -141,6 +163,11 @@ def read_c3d(path: str | os.PathLike) -> Trajectories:
     labels = [str(label).strip() for label in params["LABELS"]["value"]]
     pts = np.asarray(c3d["data"]["points"], dtype=np.float64)  # (4, M, F)
     labels = labels[: pts.shape[1]] + [f"M{i:03d}" for i in range(len(labels), pts.shape[1])]
+    layout = _Layout.of(path, pts.shape[1], float(params["SCALE"]["value"][0]))
+    held = min(pts.shape[2], layout.frames_in(path))
+    if pts.shape[1] and held < layout.declared_frames:
+        raise MocapError(f"{path}: the file is truncated: its header declares {layout.declared_frames} frames but "
+                         f"it holds {held}; re-export it")
     positions = np.transpose(pts[:3], (2, 1, 0)) * UNIT_TO_METRES[units]
     residuals, masks = _residuals_and_masks(path, c3d, pts.shape[1], pts.shape[2])
     residuals = np.where(residuals < 0, residuals, residuals * UNIT_TO_METRES[units] * 1000.0)  # -> mm
