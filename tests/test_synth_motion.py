@@ -155,3 +155,20 @@ def test_marker_capsules_for_recorded_motion():
     walking = motion_from_c3d(require_shared_data("c3d") / "walkingOptiTrack.c3d")
     legs = capsules_from_markers(walking.labels, walking.positions[:50])
     assert not any("torso" in n for n in legs.names)  # leg clusters only: no torso to invent
+
+
+def test_resampling_keeps_samples_and_gaps():
+    motion = marching_motion(101, fps=50, n_markers=10, seed=3)
+    motion.positions[40:43, 2] = np.nan
+    fast = motion.resampled(100.0)
+    assert fast.fps == 100 and fast.n_frames == 201
+    np.testing.assert_allclose(fast.positions[::2], motion.positions, atol=1e-12)  # shared instants unchanged
+    mid = (motion.positions[10] + motion.positions[11]) / 2
+    np.testing.assert_allclose(fast.positions[21], mid, atol=1e-12)
+    assert np.isnan(fast.positions[79:86, 2]).all()  # source gap 40-42 -> 80-84, plus the half-steps around it
+    assert np.isfinite(fast.positions[78, 2]).all() and np.isfinite(fast.positions[86, 2]).all()
+    assert fast.capsules.a.shape[0] == 201
+    part = fast.window(50, 20)
+    assert part.n_frames == 20 and part.capsules.a.shape[0] == 20 and part.info["first_source_frame"] == 50
+    with pytest.raises(MocapError, match="--start"):
+        fast.window(500)

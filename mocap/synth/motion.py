@@ -112,12 +112,13 @@ class Motion:
 
 
 def _interp_with_gaps(t_in: np.ndarray, values: np.ndarray, t_out: np.ndarray) -> np.ndarray:
-    """Linear interpolation of (F, ..., 3) ``values`` along axis 0; NaN if either neighbour is NaN."""
+    """Linear interpolation of (F, ..., 3) ``values`` along axis 0; NaN between a sample and a gap."""
     idx = np.clip(np.searchsorted(t_in, t_out, side="right") - 1, 0, len(t_in) - 1)
     nxt = np.minimum(idx + 1, len(t_in) - 1)
     span = np.where(nxt > idx, t_in[nxt] - t_in[idx], 1.0)
     w = ((t_out - t_in[idx]) / span).reshape((-1,) + (1,) * (values.ndim - 1))
-    return (1 - w) * values[idx] + w * values[nxt]
+    blend = (1 - w) * values[idx] + w * values[nxt]
+    return np.where(w < 1e-9, values[idx], np.where(w > 1 - 1e-9, values[nxt], blend))
 
 
 def detect_up_axis(positions: np.ndarray, labels: list[str] | None = None) -> str:
