@@ -30,6 +30,7 @@ particle filter per extended finger, K-means check of strong particles, palm cen
 
 from __future__ import annotations
 
+from collections.abc import Iterable
 from dataclasses import dataclass, field
 
 import cv2
@@ -488,19 +489,18 @@ def posture_features(images: list[np.ndarray], harmonics: int, min_area: float =
     return out, np.isfinite(out).all(axis=1)
 
 
-def track_hand(frames: np.ndarray, model: PostureModel | None = None, config: HandConfig | None = None,
+def track_hand(frames: Iterable[np.ndarray], model: PostureModel | None = None, config: HandConfig | None = None,
                seed: int = 0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Track a hand through a video of (F, H, W, 3) uint8 BGR frames.
+    """Track a hand through a video of (H, W, 3) uint8 BGR frames (any iterable; streamed).
 
     Returns:
         ``tips`` (F, 5, 2) px by finger (NaN when not tracked), ``palm`` (F, 2) px, ``posture`` (F,) letters.
     """
     tracker = HandTracker(model, config, np.random.default_rng(seed))
-    n = len(frames)
-    tips = np.full((n, 5, 2), np.nan)
-    palm = np.full((n, 2), np.nan)
-    posture = np.full(n, "", dtype=object)
-    for k in range(n):
-        est = tracker.update(frames[k])
-        tips[k], palm[k], posture[k] = est.tips, est.palm, est.posture
-    return tips, palm, posture.astype(str)
+    tips, palm, posture = [], [], []
+    for frame in frames:
+        est = tracker.update(frame)
+        tips.append(est.tips)
+        palm.append(est.palm)
+        posture.append(est.posture)
+    return np.array(tips).reshape(-1, 5, 2), np.array(palm).reshape(-1, 2), np.array(posture, dtype=str)

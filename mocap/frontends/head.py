@@ -22,6 +22,7 @@ histograms are one ``np.bincount`` over every particle's samples.
 
 from __future__ import annotations
 
+from collections.abc import Iterable
 from dataclasses import dataclass
 from enum import StrEnum
 
@@ -265,14 +266,14 @@ class HeadTracker:
         return k / k.sum()
 
 
-def track_head(frames: np.ndarray, box: tuple[float, float, float, float] | None = None,
+def track_head(frames: Iterable[np.ndarray], box: tuple[float, float, float, float] | None = None,
                config: HeadConfig | None = None, seed: int = 0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Track a head through a whole video.
 
     Args:
-        frames: (F, H, W, 3) uint8 BGR (or (F, H, W) grey) frames.
-        box: ``(x, y, w, h)`` in frame 0, px; None finds it with :func:`detect_head_box` in the first frame
-            holding skin (frames before it get NaN).
+        frames: (H, W, 3) uint8 BGR (or (H, W) grey) frames, any iterable (streamed).
+        box: ``(x, y, w, h)`` in the first frame, px; None finds it with :func:`detect_head_box` in the first
+            frame holding skin (frames before it get NaN).
         config: settings.
         seed: random seed.
 
@@ -282,21 +283,20 @@ def track_head(frames: np.ndarray, box: tuple[float, float, float, float] | None
     Raises:
         MocapError: no box given and no skin-coloured blob in any frame (e.g. grey-scale video).
     """
-    n = len(frames)
-    centre = np.full((n, 2), np.nan)
-    axes = np.full((n, 2), np.nan)
-    weights = np.full((n, 2), np.nan)
-    start = 0
-    if box is None:
-        for start in range(n):
-            box = detect_head_box(as_bgr(frames[start]))
-            if box is not None:
-                break
-        else:
-            raise MocapError("no skin-coloured region in any frame, so the head cannot be found automatically; "
-                             "give its box in the first frame (--box x,y,w,h)")
-    tracker = HeadTracker(frames[start], box, config, np.random.default_rng(seed))
-    for k in range(start, n):
-        est = tracker.update(frames[k])
-        centre[k], axes[k], weights[k] = est.centre, est.axes, est.cue_weights
-    return centre, axes, weights
+    rows: list[np.ndarray] = []
+    tracker: HeadTracker | None = None
+    for frame in frames:
+        if tracker is None:
+            start = box if box is not None else detect_head_box(as_bgr(frame))
+            if start is not None:
+                tracker = HeadTracker(frame, start, config, np.random.default_rng(seed))
+        if tracker is None:
+            rows.append(np.full(6, np.nan))
+            continue
+        est = tracker.update(frame)
+        rows.append(np.concatenate([est.centre, est.axes, est.cue_weights]))
+    if tracker is None and rows:
+        raise MocapError("no skin-coloured region in any frame, so the head cannot be found automatically; "
+                         "give its box in the first frame (--box x,y,w,h)")
+    out = np.array(rows).reshape(-1, 6)
+    return out[:, 0:2], out[:, 2:4], out[:, 4:6]
