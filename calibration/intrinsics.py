@@ -37,6 +37,8 @@ log = logging.getLogger(__name__)
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".pgm")
 VIDEO_SUFFIXES = (".avi", ".mp4", ".mkv", ".mov")
 MIN_VIEWS = 4
+CORNER_OUTLIER_FACTOR = 5.0  # a corner further than this many RMS errors from its projection is dropped
+CORNER_OUTLIER_FLOOR_PX = 1.0
 COVERAGE_GRID = (8, 6)
 
 
@@ -270,14 +272,28 @@ def calibrate_intrinsics(
             "angles are needed (about 15-30 recommended, covering the whole image)"
         )
     rejected: dict[str, float] = {}
+    dropped_corners = 0
     for _ in range(3):
         rms, K, dist, rvecs, tvecs, std_in, per_view = _calibrate(used, board, size, flags)
+        # Single misdetected corners first (a corner pulled by a nearby edge), then whole views.
+        corner_limit = max(CORNER_OUTLIER_FACTOR * rms, CORNER_OUTLIER_FLOOR_PX)
+        trimmed = []
+        for v, rvec, tvec in zip(used, rvecs, tvecs, strict=True):
+            proj = cv2.projectPoints(board.object_points()[v.ids], rvec, tvec, K, dist)[0].reshape(-1, 2)
+            good = np.linalg.norm(proj - v.xy, axis=1) <= corner_limit
+            trimmed.append(v if good.all() else BoardView(v.name, v.xy[good], v.ids[good], v.size))
+            dropped_corners += int((~good).sum())
         limit = max(reject_factor * float(np.median(per_view)), reject_floor_px)
         bad = per_view > limit
-        if not bad.any() or len(used) - bad.sum() < MIN_VIEWS:
+        changed = any(t is not v for t, v in zip(trimmed, used, strict=True))
+        if len(used) - bad.sum() < MIN_VIEWS:
             break
         rejected.update({v.name: float(e) for v, e, b in zip(used, per_view, bad, strict=True) if b})
-        used = [v for v, b in zip(used, bad, strict=True) if not b]
+        used = [t for t, b in zip(trimmed, bad, strict=True) if not b and len(t.ids) >= 6]
+        if not bad.any() and not changed:
+            break
+    if dropped_corners:
+        log.info("%s: %d misdetected corner(s) dropped", where, dropped_corners)
     if rejected:
         log.warning("%s: %d view(s) rejected for a high reprojection error: %s", where, len(rejected),
                     ", ".join(f"{k} ({v:.2f} px)" for k, v in rejected.items()))
