@@ -18,7 +18,7 @@ from mocap.errors import MocapError
 from mocap.export.c3d import read_c3d
 from mocap.synth.occlusion import Capsules, capsules_from_markers
 
-__all__ = ["Motion", "load_motion", "motion_from_c3d", "detect_up_axis", "to_z_up", "UP_AXES"]
+__all__ = ["Motion", "as_motion", "load_motion", "motion_from_c3d", "detect_up_axis", "to_z_up", "UP_AXES"]
 
 log = logging.getLogger(__name__)
 
@@ -109,6 +109,20 @@ class Motion:
         if self.capsules is not None:
             return self.capsules
         return capsules_from_markers(self.labels, self.positions)
+
+
+def as_motion(motion: Motion | tuple[list[str], float, np.ndarray]) -> Motion:
+    """A :class:`Motion` from itself or from a ``(labels, fps, positions)`` tuple (body approximated from markers)."""
+    if isinstance(motion, Motion):
+        return motion
+    try:
+        labels, fps, positions = motion
+    except (TypeError, ValueError):
+        raise TypeError("motion must be a Motion or a (labels, fps, positions) tuple") from None
+    positions = np.asarray(positions, dtype=np.float64)
+    if positions.ndim != 3 or positions.shape[2] != 3 or positions.shape[1] != len(labels):
+        raise MocapError(f"motion positions must have shape (frames, {len(labels)} markers, 3), got {positions.shape}")
+    return Motion(list(labels), float(fps), positions, None, {"source": "positions given in Python"})
 
 
 def _interp_with_gaps(t_in: np.ndarray, values: np.ndarray, t_out: np.ndarray) -> np.ndarray:

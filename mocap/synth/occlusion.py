@@ -24,7 +24,7 @@ import numpy as np
 __all__ = ["Capsules", "capsules_from_markers", "occluded", "segment_distance", "point_segment_distance"]
 
 _EPS = 1e-12
-_CHUNK_ELEMENTS = 1_500_000  # (frames x markers x capsules) per batch
+_CHUNK_ELEMENTS = 600_000  # (frames x markers x capsules) per batch
 
 
 @dataclass(eq=False)

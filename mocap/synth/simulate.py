@@ -12,7 +12,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from mocap.camera import Rig, rig_to_toml
-from mocap.synth.motion import Motion
+from mocap.synth.motion import Motion, as_motion
 from mocap.synth.occlusion import occluded
 from mocap.synth.render import Sensor
 from mocap.synth.settings import SynthSettings
@@ -79,18 +79,20 @@ def _markov_mask(rng: np.random.Generator, shape: tuple[int, ...], n_frames: int
     return out
 
 
-def plan_take(rig: Rig, motion: Motion, settings: SynthSettings) -> TakePlan:
+def plan_take(rig: Rig, motion: Motion | tuple[list[str], float, np.ndarray], settings: SynthSettings
+              ) -> TakePlan:
     """Project the motion into every camera and decide occlusion, dropouts and ghosts (seeded).
 
     Args:
         rig: the cameras.
-        motion: the marker motion (z up, m) and its body capsules.
+        motion: the marker motion (z up, m) and its body capsules, or ``(labels, fps, positions)``.
         settings: rendering settings.
 
     Returns:
         The plan; ``plan.truth.settings`` holds every setting, the motion's facts, the ghost
         positions and ``calibration_toml`` (the exact calibration text).
     """
+    motion = as_motion(motion)
     F, M = motion.positions.shape[:2]
     C = len(rig)
     seeds = np.random.SeedSequence(settings.seed).spawn(3)
@@ -162,7 +164,8 @@ def plan_take(rig: Rig, motion: Motion, settings: SynthSettings) -> TakePlan:
                     ghost_on, seeds[2])
 
 
-def simulate(rig: Rig, motion: Motion, settings: SynthSettings | None = None) -> Truth:
+def simulate(rig: Rig, motion: Motion | tuple[list[str], float, np.ndarray], settings: SynthSettings | None = None
+             ) -> Truth:
     """The ground truth of a take (uv, visible, sigma_px) without rendering any image."""
     return plan_take(rig, motion, settings or SynthSettings()).truth
 

@@ -16,6 +16,7 @@ from collections.abc import Iterator
 from pathlib import Path
 
 import cv2
+import numpy as np
 import tomli_w
 from tqdm import tqdm
 
@@ -103,14 +104,15 @@ def write_take(folder: Path, plan: TakePlan, fmt: str = "mkv", progress: bool = 
             writer.release()
 
 
-def render_take(out_dir: str | os.PathLike, rig: Rig, motion: Motion, settings: SynthSettings | None = None,
+def render_take(out_dir: str | os.PathLike, rig: Rig, motion: Motion | tuple[list[str], float, np.ndarray],
+                settings: SynthSettings | None = None,
                 truth_path: str | os.PathLike | None = None, progress: bool = True, force: bool = False) -> Truth:
     """Render a synthetic take of ``motion`` seen by ``rig`` and save its ground truth.
 
     Args:
         out_dir: the take folder to create.
         rig: the cameras (written as the take's calibration.toml).
-        motion: what to film (z up, metres).
+        motion: what to film (z up, metres), or ``(labels, fps, positions)``.
         settings: rendering settings (default :class:`SynthSettings`).
         truth_path: where the truth goes; default ``<out_dir>.truth.npz``. Must be outside the take.
         progress: show a progress bar on a terminal.
