@@ -98,10 +98,12 @@ class McapLogger:
         calibration_toml: calibration text, stored as the attachment ``calibration.toml``.
         metadata: take facts, stored as the MCAP metadata record ``take`` (values as strings).
         labels: identity k is called ``labels[k]``; other identities :func:`default_label`.
+        chunk_size: bytes of messages per zstd chunk (what a crash can lose at most).
     """
 
     def __init__(self, path: str | os.PathLike, rig: Rig | None, fps: float, calibration_toml: str = "",
-                 metadata: dict[str, Any] | None = None, labels: Sequence[str] | None = None) -> None:
+                 metadata: dict[str, Any] | None = None, labels: Sequence[str] | None = None,
+                 chunk_size: int = 1024 * 1024) -> None:
         self.path = check_output_path(path)
         if not np.isfinite(fps) or fps <= 0:
             raise MocapError(f"{self.path}: frame rate must be a positive number, got {fps}")
@@ -112,7 +114,7 @@ class McapLogger:
         self._label_width = 0
         self._frames = (None, None, 0)  # first, last, count
         self._file: IO[bytes] | None = open(self.partial_path, "wb")  # noqa: SIM115 - closed in close()/abort()
-        self._writer = Writer(self._file, compression=CompressionType.ZSTD)
+        self._writer = Writer(self._file, chunk_size=chunk_size, compression=CompressionType.ZSTD)
         self._writer.start(profile="", library="mocap")
         self._channels: dict[str, int] = {}
         cameras = rig.names if rig is not None else []
