@@ -3,8 +3,8 @@
 State layout, per filter, for ``d`` spatial axes (d = 2 for an image filter in pixels, d = 3 for a
 world filter in metres): ``(p_1..p_d, v_1..v_d, a_1..a_d)``, so n = 3 d. The motion model is the
 paper's constant acceleration, ``p' = p + v dt + a dt^2 / 2``, ``v' = v + a dt``, ``a' = a``, with
-the discrete white-noise-jerk process noise (Bar-Shalom, Li & Kirubarajan, *Estimation with
-Applications to Tracking and Navigation*, sec. 6.3.3, "Wiener-sequence acceleration").
+the discrete Wiener-process acceleration noise (Bar-Shalom, Li & Kirubarajan, *Estimation with
+Applications to Tracking and Navigation*, 2001, p. 274).
 
 The filters are plain arrays owned by the caller: ``x`` (K, n), ``P`` (K, n, n). :func:`predict` and
 :func:`update` return new arrays; the update takes any measurement function through its predicted
@@ -39,12 +39,14 @@ def ca_transition(dt: float, dims: int) -> np.ndarray:
 
 
 def ca_process_noise(dt: float, dims: int, jerk_std: float) -> np.ndarray:
-    """(n, n) process noise of a piecewise-constant jerk with std ``jerk_std`` (units/s^3) per axis.
+    """(n, n) process noise: the acceleration changes by white N(0, (jerk_std dt)^2) every step.
 
-    ``Q = G G^T sigma_j^2`` with ``G = (dt^3/6, dt^2/2, dt)`` per axis (Bar-Shalom sec. 6.3.3).
+    The discrete Wiener-process acceleration model, ``Q = G G^T (jerk_std dt)^2`` with
+    ``G = (dt^2/2, dt, 1)`` per axis (Bar-Shalom, Li & Kirubarajan, p. 274; filterpy's
+    ``Q_discrete_white_noise(3, dt, var, block_size=dims, order_by_dim=False)``). ``jerk_std`` in units/s^3.
     """
-    g = np.array([dt**3 / 6.0, dt**2 / 2.0, dt])
-    return np.kron(np.outer(g, g) * jerk_std**2, np.eye(dims))
+    g = np.array([0.5 * dt * dt, dt, 1.0])
+    return np.kron(np.outer(g, g) * (jerk_std * dt) ** 2, np.eye(dims))
 
 
 def position_jacobian(dims: int) -> np.ndarray:

@@ -59,15 +59,16 @@ def _gauss_newton(P: np.ndarray, uv: np.ndarray, W: np.ndarray, X: np.ndarray, i
     for step in range(iterations + 1):
         proj, J = reprojection_jacobians(P, X)
         r = uv - proj
-        JtW = np.einsum("ckai,ckab->ckib", J, W)
-        H = np.einsum("ckib,ckbj->kij", JtW, J)
-        H[np.abs(np.linalg.det(H)) < 1e-30] = np.eye(3)
+        JtW = np.swapaxes(J, -1, -2) @ W  # (C, K, 3, 2)
+        H = (JtW @ J).sum(axis=0)
+        singular = np.abs(np.linalg.det(H)) < 1e-30
+        H[singular] = np.eye(3)
         if step == iterations:
             break
-        g = np.einsum("ckib,ckb->ki", JtW, r)
-        X = X + np.linalg.solve(H, g[..., None])[..., 0]
-    depth = np.einsum("cj,kj->ck", P[:, 2, :3], X) + P[:, 2, 3][:, None]
-    return X, np.linalg.inv(H), proj, r, depth
+        g = (JtW @ r[..., None]).sum(axis=0)  # (K, 3, 1)
+        X = X + np.linalg.solve(H, g)[..., 0]
+    depth = X @ P[:, 2, :3].T + P[:, 2, 3]  # (K, C)
+    return X, np.linalg.inv(H), proj, r, depth.T
 
 
 def robust_triangulate(P: np.ndarray, uv: np.ndarray, cov: np.ndarray, start: np.ndarray,
@@ -77,7 +78,7 @@ def robust_triangulate(P: np.ndarray, uv: np.ndarray, cov: np.ndarray, start: np
     Starting from ``start`` (the tracks' predictions), Gauss-Newton over the cameras that hold a
     detection; then, while some camera's reprojection error exceeds
     ``max(outlier_sigma * sigma_c, outlier_min_px)`` and at least three cameras remain, the worst
-    camera of each such track is dropped and the point recomputed. A two-camera point whose
+    camera of each such track is dropped and its point recomputed. A two-camera point whose
     cameras disagree is dropped (NaN).
 
     Args:
@@ -91,29 +92,28 @@ def robust_triangulate(P: np.ndarray, uv: np.ndarray, cov: np.ndarray, start: np
     """
     C, K = uv.shape[:2]
     used = np.isfinite(uv[..., 0])  # (C, K)
-    sigma = np.sqrt(0.5 * (cov[..., 0, 0] + cov[..., 1, 1]))
-    limit = np.maximum(outlier_sigma * sigma, outlier_min_px)
+    limit = np.maximum(outlier_sigma * np.sqrt(0.5 * (cov[..., 0, 0] + cov[..., 1, 1])), outlier_min_px)
     uvz = np.where(used[..., None], uv, 0.0)
     Winv = np.linalg.inv(np.where(used[..., None, None], cov, np.eye(2)))
-    X = start
-    for _ in range(C):
-        W = Winv * used[..., None, None]
-        X, cov3, proj, r, depth = _gauss_newton(P, uvz, W, X, iterations)
-        err = np.where(used, np.hypot(r[..., 0], r[..., 1]), 0.0)
-        bad = err > limit
-        n = used.sum(axis=0)
-        worst = np.argmax(np.where(used, err / limit, -1.0), axis=0)  # (K,)
-        drop = bad.any(axis=0) & (n >= 3)
+    X, cov3, proj, r, depth = _gauss_newton(P, uvz, Winv * used[..., None, None], start, iterations)
+    err = np.where(used, np.hypot(r[..., 0], r[..., 1]), 0.0)
+    todo = np.arange(K)
+    for _ in range(C - 2):
+        ratio = np.where(used[:, todo], err[:, todo] / limit[:, todo], -1.0)
+        drop = (ratio.max(axis=0) > 1.0) & (used[:, todo].sum(axis=0) >= 3)
         if not drop.any():
             break
-        used[worst[drop], np.flatnonzero(drop)] = False
+        todo = todo[drop]
+        used[np.argmax(ratio[:, drop], axis=0), todo] = False
+        W = Winv[:, todo] * used[:, todo, None, None]
+        X[todo], cov3[todo], proj[:, todo], r[:, todo], depth[:, todo] = _gauss_newton(
+            P, uvz[:, todo], W, X[todo], iterations)
+        err[:, todo] = np.where(used[:, todo], np.hypot(r[:, todo, 0], r[:, todo, 1]), 0.0)
     n = used.sum(axis=0)
-    fail = (n < 2) | (bad.any(axis=0) & (n < 3)) | ~np.isfinite(X).all(axis=1)
+    fail = (n < 2) | ((err > limit) & used).any(axis=0) & (n < 3) | ~np.isfinite(X).all(axis=1)
     used[:, fail] = False
-    err = np.where(used, np.hypot(r[..., 0], r[..., 1]), 0.0)
     with np.errstate(invalid="ignore", divide="ignore"):
-        rms = np.sqrt((err**2).sum(axis=0) / used.sum(axis=0))
-    X = X.copy()
+        rms = np.sqrt((err**2 * used).sum(axis=0) / used.sum(axis=0))
     X[fail] = np.nan
     cov3[fail] = np.nan
     rms[fail] = np.nan
@@ -171,7 +171,7 @@ class NewPoints:
 
 def new_points(P: np.ndarray, pairs: CameraPairs, D: np.ndarray, cov: np.ndarray, free: np.ndarray,
                sizes: np.ndarray, epipolar_px: float, support_px: float, min_views: int,
-               outlier_sigma: float, outlier_min_px: float) -> NewPoints:
+               outlier_sigma: float, outlier_min_px: float, fresh: np.ndarray | None = None) -> NewPoints:
     """3D points explained by free detections in several cameras (multi-view consistent).
 
     All-pairs epipolar matching gives candidate correspondences; each is triangulated and projected
@@ -190,11 +190,12 @@ def new_points(P: np.ndarray, pairs: CameraPairs, D: np.ndarray, cov: np.ndarray
         epipolar_px, support_px: matching tolerances, pixels.
         min_views: supporting cameras required where that many cameras frame the point.
         outlier_sigma, outlier_min_px: see :func:`robust_triangulate`.
+        fresh: (C, N) bool, see :func:`mocap.stereo.match_pairs`.
     """
     C = len(P)
     empty = NewPoints(np.zeros((0, 3)), np.zeros((0, 3, 3)), np.zeros(0), np.zeros((0, C), dtype=np.intp),
                       np.zeros(0, dtype=bool))
-    pair, n1, n2, dist = match_pairs(pairs, D, free, epipolar_px)
+    pair, n1, n2, dist = match_pairs(pairs, D, free, epipolar_px, fresh)
     if pair.size == 0:
         return empty
     X, _, _ = triangulate_matches(P, pairs, D, cov, pair, n1, n2)

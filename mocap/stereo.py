@@ -128,34 +128,41 @@ def epipolar_consistency(pairs: CameraPairs, uv: np.ndarray, tol_px: float) -> t
     return supported, tested
 
 
-def match_pairs(pairs: CameraPairs, D: np.ndarray, free: np.ndarray, tol_px: float
-                ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """All-pairs epipolar matching of the free detections.
+def match_pairs(pairs: CameraPairs, D: np.ndarray, free: np.ndarray, tol_px: float,
+                fresh: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """All-pairs epipolar matching of the free detections (all pairs in one vectorised pass).
 
     Args:
         pairs: the stereo pairs.
         D: (C, N, 2) padded detections, ideal pixels.
         free: (C, N) bool, detections to consider.
         tol_px: largest symmetric epipolar distance of a match, pixels.
+        fresh: (C, N) bool; if given, a match needs a fresh detection on at least one side (so
+            clutter already examined in earlier frames is not paired with itself again).
 
     Returns:
         ``pair`` (L,) pair index, ``n1`` (L,) detection index in the pair's first camera, ``n2`` (L,)
         in its second, ``dist`` (L,) epipolar distance, pixels.
     """
-    out: list[tuple[np.ndarray, ...]] = []
-    for p, (i, j) in enumerate(pairs.index):
-        a = np.flatnonzero(free[i])
-        b = np.flatnonzero(free[j])
-        if a.size == 0 or b.size == 0:
-            continue
-        e = epipolar_distance(pairs.F[p], D[i, a][:, None, :], D[j, b][None, :, :])
-        r, s = np.nonzero(e < tol_px)
-        out.append((np.full(r.size, p), a[r], b[s], e[r, s]))
-    if not out:
-        empty = np.zeros(0, dtype=np.intp)
+    empty = np.zeros(0, dtype=np.intp)
+    counts = free.sum(axis=1)
+    if len(pairs) == 0 or counts.max(initial=0) == 0:
         return empty, empty, empty, np.zeros(0)
-    pair, n1, n2, dist = (np.concatenate(col) for col in zip(*out, strict=True))
-    return pair.astype(np.intp), n1.astype(np.intp), n2.astype(np.intp), dist
+    # Compact the free detections of every camera into (C, M) slots.
+    M = int(counts.max())
+    slot = np.cumsum(free, axis=1) - 1
+    cam, det = np.nonzero(free)
+    index = np.full((free.shape[0], M), -1, dtype=np.intp)
+    index[cam, slot[cam, det]] = det
+    pts = np.where((index >= 0)[..., None], D[np.arange(free.shape[0])[:, None], np.maximum(index, 0)], np.nan)
+    i, j = pairs.index[:, 0], pairs.index[:, 1]
+    e = epipolar_distance(pairs.F[:, None, None], pts[i][:, :, None, :], pts[j][:, None, :, :])  # (P, M, M)
+    ok = e < tol_px
+    if fresh is not None:
+        fr = np.where(index >= 0, fresh[np.arange(free.shape[0])[:, None], np.maximum(index, 0)], False)
+        ok &= fr[i][:, :, None] | fr[j][:, None, :]
+    p, a, b = np.nonzero(ok)
+    return p, index[i[p], a], index[j[p], b], e[p, a, b]
 
 
 def triangulate_matches(projections: np.ndarray, pairs: CameraPairs, D: np.ndarray, cov: np.ndarray,

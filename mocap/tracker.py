@@ -69,6 +69,7 @@ class TrackerConfig:
         support_px: a free detection this close to a new point's reprojection supports it, pixels.
         new_min_views: cameras that must support a new marker (fewer when fewer cameras frame it).
         min_separation_m: a new point closer than this to a measured track is that track's, not new.
+        clutter_px: a free detection this close to one of the previous frame is not new (see _known_clutter).
         merge_px: two tracks predicted closer than this in an image may share one merged blob there, pixels.
         merged_variance_scale: centroid variance multiplier of blobs flagged as merged (by the detector,
             or by two tracks predicted within ``merge_px``). A point is output only when two cameras
@@ -94,6 +95,7 @@ class TrackerConfig:
     support_px: float = 2.0
     new_min_views: int = 3
     min_separation_m: float = 0.012
+    clutter_px: float = 0.5
     merge_px: float = 6.0
     merged_variance_scale: float = 100.0
 
@@ -275,6 +277,7 @@ class Tracker:
         self._uid_ident = np.full(256, -1, dtype=np.intp)
         self._n_ident = 0
         self._records = _Records()
+        self._clutter = np.zeros((C, 0, 2))  # the previous frame's free detections, ideal px
         self._first: int | None = None
         self._last = -1
 
@@ -494,10 +497,12 @@ class Tracker:
     def _new_markers(self, fr: _Frame, free: np.ndarray, meas: _Measurements) -> None:
         """Points from the free detections: re-acquire missed tracks, or start tentative tracks."""
         t, cfg = self._t, self._cfg
-        if free.sum() < 2 or len(self._pairs) == 0:
+        fresh = free & ~self._known_clutter(fr.D)
+        self._clutter = np.where(free[..., None], fr.D, np.nan)
+        if not fresh.any() or free.sum() < 2 or len(self._pairs) == 0:
             return
         pts = new_points(self._P, self._pairs, fr.D, fr.S, free, self._sizes, cfg.epipolar_px, cfg.support_px,
-                         cfg.new_min_views, cfg.outlier_sigma, cfg.outlier_min_px)
+                         cfg.new_min_views, cfg.outlier_sigma, cfg.outlier_min_px, fresh)
         measured = t.since == 0
         if len(pts.X) and measured.any():  # duplicates of markers measured this frame
             d = np.linalg.norm(pts.X[:, None] - t.x3[None, measured, :3], axis=2)
@@ -524,6 +529,19 @@ class Tracker:
             match = reidentify(pts.X[rest], t.x3[lost, :3], self._radius3(lost), t.last_X[lost])
             cand = np.where(match >= 0, t.ident[lost[np.maximum(match, 0)]], -1)
         self._start(fr, pts.subset(rest), cand, meas)
+
+    def _known_clutter(self, D: np.ndarray) -> np.ndarray:
+        """(C, N) bool: detections within ``clutter_px`` of a free detection of the previous frame.
+
+        Free detections that stay put (fixed reflections, a marker seen by one camera) were already
+        examined for new markers; they are only paired with fresh detections again.
+        """
+        old = self._clutter
+        if old.shape[1] == 0 or D.shape[1] == 0:
+            return np.zeros(D.shape[:2], dtype=bool)
+        diff = D[:, :, None, :] - old[:, None, :, :]
+        with np.errstate(invalid="ignore"):
+            return ((diff * diff).sum(axis=3) < self._cfg.clutter_px**2).any(axis=2)
 
     def _start(self, fr: _Frame, pts: NewPoints, cand: np.ndarray, meas: _Measurements) -> None:
         """Append tentative tracks at new points ``pts`` (and their measurements to ``meas``)."""
