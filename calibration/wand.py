@@ -5,7 +5,8 @@ be asymmetric (middle marker off centre): the image ratio of the two gaps then t
 is which, so every camera numbers the markers alike. With 2 markers the order in each image is
 arbitrary; :func:`calibration.initial.order_two_marker_wand` settles it with epipolar geometry.
 
-In an image the 3 wand blobs are the triple that is collinear (middle blob within
+Blobs that stay at one place through the wave (reflections, stray lights) are removed first
+(:func:`static_blobs`). In an image the 3 wand blobs are the triple that is collinear (middle blob within
 ``line_tol_px`` of the line through the ends) and whose gap ratio is the wand's within
 ``ratio_tol`` (perspective changes it a little). Frames where no triple fits, or two different
 triples fit about equally well, count as "wand not seen" in that camera.
@@ -18,6 +19,9 @@ from dataclasses import dataclass
 from itertools import permutations
 
 import numpy as np
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components
+from scipy.spatial import cKDTree
 
 from mocap.detections import Detections
 from mocap.errors import MocapError
@@ -122,8 +126,31 @@ def find_wand(xy: np.ndarray, wand: Wand, line_tol_px: float = 1.5, ratio_tol: f
     return xy[best]
 
 
+def static_blobs(xy: Sequence[np.ndarray], radius_px: float = 0.5, min_fraction: float = 0.1) -> list[np.ndarray]:
+    """Which blobs of one camera stay put across a wave: reflections and stray lights, not the wand.
+
+    Args:
+        xy: per frame, (N_f, 2) blob centroids of one camera.
+        radius_px: how far a still blob may wander, pixels.
+        min_fraction: a place occupied in at least this fraction of the frames (and 10 frames) is static.
+
+    Returns:
+        Per frame, (N_f,) bool: the blob sits on a static place.
+    """
+    counts = [len(p) for p in xy]
+    points = np.concatenate([np.asarray(p, dtype=np.float64).reshape(-1, 2) for p in xy]) if xy else np.zeros((0, 2))
+    static = np.zeros(len(points), dtype=bool)
+    if len(points):
+        pairs = cKDTree(points).query_pairs(radius_px, output_type="ndarray")
+        graph = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(len(points), len(points)))
+        _, label = connected_components(graph, directed=False)
+        size = np.bincount(label)
+        static = size[label] >= max(10, min_fraction * len(xy))
+    return np.split(static, np.cumsum(counts)[:-1])
+
+
 def wand_observations(frames: Sequence[Sequence[Detections | np.ndarray]], wand: Wand) -> np.ndarray:
-    """Find the wand in every camera of every frame.
+    """Find the wand in every camera of every frame, after removing each camera's static blobs.
 
     Args:
         frames: per frame, one :class:`Detections` (or (N, 2) array of centroids) per camera.
@@ -135,10 +162,10 @@ def wand_observations(frames: Sequence[Sequence[Detections | np.ndarray]], wand:
     n_frames = len(frames)
     n_cams = len(frames[0]) if n_frames else 0
     out = np.full((n_frames, n_cams, wand.n_markers, 2), np.nan)
-    for f, cams in enumerate(frames):
-        for c, det in enumerate(cams):
-            xy = det.xy if isinstance(det, Detections) else det
-            found = find_wand(xy, wand)
+    for c in range(n_cams):
+        xy = [row[c].xy if isinstance(row[c], Detections) else np.asarray(row[c]) for row in frames]
+        for f, (blobs, still) in enumerate(zip(xy, static_blobs(xy), strict=True)):
+            found = find_wand(blobs[~still], wand)
             if found is not None:
                 out[f, c] = found
     return out
