@@ -8,6 +8,7 @@ MCAP log. At the end: C3D / TRC / CSV. Memory stays flat apart from the output a
 from __future__ import annotations
 
 import argparse
+import contextlib
 import logging
 import os
 from collections.abc import Iterator
@@ -130,10 +131,10 @@ def reconstruct(take: str | os.PathLike, options: ReconstructOptions | None = No
     if not 0 <= opts.start < stop:
         raise MocapError(f"{path}: frame range {opts.start}:{stop} is empty; the take has {source.n_frames} frames")
     tracker = Tracker(rig, fps, opts.tracker)
-    logger = _open_mcap_logger(mcap, rig, fps, path) if mcap is not None else None
+    logger = _open_mcap_logger(mcap, rig, fps, path) if mcap is not None else contextlib.nullcontext()
     first_frames: list[list[Detections]] = []
     fit_checked = False
-    try:
+    with logger:  # closes the MCAP on success; on failure keeps a readable <name>.partial
         frames = _detection_frames(source, kind, tracker, replace(opts, stop=stop))
         bar = tqdm(frames, total=stop - opts.start, unit="frame", desc="reconstruct",
                    disable=None if opts.progress else True, leave=False)
@@ -145,14 +146,11 @@ def reconstruct(take: str | os.PathLike, options: ReconstructOptions | None = No
                     _warn_if_calibration_does_not_fit(rig, first_frames, path)
                     fit_checked = True
             result = tracker.step(frame_index, dets)
-            if logger is not None:
+            if mcap is not None:
                 logger.log_frame(frame_index, dets, result.ids, result.positions, result.residuals_mm,
                                  result.camera_masks)
         if not fit_checked and first_frames:
             _warn_if_calibration_does_not_fit(rig, first_frames, path)
-    finally:
-        if logger is not None:
-            logger.close()
     traj = tracker.finish()
     traj.camera_names = rig.names
     traj.metadata.update({"source": str(path), "software": f"mocap {__version__}", "cameras": len(rig)})
