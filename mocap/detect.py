@@ -49,8 +49,10 @@ K_SIGMA = 6.0  # detection threshold above the background, in noise std
 MIN_CONTRAST = 8.0  # ... and never fewer grey levels than this (noise-free or black images)
 CELL = 4  # coarse search cell, px
 MARGIN = 4  # patch margin around a group of cells, px (the blob's skirt lies inside)
-SKIRT = 3  # fit window margin around a blob's thresholded pixels, px
-ROUND_MERGED = 0.6  # roundness below this: flagged as merged
+SKIRT = 2.0  # fit window reach beyond a blob's thresholded pixels, px
+ROUND_MERGED = 0.6  # roundness below this (and area >= MIN_SHAPE_AREA): flagged as merged
+MIN_SHAPE_AREA = 9  # px: smaller blobs are too pixelated and noisy for a shape judgement
+ROUND_SPLIT = 0.85  # roundness below this: searched for two or more peaks (one round disc is ~1)
 AREA_MERGED = 2.5  # area above this many times the neighbours' median: flagged as merged
 MAX_DISCS = 4  # a blob is split into at most this many markers
 FIT_ITERATIONS = 12
@@ -59,7 +61,7 @@ _SATURATED = 255
 _SQRT2 = math.sqrt(2.0)
 _SQRTPI = math.sqrt(math.pi)
 _KERNEL = np.ones((CELL, CELL), np.uint8)
-_WINDOW_HALVES = np.r_[5, 6, 7, 8, 10, 12, 14, 17, 20, np.round(20 * 1.2 ** np.arange(1, 30)).astype(np.int64)]
+_WINDOW_HALVES = np.round(4 * 1.35 ** np.arange(30)).astype(np.int64)  # fit window sizes, px
 
 
 # --------------------------------------------------------------------------- background
@@ -147,8 +149,9 @@ def _label_blobs(image: np.ndarray, t: int, cell_labels: np.ndarray, boxes: np.n
         xs = (CELL * sel[:, 1] - MARGIN)[:, None] + np.arange(size)
         yc, xc = np.clip(ys, 0, h - 1), np.clip(xs, 0, w - 1)
         inside = ((ys >= 0) & (ys < h))[:, :, None] & ((xs >= 0) & (xs < w))[:, None, :]
-        grey = image[yc[:, :, None], xc[:, None, :]]
-        own = cell_labels[(yc // CELL)[:, :, None], (xc // CELL)[:, None, :]] == sel[:, 0, None, None]
+        grey = image.ravel().take(yc[:, :, None] * w + xc[:, None, :])
+        own = cell_labels.ravel().take((yc // CELL)[:, :, None] * cell_labels.shape[1] + (xc // CELL)[:, None, :]
+                                       ) == sel[:, 0, None, None]
         mosaic = np.zeros((len(sel), size + 1, size), np.uint8)  # a blank row between patches
         mosaic[:, :size] = (grey > t) & own & inside
         n, labels = cv2.connectedComponents(mosaic.reshape(-1, size), connectivity=8, ltype=cv2.CV_32S)
@@ -310,7 +313,8 @@ class _Blobs:
     Attributes:
         area: (N,) pixel count; centroid: (N, 2) intensity-weighted, px; second: (N, 2, 2) weighted
         second moments, px^2; centroid_cov: (N, 2, 2) noise covariance of that centroid per unit noise
-        variance; peak: (N,) highest grey level; lo, hi: (N, 2) bounding box, px.
+        variance; peak: (N,) highest grey level; radius: (N,) radius of the area above half the peak, px;
+        reach: (N,) farthest pixel from the centroid, px.
     """
 
     def __init__(self, pixels: _Pixels, level: float) -> None:
@@ -327,8 +331,9 @@ class _Blobs:
         self.second = sums[:, [0, 1, 1, 2]].reshape(-1, 2, 2) / m0[:, None, None]
         self.centroid_cov = sums[:, [3, 4, 4, 5]].reshape(-1, 2, 2) / (m0**2)[:, None, None]
         self.peak = np.maximum.reduceat(pixels.grey, starts).astype(np.float64)
-        self.lo = np.stack([np.minimum.reduceat(x, starts), np.minimum.reduceat(y, starts)], 1)
-        self.hi = np.stack([np.maximum.reduceat(x, starts), np.maximum.reduceat(y, starts)], 1)
+        half_max = np.add.reduceat((pixels.grey - level > 0.5 * (self.peak - level)[b]).astype(np.float64), starts)
+        self.radius = np.sqrt(half_max / np.pi)
+        self.reach = np.sqrt(np.maximum.reduceat(dx * dx + dy * dy, starts))
 
 
 def _neighbour_median_area(xy: np.ndarray, area: np.ndarray, k: int = 5) -> np.ndarray:
@@ -340,29 +345,32 @@ def _neighbour_median_area(xy: np.ndarray, area: np.ndarray, k: int = 5) -> np.n
     return np.median(area[nn[:, 1:]], axis=1)
 
 
-def _window(centre: np.ndarray, half: int, image: np.ndarray, label_image: np.ndarray, own: np.ndarray, t: int
-            ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Square fit windows around ``centre`` (N, 2): x, y, grey, weight, saturated, each (N, (2 half + 1)^2).
+def _window(centre: np.ndarray, radius: np.ndarray, half: int, image: np.ndarray, label_image: np.ndarray,
+            own: np.ndarray, t: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Round fit windows: pixels within ``radius`` (N,) px of each ``centre`` (N, 2), padded to ``half`` px.
 
-    Weight is 0 off the image and on other blobs' above-threshold pixels.
+    Returns:
+        x, y, grey, weight, saturated, each (N, P). Weight is 0 beyond the radius, off the image and on
+        other blobs' above-threshold pixels.
     """
     h, w = image.shape
-    n = len(centre)
-    offs = np.arange(-half, half + 1)
-    shape = (n, len(offs), len(offs))
-    xs = np.broadcast_to(np.rint(centre[:, 0]).astype(np.int64)[:, None, None] + offs[None, None, :], shape)
-    ys = np.broadcast_to(np.rint(centre[:, 1]).astype(np.int64)[:, None, None] + offs[None, :, None], shape)
+    dy, dx = np.mgrid[-half: half + 1, -half: half + 1].reshape(2, -1)
+    round_ = dx * dx + dy * dy <= (half + 0.5) ** 2
+    dx, dy = dx[round_], dy[round_]
+    xs = np.rint(centre[:, 0]).astype(np.int64)[:, None] + dx
+    ys = np.rint(centre[:, 1]).astype(np.int64)[:, None] + dy
     xc, yc = np.clip(xs, 0, w - 1), np.clip(ys, 0, h - 1)
-    grey = image[yc, xc]
-    usable = (xs == xc) & (ys == yc) & ((grey <= t) | (label_image[yc, xc] == (own + 1)[:, None, None]))
-    return (xs.reshape(n, -1).astype(np.float64), ys.reshape(n, -1).astype(np.float64),
-            grey.reshape(n, -1).astype(np.float64), usable.reshape(n, -1).astype(np.float64),
-            (grey >= _SATURATED).reshape(n, -1))
+    flat = yc * w + xc
+    grey = image.ravel().take(flat)
+    x, y = xs.astype(np.float64), ys.astype(np.float64)
+    usable = ((xs == xc) & (ys == yc) & ((grey <= t) | (label_image.ravel().take(flat) == own[:, None] + 1))
+              & ((x - centre[:, :1]) ** 2 + (y - centre[:, 1:]) ** 2 <= (radius * radius)[:, None]))
+    return x, y, grey.astype(np.float64), usable.astype(np.float64), grey >= _SATURATED
 
 
 def _disc_starts(blobs: np.ndarray, k: int, peaks: tuple[np.ndarray, np.ndarray, np.ndarray], stats: _Blobs,
                  level: float) -> np.ndarray:
-    """(N, 1 + 5k) starting parameters: offset 0; per disc: centre, height, radius, blur 0.7 px."""
+    """(N, 1 + 5k) starting parameters: offset 0; per disc: centre, height, radius, blur 0.6 px."""
     n = len(blobs)
     start = np.zeros((n, 1 + 5 * k))
     disc = start[:, 1:].reshape(n, k, 5)
@@ -373,16 +381,18 @@ def _disc_starts(blobs: np.ndarray, k: int, peaks: tuple[np.ndarray, np.ndarray,
         take = np.searchsorted(pk_blob, blobs)[:, None] + np.arange(k)
         disc[:, :, 0] = pk_x[take]
         disc[:, :, 1] = pk_y[take]
-    disc[:, :, 2] = np.maximum(stats.peak[blobs] - level, 1.0)[:, None]
-    disc[:, :, 3] = np.sqrt(stats.area[blobs] / (np.pi * k))[:, None]
-    disc[:, :, 4] = 0.7
+    height = stats.peak[blobs] - level
+    disc[:, :, 2] = np.where(stats.peak[blobs] >= _SATURATED, 1.3 * height, np.maximum(height, 1.0))[:, None]
+    disc[:, :, 3] = np.maximum(stats.radius[blobs] / math.sqrt(k), 0.5)[:, None]
+    disc[:, :, 4] = 0.6
     return start
 
 
-def _measure(image: np.ndarray, label_image: np.ndarray, blobs: np.ndarray, k: int, half: int,
+def _measure(image: np.ndarray, label_image: np.ndarray, blobs: np.ndarray, k: int, radius: np.ndarray, half: int,
              peaks: tuple[np.ndarray, np.ndarray, np.ndarray], stats: _Blobs, level: float, sigma: float, t: int
              ) -> tuple[np.ndarray, np.ndarray]:
-    """Fit ``k`` discs to each blob in ``blobs`` (N,) in windows of half-size ``half``.
+    """Fit ``k`` discs to each blob in ``blobs`` (N,) on the pixels within ``radius`` (N,) px of its
+    centroid (``half`` >= every radius).
 
     Returns:
         centres (N, k, 2) px and their covariances (N, k, 2, 2) px^2. A fit that fails (not finite, or a
@@ -390,7 +400,7 @@ def _measure(image: np.ndarray, label_image: np.ndarray, blobs: np.ndarray, k: i
         the weighted centroid (k = 1) or the peaks (k > 1), with the centroid's noise covariance.
     """
     n = len(blobs)
-    x, y, grey, weight, saturated = _window(stats.centroid[blobs], half, image, label_image, blobs, t)
+    x, y, grey, weight, saturated = _window(stats.centroid[blobs], radius, half, image, label_image, blobs, t)
     start = _disc_starts(blobs, k, peaks, stats, level)
     params, pcov = _fit_discs(grey - level, x, y, weight, saturated, start)
     disc = params[:, 1:].reshape(n, k, 5)
@@ -406,7 +416,7 @@ def _measure(image: np.ndarray, label_image: np.ndarray, blobs: np.ndarray, k: i
 
 
 def detect(image: np.ndarray, *, threshold: float | None = None, min_area: int = 2, max_area: int = 1000,
-           rois: np.ndarray | None = None, noise_sigma: float | None = None) -> Detections:
+           rois: np.ndarray | None = None, noise_sigma: float | None = None, refine: str = "fit") -> Detections:
     """Find bright blobs and measure their sub-pixel centres.
 
     Args:
@@ -418,6 +428,9 @@ def detect(image: np.ndarray, *, threshold: float | None = None, min_area: int =
         rois: optional (K, 4) int boxes ``x0, y0, x1, y1`` (px, inclusive): report only blobs whose
             centroid lies in a box.
         noise_sigma: the image noise std, grey levels, if known (else estimated from the image).
+        refine: "fit" (maximum-likelihood disc fit, at the Cramér–Rao bound, splits merged markers) or
+            "centroid" (the intensity-weighted centroid of the thresholded pixels: about 3x faster, 2-3x
+            the noise of the fit, merged blobs flagged but not split).
 
     Returns:
         :class:`Detections`: centroids (distorted px), area (px above threshold; the parts of a split
@@ -449,22 +462,29 @@ def detect(image: np.ndarray, *, threshold: float | None = None, min_area: int =
         return Detections.empty()
     evals = np.linalg.eigvalsh(stats.second[ids])
     roundness = np.sqrt(np.clip(evals[:, 0], 0, None) / np.maximum(evals[:, 1], 1e-12))
-    flagged = ((roundness < ROUND_MERGED)
-               | (stats.area[ids] > AREA_MERGED * _neighbour_median_area(stats.centroid[ids], stats.area[ids])))
+    too_big = stats.area[ids] > AREA_MERGED * _neighbour_median_area(stats.centroid[ids], stats.area[ids])
+    elongated = roundness < ROUND_SPLIT
+    flagged = too_big | ((roundness < ROUND_MERGED) & (stats.area[ids] >= MIN_SHAPE_AREA))
+    if refine == "centroid":
+        return Detections(stats.centroid[ids], stats.area[ids], roundness,
+                          stats.centroid_cov[ids] * sigma**2, flagged)
+    if refine != "fit":
+        raise ValueError(f"refine must be 'fit' or 'centroid', got {refine!r}")
 
-    sel = np.isin(pixels.blob, ids)
+    # two markers side by side make an elongated (or oversized) blob: look for their peaks there
+    candidates = ids[elongated | too_big]
+    sel = np.isin(pixels.blob, candidates)
     peaks = _peaks(image, _Pixels(pixels.blob[sel], pixels.x[sel], pixels.y[sel], pixels.grey[sel]), level, sigma)
     n_discs = np.clip(np.bincount(peaks[0], minlength=len(stats.area))[ids], 1, MAX_DISCS)
-    c = stats.centroid[ids]
-    extent = np.maximum(c - stats.lo[ids], stats.hi[ids] - c).max(axis=1)
-    half = np.ceil(extent + SKIRT + 0.5).astype(np.int64)
-    half = _WINDOW_HALVES[np.searchsorted(_WINDOW_HALVES, half)]  # a few window sizes
+    radius = stats.reach[ids] + SKIRT
+    half = _WINDOW_HALVES[np.searchsorted(_WINDOW_HALVES, radius)]  # a few window sizes
 
     xy, cov, part = [], [], []
     for k in np.unique(n_discs):
         for hh in np.unique(half[n_discs == k]):
             group = np.flatnonzero((n_discs == k) & (half == hh))
-            centres, covs = _measure(image, label_image, ids[group], int(k), int(hh), peaks, stats, level, sigma, t)
+            centres, covs = _measure(image, label_image, ids[group], int(k), radius[group], int(hh), peaks, stats,
+                                     level, sigma, t)
             xy.append(centres.reshape(-1, 2))
             cov.append(covs.reshape(-1, 2, 2))
             part.append(np.repeat(group, k))
