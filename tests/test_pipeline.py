@@ -1,0 +1,132 @@
+"""The whole job on short rendered takes: accuracy, MCAP replay, and bad input without tracebacks."""
+
+from __future__ import annotations
+
+import logging
+import shutil
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from mocap.camera import Rig, load_rig, save_rig
+from mocap.cli import main
+from mocap.evaluate import evaluate
+from mocap.export.c3d import read_c3d
+from mocap.pipeline import ReconstructOptions, reconstruct
+from mocap.synth import SynthSettings, marching_motion, render_take, ring_rig
+from mocap.truth import load_truth
+
+FRAMES = 40
+
+
+@pytest.fixture(scope="module")
+def png_take(tmp_path_factory) -> tuple[Path, Path]:
+    """A short default-realism take of the marching body, as PNG folders (easy to tamper with)."""
+    root = tmp_path_factory.mktemp("pipeline")
+    take, truth = root / "take", root / "take.truth.npz"
+    render_take(take, ring_rig(6, seed=3), marching_motion(FRAMES, fps=120.0, seed=3),
+                SynthSettings(seed=3, format="png"), truth_path=truth, progress=False)
+    return take, truth
+
+
+def _copy(take: Path, dest: Path) -> Path:
+    shutil.copytree(take, dest)
+    return dest
+
+
+def test_rendered_take_is_reconstructed_accurately(png_take):
+    take, truth_path = png_take
+    traj = reconstruct(take, ReconstructOptions(progress=False))
+    report = evaluate(traj, load_truth(truth_path))
+    assert report.rmse_mm < 0.5
+    assert report.completeness > 0.97
+    assert report.ghost_rate < 0.005
+    assert report.id_switches == 0
+    assert traj.camera_names == load_rig(take / "calibration.toml").names
+
+
+def test_mcap_replay_reproduces_the_trajectories(png_take, tmp_path):
+    take, _ = png_take
+    first = reconstruct(take, ReconstructOptions(progress=False), mcap=tmp_path / "run.mcap")
+    again = reconstruct(tmp_path / "run.mcap", ReconstructOptions(progress=False))
+    assert again.labels == first.labels
+    np.testing.assert_array_equal(again.positions, first.positions)
+    np.testing.assert_array_equal(again.residuals, first.residuals)
+    np.testing.assert_array_equal(again.camera_masks, first.camera_masks)
+
+
+def test_cli_reconstruct_writes_every_format(png_take, tmp_path, capsys):
+    take, _ = png_take
+    out = {ext: tmp_path / f"out.{ext}" for ext in ("c3d", "trc", "csv", "mcap")}
+    code = main(["reconstruct", str(take), "--c3d", str(out["c3d"]), "--trc", str(out["trc"]), "--csv",
+                 str(out["csv"]), "--mcap", str(out["mcap"]), "--no-progress"])
+    assert code == 0
+    assert all(p.stat().st_size > 0 for p in out.values())
+    traj = read_c3d(out["c3d"])
+    assert traj.n_frames == FRAMES and traj.fps == 120.0
+    assert "markers" in capsys.readouterr().out
+
+
+def test_camera_black_for_a_while(png_take, tmp_path):
+    take = _copy(png_take[0], tmp_path / "take")
+    black = np.zeros(cv2.imread(str(next((take / "cam3").iterdir())), cv2.IMREAD_GRAYSCALE).shape, np.uint8)
+    frames = sorted((take / "cam3").iterdir())
+    for f in frames[10:25]:
+        cv2.imwrite(str(f), black)
+    traj = reconstruct(take, ReconstructOptions(progress=False))
+    truth = load_truth(png_take[1])
+    report = evaluate(traj, truth)
+    assert report.id_switches == 0 and report.ghost_rate < 0.005
+    assert report.completeness > 0.9
+    cam3_bit = np.uint32(1 << 2)
+    assert not np.any(traj.camera_masks[10:25] & cam3_bit)
+    assert np.any(traj.camera_masks[30:] & cam3_bit)
+
+
+def test_marker_free_take_gives_empty_output_and_a_warning(tmp_path, caplog):
+    take = tmp_path / "empty"
+    take.mkdir()
+    rig = ring_rig(3, size=(320, 240), focal_px=300.0, seed=0)
+    save_rig(rig, take / "calibration.toml")
+    (take / "take.toml").write_text("fps = 100.0\n")
+    rng = np.random.default_rng(0)
+    for cam in rig:
+        (take / cam.name).mkdir()
+        for k in range(8):
+            noise = np.clip(rng.normal(12, 2, (240, 320)), 0, 255).astype(np.uint8)
+            cv2.imwrite(str(take / cam.name / f"{k:06d}.png"), noise)
+    with caplog.at_level(logging.WARNING):
+        code = main(["reconstruct", str(take), "--c3d", str(tmp_path / "out.c3d"), "--no-progress"])
+    assert code == 0
+    assert "no markers were reconstructed" in caplog.text
+    traj = read_c3d(tmp_path / "out.c3d")
+    assert traj.n_markers == 0 and traj.n_frames == 8
+
+
+def test_calibration_that_does_not_fit_is_warned_about(png_take, tmp_path, caplog):
+    take = _copy(png_take[0], tmp_path / "take")
+    rig = load_rig(take / "calibration.toml")
+    cams = list(rig.cameras)
+    cams[1], cams[4] = (cams[1].with_pose(cams[4].rotation, cams[4].translation),
+                        cams[4].with_pose(cams[1].rotation, cams[1].translation))
+    save_rig(Rig(cams, rig.metadata), take / "calibration.toml")
+    with caplog.at_level(logging.WARNING):
+        reconstruct(take, ReconstructOptions(progress=False, stop=15))
+    assert "calibration does not seem to fit" in caplog.text
+    assert "cam2" in caplog.text and "cam5" in caplog.text
+
+
+@pytest.mark.parametrize("case", ["missing_take", "missing_output_folder", "empty_range"])
+def test_cli_errors_are_one_clear_line(png_take, tmp_path, capsys, case):
+    take = png_take[0]
+    args = {
+        "missing_take": ["reconstruct", str(tmp_path / "nope"), "--c3d", str(tmp_path / "o.c3d")],
+        "missing_output_folder": ["reconstruct", str(take), "--c3d", str(tmp_path / "no" / "o.c3d")],
+        "empty_range": ["reconstruct", str(take), "--c3d", str(tmp_path / "o.c3d"), "--start", "500"],
+    }[case]
+    assert main(args + ["--no-progress"]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("mocap reconstruct: error:") and "Traceback" not in err
+    assert not (tmp_path / "o.c3d").exists()
