@@ -62,7 +62,8 @@ def plot_trajectories(traj: Trajectories, path: str | os.PathLike, title: str = 
     res = fig.add_subplot(grid[1, 1])
     box = [traj.residuals[traj.valid[:, m], m] for m in range(M)]
     if M:
-        res.boxplot([b if len(b) else [np.nan] for b in box], vert=False, showfliers=False, positions=np.arange(M))
+        res.boxplot([b if len(b) else [np.nan] for b in box], orientation="horizontal", showfliers=False,
+                    positions=np.arange(M))
     res.invert_yaxis()
     recorded = bool(np.nan_to_num(traj.residuals).any())
     res.set(xlabel="triangulation residual (mm)", title="residual per marker (box: quartiles, whiskers 1.5 IQR)"
