@@ -71,8 +71,8 @@ class HeadConfig:
     particles: int = 200
     mode: CueMode = CueMode.FUSED
     damping: float = 0.7
-    noise_pos: float = 1.5
-    noise_vel: float = 1.0
+    noise_pos: float = 3.0
+    noise_vel: float = 1.5
     noise_size: float = 0.25
     sigma_colour: float = 0.2
     sigma_shape: float = 0.2

@@ -15,7 +15,7 @@ from mocap.atomic import atomic_output
 from mocap.camera import Camera, Rig, save_rig
 from mocap.errors import MocapError
 
-__all__ = ["arc_rig", "add_noise", "write_colour_take"]
+__all__ = ["arc_rig", "head_rig", "hand_rig", "add_noise", "write_colour_take"]
 
 
 def arc_rig(
@@ -48,6 +48,16 @@ def arc_rig(
         K = np.array([[f, 0.0, size[0] / 2 - 0.5], [0.0, f, size[1] / 2 - 0.5], [0.0, 0.0, 1.0]])
         cams.append(Camera(f"cam{i + 1}", size, K, np.array(distortions), cv2.Rodrigues(R)[0].ravel(), -R @ c))
     return Rig(cams, {"made_by": "mocap.frontends.scenes.arc_rig"})
+
+
+def head_rig(n: int = 6) -> Rig:
+    """The head scenes' rig: 128x96 cameras 1.5 m from a head at 1.6 m, spread over 100 degrees."""
+    return arc_rig(n)
+
+
+def hand_rig(n: int = 6) -> Rig:
+    """The hand scenes' rig: 320x240 cameras 0.55 m from a hand at 1.2 m, spread over 50 degrees (roughly frontal)."""
+    return arc_rig(n, radius=0.55, target=(0.0, 0.0, 1.2), spread_deg=50.0, size=(320, 240), f=300.0)
 
 
 def add_noise(image: np.ndarray, sigma: float, rng: np.random.Generator) -> np.ndarray:
