@@ -150,7 +150,7 @@ class Sensor:
         """(N,) distance from the centre within which an isolated blob saturates, px (-1: nowhere)."""
         level = (FULL_SCALE - self.background) / amplitude  # saturated where the profile exceeds this
         lo = np.zeros_like(radius)
-        hi = radius + 6 * self.sigma
+        hi = radius + 8 * self.sigma
         for _ in range(_BISECTIONS):
             mid = 0.5 * (lo + hi)
             above = disc_profile(mid, radius, self.sigma) >= level
