@@ -73,7 +73,9 @@ class TrackerConfig:
         merge_px: two tracks predicted closer than this in an image may share one merged blob there, pixels.
         merged_variance_scale: centroid variance multiplier of blobs flagged as merged (by the detector,
             or by two tracks predicted within ``merge_px``). A point is output only when two cameras
-            without such blobs support it; otherwise it just updates its filter.
+            without such blobs support it, or it lies within ``suspect_m`` (clipped to ``gate_scale`` x the
+            running position error) of its prediction; otherwise it only updates its filter.
+        suspect_m: (low, high) bounds of that distance, m.
     """
 
     confirm_frames: int = 4
@@ -98,6 +100,7 @@ class TrackerConfig:
     clutter_px: float = 0.5
     merge_px: float = 6.0
     merged_variance_scale: float = 100.0
+    suspect_m: tuple[float, float] = (0.001, 0.003)
 
     def __post_init__(self) -> None:
         for name in ("confirm_frames", "new_min_views"):
@@ -431,7 +434,11 @@ class Tracker:
             asg[~tri.used] = -1
         meas.ok = np.isfinite(tri.X).all(axis=1)
         clean = tri.used & ~crowded & ~_gather(fr.merged, asg)
-        meas.out = meas.ok & (clean.sum(axis=1) >= 2)
+        # A point leaning on a possibly merged blob is output only if it agrees with the prediction.
+        t = self._t
+        agree = np.linalg.norm(tri.X - t.x3[:, :3], axis=1) < np.clip(
+            cfg.gate_scale * t.e3[:, 0], cfg.suspect_m[0], cfg.suspect_m[1])
+        meas.out = meas.ok & ((clean.sum(axis=1) >= 2) | agree)
         meas.X, meas.cov, meas.rms_px = tri.X, tri.cov, tri.rms_px
 
     def _update(self, fr: _Frame, meas: _Measurements, idx: np.ndarray) -> None:
