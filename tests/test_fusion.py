@@ -1,0 +1,106 @@
+"""Multi-view fusion: robust triangulation, re-pick, new markers, variable-radius re-identification."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from mocap.fusion import new_points, reidentify, repick, robust_triangulate
+from mocap.geometry import triangulate_weighted
+from mocap.pairs import camera_pairs
+
+
+def _ideal(rig, X):
+    P = rig.projection_matrices()
+    h = np.einsum("cij,nj->cni", P, np.concatenate([X, np.ones((len(X), 1))], axis=1))
+    return h[..., :2] / h[..., 2:]
+
+
+def test_robust_triangulation_rejects_a_dragged_camera_and_matches_the_clean_solution(rig):
+    rng = np.random.default_rng(0)
+    P = rig.projection_matrices()
+    X = rng.normal(scale=0.3, size=(4, 3)) + [0, 0, 1]
+    uv = _ideal(rig, X) + rng.normal(scale=0.05, size=(len(rig), 4, 2))
+    cov = np.broadcast_to(np.eye(2) * 0.05**2, uv.shape[:2] + (2, 2)).copy()
+    uv[2, 0] += [3.0, -2.0]  # a merged blob / ghost in camera 2 for point 0
+    uv[4:, 1] = np.nan  # point 1 seen by four cameras only
+    start = X + rng.normal(scale=0.01, size=X.shape)
+    tri = robust_triangulate(P, uv, cov, start, outlier_sigma=5.0, outlier_min_px=0.3)
+    assert not tri.used[0, 2] and tri.used[0].sum() == 5
+    assert tri.used[1].tolist() == [True] * 4 + [False] * 2
+    clean = uv.copy()
+    clean[2, 0] = np.nan
+    ref, ref_cov, ref_rms = triangulate_weighted(P, clean, cov)
+    np.testing.assert_allclose(tri.X, ref, atol=1e-9)
+    np.testing.assert_allclose(tri.cov, ref_cov, rtol=1e-6)
+    np.testing.assert_allclose(tri.rms_px, ref_rms, rtol=1e-6)
+    assert np.linalg.norm(tri.X - X, axis=1).max() < 1e-3
+
+
+def test_two_disagreeing_cameras_give_no_point(rig):
+    P = rig.projection_matrices()
+    X = np.array([[0.0, 0.1, 1.0]])
+    uv = np.full((len(rig), 1, 2), np.nan)
+    uv[:2] = _ideal(rig, X)[:2]
+    uv[1, 0, 1] += 5.0
+    cov = np.broadcast_to(np.eye(2) * 0.01, uv.shape[:2] + (2, 2))
+    tri = robust_triangulate(P, uv, cov, X, 5.0, 0.3)
+    assert np.isnan(tri.X).all() and not tri.used.any()
+
+
+def test_repick_takes_the_free_detection_at_the_reprojection(rig):
+    P = rig.projection_matrices()
+    X = np.array([[0.0, 0.0, 1.0], [0.3, 0.0, 1.0]])
+    truth = _ideal(rig, X)  # (C, 2, 2)
+    uv = truth.copy()
+    uv[3:, :] = np.nan  # cameras 3.. not assigned yet
+    cov = np.broadcast_to(np.eye(2) * 0.01, uv.shape[:2] + (2, 2))
+    tri = robust_triangulate(P, uv, cov, X, 5.0, 0.3)
+    D = np.concatenate([truth[:, ::-1], truth[:, :1] + [4.0, 0.0]], axis=1)  # (C, 3, 2): swapped order + decoy
+    free = np.ones(D.shape[:2], dtype=bool)
+    free[4, 0] = False  # camera 4's blob of point 1 is taken by someone else
+    got = repick(tri, D, free, 1.0)
+    assert (got[:, :3] == -1).all()  # assigned cameras are not offered anything
+    assert got[0, 3:].tolist() == [1, 1, 1]
+    assert got[1, 3:].tolist() == [0, -1, 0]
+
+
+def test_new_points_recover_markers_and_reject_ghost_pairs(rig):
+    rng = np.random.default_rng(4)
+    P = rig.projection_matrices()
+    pairs = camera_pairs(rig)
+    X = rng.normal(scale=0.3, size=(6, 3)) + [0, 0, 1]
+    uv = _ideal(rig, X) + rng.normal(scale=0.05, size=(len(rig), 6, 2))
+    uv[0, 5] = np.nan  # marker 5 only in cameras 1..5
+    ghosts = rng.uniform([0, 0], [1024, 768], size=(len(rig), 4, 2))
+    D = np.concatenate([uv, ghosts], axis=1)
+    order = rng.permutation(D.shape[1])
+    D = D[:, order]
+    free = np.isfinite(D).all(axis=2)
+    cov = np.broadcast_to(np.eye(2) * 0.05**2, D.shape[:2] + (2, 2))
+    sizes = np.array([c.size for c in rig.cameras], dtype=float)
+    pts = new_points(P, pairs, D, cov, free, sizes, 1.5, 1.5, 3, 5.0, 0.3)
+    strong = pts.X[pts.strong]
+    assert len(strong) == 6
+    d = np.linalg.norm(strong[:, None] - X[None], axis=2)
+    assert (d.min(axis=0) < 2e-3).all()
+    assert (pts.det[pts.strong] >= 0).sum(axis=1).min() >= 5
+    for c in range(len(rig)):  # every detection is used at most once
+        used = pts.det[:, c][pts.det[:, c] >= 0]
+        assert len(np.unique(used)) == len(used)
+    assert not any(order[d] >= 6 for d in pts.det[pts.strong].ravel() if d >= 0)  # no ghost blob in a marker
+
+
+def test_reidentify_follows_each_tracks_own_radius():
+    predicted = np.array([[0.0, 0.0, 1.0], [1.0, 0.0, 1.0]])
+    points = np.array([[0.15, 0.0, 1.0], [1.05, 0.0, 1.0], [3.0, 0.0, 1.0]])
+    narrow = reidentify(points, predicted, np.array([0.05, 0.1]))
+    assert narrow.tolist() == [-1, 1, -1]
+    wide = reidentify(points, predicted, np.array([0.3, 0.1]))  # track 0 unseen longer: wider radius
+    assert wide.tolist() == [0, 1, -1]
+    # the last seen position counts as well as the (possibly runaway) prediction
+    far = np.array([[5.0, 0.0, 1.0], [1.0, 0.0, 1.0]])
+    assert reidentify(points, far, np.array([0.3, 0.1]), last_seen=predicted).tolist() == [0, 1, -1]
+    # optimal, not greedy: point 0 is nearer to both, but the joint optimum gives each its own
+    both = reidentify(np.array([[0.5, 0, 1.0], [0.05, 0, 1.0]]), np.array([[0.0, 0, 1.0], [0.55, 0, 1.0]]),
+                      np.array([1.0, 1.0]))
+    assert both.tolist() == [1, 0]
