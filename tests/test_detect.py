@@ -1,0 +1,175 @@
+"""Blob detection against ground truth: rendered blobs (mocap.synth's sensor model), OpenCV's labelling."""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+import pytest
+from scipy.spatial import cKDTree
+
+from mocap.detect import background_level, detect
+from mocap.synth.render import Sensor
+
+SHAPE = (480, 640)
+
+
+def grid_frame(sensor: Sensor, radius: float, amplitude: float, rng: np.random.Generator, pitch: int = 40
+               ) -> tuple[np.ndarray, np.ndarray]:
+    """A frame with isolated blobs on a grid, each at a random sub-pixel offset; returns (image, centres)."""
+    gx, gy = np.meshgrid(np.arange(pitch, SHAPE[1] - pitch // 2, pitch), np.arange(pitch, SHAPE[0] - pitch // 2, pitch))
+    uv = np.c_[gx.ravel(), gy.ravel()] + rng.uniform(-0.5, 0.5, (gx.size, 2))
+    image = sensor.background_frame(SHAPE, rng)
+    sensor.draw(image, uv, np.full(len(uv), radius), np.full(len(uv), amplitude), rng)
+    return image, uv
+
+
+def match(found: np.ndarray, truth: np.ndarray, tol: float = 1.0) -> np.ndarray:
+    """(N,) index of the detection nearest each true centre; asserts every true centre was found."""
+    dist, idx = cKDTree(found).query(truth)
+    assert (dist < tol).all(), f"missed {(dist >= tol).sum()} of {len(truth)} blobs"
+    return idx
+
+
+# diameters 2.5-8 px; faint, medium, saturating; sharp and blurred optics
+CASES = [(1.25, 40.0, 0.5), (1.25, 120.0, 0.5), (1.75, 300.0, 0.5), (2.5, 150.0, 0.5), (4.0, 400.0, 0.5),
+         (4.0, 80.0, 0.5), (1.75, 100.0, 1.0), (2.5, 400.0, 1.0)]
+
+
+@pytest.mark.parametrize("radius, amplitude, blur", CASES)
+def test_centroids_unbiased_at_the_cramer_rao_bound(radius, amplitude, blur):
+    sensor = Sensor(blur_px=blur)
+    rng = np.random.default_rng(int(radius * 100 + amplitude + blur * 7))
+    errors, bounds, predicted = [], [], []
+    for _ in range(3):
+        image, uv = grid_frame(sensor, radius, amplitude, rng)
+        det = detect(image)
+        assert len(det) == len(uv)
+        idx = match(det.xy, uv)
+        errors.append(det.xy[idx] - uv)
+        bounds.append(sensor.centroid_sigma(uv, np.full(len(uv), radius), np.full(len(uv), amplitude)))
+        predicted.append(np.sqrt(0.5 * (det.cov[idx, 0, 0] + det.cov[idx, 1, 1])))
+        assert not det.merged.any()
+    err = np.concatenate(errors)
+    crlb = np.concatenate(bounds).mean()
+    n = len(err)
+    # bias: below 0.01 px, and below what the noise could explain (5 standard errors)
+    assert np.all(np.abs(err.mean(axis=0)) < min(0.01, 5 * crlb / np.sqrt(n) + 1e-3))
+    std = err.std(axis=0).mean()
+    assert std < 1.5 * crlb, f"std {std:.4f} px vs Cramér–Rao bound {crlb:.4f} px"
+    # the reported covariance matches the real scatter
+    assert 0.75 < np.concatenate(predicted).mean() / std < 1.35
+
+
+def test_fit_beats_centroid_and_centroid_beats_opencv_baseline():
+    sensor = Sensor()
+    rng = np.random.default_rng(5)
+    image, uv = grid_frame(sensor, 1.75, 150.0, rng)
+    level, sigma = background_level(image)
+    t = int(level + 6 * sigma)
+    _, _, stats, centroids = cv2.connectedComponentsWithStats(cv2.threshold(image, t, 255, cv2.THRESH_BINARY)[1],
+                                                               connectivity=8)
+    rms = {}
+    for name, xy in (("opencv", centroids[1:]), ("centroid", detect(image, refine="centroid").xy),
+                     ("fit", detect(image).xy)):
+        rms[name] = np.sqrt(((xy[match(xy, uv)] - uv) ** 2).mean())
+    assert rms["fit"] < 0.7 * rms["centroid"] < 0.7 * rms["opencv"]
+
+
+def test_blob_areas_equal_opencv_labelling():
+    """Blob pixels are exactly OpenCV's 8-connected components of the thresholded image."""
+    sensor = Sensor()
+    rng = np.random.default_rng(11)
+    image = sensor.background_frame(SHAPE, rng)
+    n = 60
+    uv = np.c_[rng.uniform(3, SHAPE[1] - 3, n), rng.uniform(3, SHAPE[0] - 3, n)]  # some touch, some at edges
+    sensor.draw(image, uv, rng.uniform(1.0, 5.0, n), rng.uniform(40, 400, n), rng)
+    t = 30
+    det = detect(image, threshold=t, min_area=1, refine="centroid")
+    count, labels, stats, _ = cv2.connectedComponentsWithStats((image > t).astype(np.uint8), connectivity=8)
+    assert sorted(det.area.astype(int)) == sorted(stats[1:, cv2.CC_STAT_AREA])
+    # each detection's centroid lies on or next to a pixel of a component of the same area
+    ys, xs = np.rint(det.xy[:, 1]).astype(int), np.rint(det.xy[:, 0]).astype(int)
+    near = labels[np.clip(ys, 0, SHAPE[0] - 1), np.clip(xs, 0, SHAPE[1] - 1)]
+    assert (stats[near[near > 0], cv2.CC_STAT_AREA] == det.area[near > 0]).all()
+
+
+def test_noise_estimate():
+    rng = np.random.default_rng(2)
+    for background, noise in ((12.0, 2.0), (30.0, 5.0)):
+        image = Sensor(background=background, noise=noise).background_frame(SHAPE, rng)
+        level, sigma = background_level(image)
+        assert abs(level - background) < 0.1
+        assert abs(sigma - np.sqrt(noise**2 + 1 / 12)) < 0.1 * noise
+
+
+def test_no_false_positives_on_pure_noise():
+    rng = np.random.default_rng(3)
+    sensor = Sensor()
+    found = sum(len(detect(sensor.background_frame((768, 1024), rng))) for _ in range(10))
+    assert found == 0
+
+
+def test_black_and_white_frames():
+    assert len(detect(np.zeros(SHAPE, np.uint8))) == 0
+    white = np.full(SHAPE, 255, np.uint8)
+    assert len(detect(white)) == 0
+    assert len(detect(white, threshold=200)) == 0  # one frame-sized blob: larger than max_area
+    det = detect(white, threshold=200, max_area=SHAPE[0] * SHAPE[1])
+    assert len(det) == 1 and np.allclose(det.xy, [(SHAPE[1] - 1) / 2, (SHAPE[0] - 1) / 2], atol=0.5)
+
+
+def test_rejects_non_grey_images():
+    with pytest.raises(ValueError, match="uint8"):
+        detect(np.zeros((10, 10, 3), np.uint8))
+
+
+@pytest.mark.parametrize("separation", [4.0, 4.5, 5.0])
+def test_touching_pair_is_split(separation):
+    sensor = Sensor()
+    rng = np.random.default_rng(int(separation * 10))
+    errors = []
+    for _ in range(5):
+        image = sensor.background_frame(SHAPE, rng)
+        centre = rng.uniform(100, 300, 2)
+        angle = rng.uniform(0, np.pi)
+        uv = centre + np.outer([-0.5, 0.5], separation * np.array([np.cos(angle), np.sin(angle)]))
+        sensor.draw(image, uv, np.full(2, 1.75), np.full(2, 150.0), rng)
+        assert len(detect(image, threshold=30, refine="centroid")) == 1  # one blob above threshold...
+        det = detect(image, threshold=30)
+        assert len(det) == 2 and det.merged.all()  # ... fitted as two markers
+        errors.append(det.xy[match(det.xy, uv)] - uv)
+    assert np.abs(np.concatenate(errors)).max() < 0.15
+
+
+def test_unresolvable_pair_is_flagged():
+    sensor = Sensor()
+    rng = np.random.default_rng(8)
+    image = sensor.background_frame(SHAPE, rng)
+    uv = np.array([[200.0, 200.0], [202.6, 200.4], [400.0, 300.0], [450.0, 320.0]])
+    sensor.draw(image, uv, np.full(4, 1.75), np.r_[300.0, 300.0, 300.0, 300.0], rng)
+    det = detect(image)
+    pair = np.linalg.norm(det.xy - [201.3, 200.2], axis=1) < 1.5
+    assert pair.sum() >= 1 and det.merged[pair].all()
+    assert not det.merged[~pair].any()
+
+
+def test_roi_mode_finds_the_same_blobs_as_a_full_scan():
+    sensor = Sensor()
+    rng = np.random.default_rng(4)
+    image = sensor.background_frame((768, 1024), rng)
+    n = 80
+    uv = np.c_[rng.uniform(5, 1019, n), rng.uniform(5, 763, n)]
+    sensor.draw(image, uv, rng.uniform(1.2, 4.0, n), rng.uniform(50, 400, n), rng)
+    full = detect(image)
+    rois = np.array([[100, 100, 400, 300], [395, 290, 420, 310], [600, 500, 1023, 767], [0, 0, 7, 7]])
+    part = detect(image, rois=rois)
+    x, y = full.xy.T
+    inside = np.zeros(len(full), bool)
+    for x0, y0, x1, y1 in rois:
+        inside |= (x >= x0) & (x <= x1) & (y >= y0) & (y <= y1)
+    assert inside.sum() > 5
+    order_full = np.lexsort(full.xy[inside].T)
+    order_part = np.lexsort(part.xy.T)
+    np.testing.assert_allclose(part.xy[order_part], full.xy[inside][order_full], atol=1e-9)
+    np.testing.assert_allclose(part.cov[order_part], full.cov[inside][order_full], atol=1e-12)
+    assert len(detect(image, rois=np.zeros((0, 4), int))) == 0
