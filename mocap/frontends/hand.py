@@ -23,9 +23,12 @@ particle filter per extended finger, K-means check of strong particles, palm cen
   resampling.
 * Palm: a circle of ``palm_factor`` x the mean fingertip radius, centred where it holds the most skin
   within a neighbourhood of the hand centroid.
-* State check: a finger's mean particle confidence below ``fail_confidence`` -> re-recognise now; the
-  contour's fingertip count differing from the tracked count for ``check_frames`` frames (a finger came
-  out; stands in for the paper's band scan around the centroid) -> re-recognise.
+* State check: a finger's mean particle confidence below ``fail_confidence`` -> that finger's filter is
+  dropped and the hand re-recognised; the contour's fingertip count differing from the tracked count for
+  ``check_frames`` frames (a finger came out; stands in for the paper's band scan around the centroid) ->
+  re-recognise. Re-initialisation happens when a recognition's fingertips fit its posture; until then the
+  fingers still tracked keep being followed (the paper restarts everything; this keeps fingers that did
+  not change through a posture change).
 """
 
 from __future__ import annotations
@@ -77,9 +80,9 @@ class HandConfig:
     ray_reach: float = 4.0
     delta: float = 1.0
     edge_threshold: float = 150.0
-    strong: float = 0.45
+    strong: float = 0.3
     suspicious_factor: float = 0.2
-    fail_confidence: float = 0.2
+    fail_confidence: float = 0.03
     ratio_threshold: float = 1.0
     window_factor: float = 0.7
     min_hand_area: float = 300.0
@@ -265,6 +268,7 @@ class HandTracker:
         self.window: tuple[int, int, int, int] | None = None
         self.tip_radius = np.nan
         self._disagree = 0
+        self._pending = False  # the last recognition's fingertips did not fit its posture: try again
         self._checked_colour = False
         self._estimate = np.zeros((0, 4))
         self._conf = np.zeros(0)
@@ -392,14 +396,16 @@ class HandTracker:
         conf = self._confidence(grad, states)
         weights = conf * self._suspicious(states, conf)
         self._estimate = np.empty((len(self.fingers), 4))
-        new = np.empty_like(states)
+        ancestors = np.empty(states.shape[:2], dtype=np.intp)
         for f in range(len(self.fingers)):
             w = normalise(weights[f])
             self._estimate[f, :3] = w @ states[f, :, :3]
             self._estimate[f, 3] = np.arctan2(w @ np.sin(states[f, :, 3]), w @ np.cos(states[f, :, 3]))
-            new[f] = states[f, systematic_resample(w, self.rng)]
-        self.previous = self.particles
-        self.particles = new
+            ancestors[f] = systematic_resample(w, self.rng)
+        rows = np.arange(len(self.fingers))[:, None]
+        # each survivor's own previous state, moved with the hand so the velocity is the finger's own
+        self.previous = self.particles[rows, ancestors] + np.array([shift[0], shift[1], 0.0, 0.0])
+        self.particles = states[rows, ancestors]
         self.tip_radius = float(self._estimate[:, 2].mean())
         return conf.mean(axis=1)
 
@@ -435,32 +441,37 @@ class HandTracker:
                                  "this video is grey-scale or not 3-channel")
             self._checked_colour = True
         mask = skin_mask(frame)
+        recognise = not self.tracking
         if self.tracking:
             conf = self._track(frame, mask)
+            failed = conf < self.config.fail_confidence
+            if failed.any():  # drop the lost fingers, keep following the others until re-initialised
+                keep = ~failed
+                self.fingers, self.particles, self.previous = (
+                    self.fingers[keep], self.particles[keep], self.previous[keep])
+                self._radius0, self._estimate, conf = self._radius0[keep], self._estimate[keep], conf[keep]
             self._conf = conf
-            if self.tracking and len(conf) and conf.min() < self.config.fail_confidence:
-                self._stop()
-            elif self.tracking:
-                self._check_count(mask)
-        if not self.tracking:
+            recognise = not self.tracking or failed.any() or self._count_disagrees(mask) or self._pending
+        if recognise:
             posture, tips, labels = self._recognise(mask)
             self.posture = posture
+            self._pending = labels is None
             if labels is not None:
                 self._start(mask, posture, tips, labels)
                 self._estimate = np.column_stack([tips.centre, tips.radius, tips.direction])[np.argsort(labels)]
                 self._conf = np.ones(len(labels))
+            elif not posture:
+                self._stop()
         return self._output(mask)
 
-    def _check_count(self, mask: np.ndarray) -> None:
-        """Re-recognise when the contour shows another number of fingertips for ``check_frames`` frames."""
+    def _count_disagrees(self, mask: np.ndarray) -> bool:
+        """True when the contour has shown another number of fingertips than tracked for ``check_frames`` frames."""
         contour = hand_contour(mask, self.config.min_hand_area)
         if contour is None:
-            self._stop()
-            return
+            return True
         count = len(find_fingertips(contour, mask, self._palm_radius(mask), self.config))
         self._disagree = self._disagree + 1 if count != len(self.fingers) else 0
-        if self._disagree >= self.config.check_frames:
-            self._stop()
+        return self._disagree >= self.config.check_frames
 
     def _output(self, mask: np.ndarray) -> HandEstimate:
         tips = np.full((5, 2), np.nan)

@@ -196,7 +196,9 @@ def posture_samples(rig: Rig, per_class: int, seed: int) -> tuple[list[np.ndarra
 
 
 def _rig_target(rig: Rig) -> np.ndarray:
-    """(3,) the point the rig's cameras look at: least-squares meeting point of their optical axes."""
+    """(3,) the point the rig's cameras look at: ``metadata["target"]``, else where their optical axes meet."""
+    if "target" in rig.metadata:
+        return np.asarray(rig.metadata["target"], dtype=np.float64)
     A = np.zeros((3, 3))
     b = np.zeros(3)
     for cam in rig:

@@ -47,7 +47,7 @@ def arc_rig(
         R = np.stack([x, y, z])
         K = np.array([[f, 0.0, size[0] / 2 - 0.5], [0.0, f, size[1] / 2 - 0.5], [0.0, 0.0, 1.0]])
         cams.append(Camera(f"cam{i + 1}", size, K, np.array(distortions), cv2.Rodrigues(R)[0].ravel(), -R @ c))
-    return Rig(cams, {"made_by": "mocap.frontends.scenes.arc_rig"})
+    return Rig(cams, {"made_by": "mocap.frontends.scenes.arc_rig", "target": target_v.tolist()})
 
 
 def head_rig(n: int = 6) -> Rig:
