@@ -50,3 +50,17 @@ def test_fundamental_table_survives_calibration_toml(rig, tmp_path):
     entry = table["cam1-cam2"]
     assert entry["from"] == "cam1" and entry["n_points"] == 50 and entry["mean_px"] < 1e-6
     np.testing.assert_allclose(np.array(entry["F"]), fundamental_from_cameras(back[0], back[1]), atol=1e-12)
+
+
+def test_cli_adds_fundamentals_and_compares(rig, tmp_path, capsys):
+    from mocap.cli import main
+
+    path = tmp_path / "calibration.toml"
+    save_rig(rig, path)
+    assert main(["calibrate", "fundamental", str(path)]) == 0
+    assert len(load_rig(path).extra_tables[TABLE]) == 15
+    assert main(["calibrate", "compare", str(path), str(path), "--json", str(tmp_path / "c.json")]) == 0
+    assert "cam6" in capsys.readouterr().out
+    assert main(["calibrate", "wand", str(tmp_path / "missing"), "--wand", "0,0.25,0.5", "--out",
+                 str(tmp_path / "o.toml")]) == 2
+    assert "too close to the centre" in capsys.readouterr().err
