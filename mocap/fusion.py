@@ -178,7 +178,8 @@ def new_points(P: np.ndarray, pairs: CameraPairs, D: np.ndarray, cov: np.ndarray
     into every camera; a camera supports it when a free detection lies within ``support_px``.
     Candidates are accepted greedily (most supporting cameras, then smallest epipolar distance),
     each detection used once; a point is ``strong`` when supported by ``min_views`` cameras, or by
-    every camera (>= 2) whose image it falls in when fewer than ``min_views`` do. The accepted point is
+    every camera (>= 2) whose image it falls in when fewer than ``min_views`` do (cameras that saw
+    nothing at all this frame do not count). The accepted point is
     re-triangulated over its supporting detections with outlier rejection.
 
     Args:
@@ -206,6 +207,7 @@ def new_points(P: np.ndarray, pairs: CameraPairs, D: np.ndarray, cov: np.ndarray
     proj, _ = reprojection_jacobians(P, X)  # (C, L, 2)
     depth = np.einsum("cj,lj->cl", P[:, 2, :3], X) + P[:, 2, 3][:, None]
     framed = (depth > 0) & (proj >= 0).all(axis=2) & (proj < sizes[:, None, :]).all(axis=2)  # (C, L)
+    framed &= np.isfinite(D).all(axis=2).any(axis=1)[:, None]  # a camera that saw nothing cannot object
     diff = proj[:, :, None, :] - D[:, None, :, :]
     d = np.where(free[:, None, :], np.sqrt((diff * diff).sum(axis=3)), np.inf)  # (C, L, N)
     nearest = np.argmin(d, axis=2)

@@ -68,6 +68,8 @@ class TrackerConfig:
         repick_px: a free detection this close to a point's reprojection joins the point, pixels.
         support_px: a free detection this close to a new point's reprojection supports it, pixels.
         new_min_views: cameras that must support a new marker (fewer when fewer cameras frame it).
+        weak_motion_m: a track started from a weak new point (fewer supporting cameras than ``new_min_views``
+            where more frame it) is confirmed only once it has moved this far, m.
         min_separation_m: a new point closer than this to a measured track is that track's, not new.
         clutter_px: a free detection this close to one of the previous frame is not new (see _known_clutter).
         merge_px: two tracks predicted closer than this in an image may share one merged blob there, pixels.
@@ -96,6 +98,7 @@ class TrackerConfig:
     repick_px: float = 1.5
     support_px: float = 2.0
     new_min_views: int = 3
+    weak_motion_m: float = 0.003
     min_separation_m: float = 0.012
     clutter_px: float = 0.5
     merge_px: float = 6.0
@@ -187,13 +190,16 @@ class _Tracks:
     e2: np.ndarray  # (K, C, 3) running image errors: px, px/s, px/s^2
     last_uv: np.ndarray  # (K, C, 2) last measured image position, px
     last_uvv: np.ndarray  # (K, C, 2) last measured image velocity, px/s
+    weak: np.ndarray  # (K,) started from a two-view point that not all framing cameras supported
+    origin: np.ndarray  # (K, 3) where the track started, m
 
     @classmethod
     def empty(cls, C: int) -> _Tracks:
         i = np.zeros(0, dtype=np.intp)
         return cls(i, i, i, i, i, np.zeros((0, 9)), np.zeros((0, 9, 9)), np.zeros((0, 3)), np.zeros((0, 3)),
                    np.zeros((0, 3)), np.zeros((0, C, 6)), np.zeros((0, C, 6, 6)), np.zeros((0, C), dtype=bool),
-                   np.zeros((0, C, 3)), np.zeros((0, C, 2)), np.zeros((0, C, 2)))
+                   np.zeros((0, C, 3)), np.zeros((0, C, 2)), np.zeros((0, C, 2)), np.zeros(0, dtype=bool),
+                   np.zeros((0, 3)))
 
     def __len__(self) -> int:
         return len(self.uid)
@@ -526,7 +532,7 @@ class Tracker:
             meas.put(rows, _Measurements(np.ones(got.size, dtype=bool), clean.sum(axis=1) >= 2, pts.X[got],
                                          pts.cov[got], pts.rms_px[got], pts.det[got]))
             self._update(fr, meas, rows)
-        rest = np.flatnonzero((match < 0) & pts.strong)
+        rest = np.flatnonzero(match < 0)
         if rest.size == 0:
             return
         # 2) Identities not measured this frame: a tentative track inherits one if confirmed (_lifecycle).
@@ -573,7 +579,7 @@ class Tracker:
         last_uv[k, c] = z
         i = np.zeros(n, dtype=np.intp)
         new = _Tracks(uid, i - 1, cand, i + 1, i.copy(), x3, P3, e3, pts.X.copy(), np.full((n, 3), np.nan), x2, P2,
-                      used, np.zeros((n, C, 3)), last_uv, np.zeros((n, C, 2)))
+                      used, np.zeros((n, C, 3)), last_uv, np.zeros((n, C, 2)), ~pts.strong, pts.X.copy())
         base = len(self._t)
         self._t.extend(new)
         self._t.e2[base + k, c] = self._e2_from_3d(base + k, c)
@@ -586,7 +592,10 @@ class Tracker:
         t, cfg = self._t, self._cfg
         t.lock2[t.since > 0] = False
         tentative = t.ident < 0
-        confirm = np.flatnonzero(tentative & (t.since == 0) & (t.hits >= cfg.confirm_frames))
+        # A track born from a weak point must also have moved: fixed reflections that happen to match
+        # across two cameras make a static point.
+        moved = np.linalg.norm(t.last_X - t.origin, axis=1) > cfg.weak_motion_m
+        confirm = np.flatnonzero(tentative & (t.since == 0) & (t.hits >= cfg.confirm_frames) & (~t.weak | moved))
         retire = np.zeros(len(t), dtype=bool)
         for k in confirm:  # rare: once per new identity
             owner = np.flatnonzero((t.ident == t.cand[k]) & (t.since >= 1)) if t.cand[k] >= 0 else []
