@@ -128,14 +128,20 @@ class CentroidFile:
                     break
                 block *= 4
         data = [ln.strip() for ln in lines if ln.strip() and not ln.lstrip().startswith("#")]
-        if not data or self._header_like(data[-1]):
-            return -1
-        fields = data[-1].split(",")
-        try:
-            return int(float(fields[self._cols["frame"]]))
-        except (ValueError, IndexError):
-            raise MocapError(f"{self.path}: unreadable last row {data[-1]!r}; every row needs numbers separated "
-                             "by commas") from None
+        for line in reversed(data):
+            if self._header_like(line):
+                return -1
+            fields = line.split(",")
+            try:
+                last = float(fields[self._cols["frame"]])
+            except (ValueError, IndexError):
+                raise MocapError(f"{self.path}: unreadable last row {line!r}; every row needs numbers separated "
+                                 "by commas") from None
+            if np.isfinite(last):  # (a NaN row is dropped, with a warning, while streaming)
+                if last < 0:
+                    raise MocapError(f"{self.path}: negative frame number {last:g}; frames count from 0")
+                return int(last)
+        return -1
 
     @staticmethod
     def _header_like(text: str) -> bool:
