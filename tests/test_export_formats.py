@@ -184,3 +184,11 @@ def test_real_c3d_files_survive_every_format(name, tmp_path):
         out = tmp_path / f"out{suffix}"
         write_trajectories(source, out)
         assert_same_samples(read_trajectories(out), source, rtol=rtol)
+
+
+@pytest.mark.parametrize("suffix", sorted(FORMATS))
+def test_a_take_without_markers_round_trips(tmp_path, suffix):
+    empty = Trajectories([], 120.0, np.zeros((10, 0, 3)), first_frame=3)
+    write_trajectories(empty, tmp_path / f"e{suffix}")
+    back = read_trajectories(tmp_path / f"e{suffix}")
+    assert (back.n_markers, back.n_frames, back.first_frame, back.fps) == (0, 10, 3, 120.0)

@@ -50,6 +50,8 @@ def write_c3d(traj: Trajectories, path: str | os.PathLike) -> None:
     """Write ``traj`` to a C3D file atomically (positions in mm)."""
     check_labels(traj.labels, path, "C3D")
     F, M = traj.n_frames, traj.n_markers
+    if F == 0:
+        raise MocapError(f"{path}: no frames to write; a C3D file needs at least one frame")
     if F > MAX_FRAMES:
         raise MocapError(
             f"{path}: {F} frames do not fit in a C3D file written by ezc3d (at most {MAX_FRAMES}, "
@@ -81,9 +83,10 @@ def write_c3d(traj: Trajectories, path: str | os.PathLike) -> None:
             f.seek(_HEADER_SCALE_OFFSET)
             f.write(struct.pack("<f", -step))
         words = _point_words(tmp, M, F, -step, mode="r+")
-        code = words.astype(np.int32)
-        words[:] = np.where(code < 0, -1.0, ((code & 0x7F) << 8) | (code >> 8))  # ezc3d's byte order -> the spec's
-        words.flush()
+        if words is not None:  # None: no samples at all
+            code = words.astype(np.int32)
+            words[:] = np.where(code < 0, -1.0, ((code & 0x7F) << 8) | (code >> 8))  # ezc3d's order -> the spec's
+            words.flush()
 
 
 @dataclass(frozen=True)
@@ -164,8 +167,8 @@ def read_c3d(path: str | os.PathLike) -> Trajectories:
     pts = np.asarray(c3d["data"]["points"], dtype=np.float64)  # (4, M, F)
     labels = labels[: pts.shape[1]] + [f"M{i:03d}" for i in range(len(labels), pts.shape[1])]
     layout = _Layout.of(path, pts.shape[1], float(params["SCALE"]["value"][0]))
-    held = min(pts.shape[2], layout.frames_in(path))
-    if pts.shape[1] and held < layout.declared_frames:
+    held = min(pts.shape[2], layout.frames_in(path)) if pts.shape[1] else layout.declared_frames
+    if held < layout.declared_frames:
         raise MocapError(f"{path}: the file is truncated: its header declares {layout.declared_frames} frames but "
                          f"it holds {held}; re-export it")
     positions = np.transpose(pts[:3], (2, 1, 0)) * UNIT_TO_METRES[units]

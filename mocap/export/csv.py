@@ -118,7 +118,7 @@ def read_csv(path: str | os.PathLike, up_axis: str | None = None) -> Trajectorie
     up = (up_axis or meta.get("Up Axis") or "Y").upper()
     if up not in ("Y", "Z"):
         raise MocapError(f"{path}: up axis {up!r} is not supported; use Y or Z")
-    columns, labels = _marker_columns(rows, path)
+    columns, labels = _marker_columns(rows)
     n_fields = len(rows["Axis"])
     data = parse_rows([line for line in lines[header_end + 1:] if line.strip(", ")], ",", n_fields, str(path),
                       header_end + 2)
@@ -136,8 +136,8 @@ def read_csv(path: str | os.PathLike, up_axis: str | None = None) -> Trajectorie
                         metadata={"units": units, "up_axis": up})
 
 
-def _marker_columns(rows: dict[str, list[str]], path: Path) -> tuple[np.ndarray, list[str]]:
-    """Column indices (3 per marker, X Y Z) and names of the Marker-typed Position triples."""
+def _marker_columns(rows: dict[str, list[str]]) -> tuple[np.ndarray, list[str]]:
+    """Column indices (3 per marker, X Y Z) and names of the Marker-typed Position triples (may be none)."""
     axis, names = rows["Axis"], rows["Name"]
     types = rows.get("Type", ["", ""] + ["Marker"] * (len(axis) - 2))
     kinds = rows.get("Kind", ["", ""] + ["Position"] * (len(axis) - 2))
@@ -147,6 +147,4 @@ def _marker_columns(rows: dict[str, list[str]], path: Path) -> tuple[np.ndarray,
                 and axis[j + 1: j + 3] == ["Y", "Z"]):
             columns.extend([j, j + 1, j + 2])
             labels.append(names[j])
-    if not labels:
-        raise MocapError(f"{path}: no Marker Position columns (Type 'Marker', then X, Y, Z) in the header rows")
-    return np.asarray(columns), labels
+    return np.asarray(columns, dtype=np.int64), labels
