@@ -16,6 +16,7 @@ would see the point. Epipolar geometry and triangulation work in ideal pixels.
 
 from __future__ import annotations
 
+import functools
 import math
 import os
 import tomllib
@@ -32,6 +33,11 @@ from mocap.atomic import atomic_write_bytes
 from mocap.errors import MocapError
 
 __all__ = ["Camera", "Rig", "load_rig", "parse_rig", "save_rig", "rig_to_toml"]
+
+
+def _read_only(array: np.ndarray) -> np.ndarray:
+    array.setflags(write=False)
+    return array
 
 
 def _rodrigues_to_matrix(rvec: np.ndarray) -> np.ndarray:
@@ -76,20 +82,20 @@ class Camera:
         object.__setattr__(self, "distortions", dist)
 
     # ----------------------------------------------------------------- poses
-    @property
+    @functools.cached_property
     def R(self) -> np.ndarray:
-        """(3, 3) world -> camera rotation matrix."""
-        return _rodrigues_to_matrix(self.rotation)
+        """(3, 3) world -> camera rotation matrix (read-only)."""
+        return _read_only(_rodrigues_to_matrix(self.rotation))
 
-    @property
+    @functools.cached_property
     def center(self) -> np.ndarray:
-        """(3,) camera centre in world coordinates, metres: ``-R^T t``."""
-        return -self.R.T @ self.translation
+        """(3,) camera centre in world coordinates, metres: ``-R^T t`` (read-only)."""
+        return _read_only(-self.R.T @ self.translation)
 
-    @property
+    @functools.cached_property
     def projection_matrix(self) -> np.ndarray:
-        """(3, 4) ideal-pixel projection matrix ``K [R | t]``."""
-        return self.matrix @ np.hstack([self.R, self.translation[:, None]])
+        """(3, 4) ideal-pixel projection matrix ``K [R | t]`` (read-only)."""
+        return _read_only(self.matrix @ np.hstack([self.R, self.translation[:, None]]))
 
     def world_to_camera(self, points: np.ndarray) -> np.ndarray:
         """(N, 3) world points, metres -> (N, 3) camera-frame points, metres."""

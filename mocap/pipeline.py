@@ -60,7 +60,7 @@ class ReconstructOptions:
 
 def _open_source(path: Path, fps: float | None) -> tuple[Any, str]:
     """Open a take folder or an MCAP log; returns the source and its kind ("images"/"centroids")."""
-    if path.suffix.lower() == ".mcap":
+    if path.name.lower().endswith((".mcap", ".mcap.partial")):  # a run's log, or what a crashed run left
         from mocap.export.mcap import read_mcap_take
 
         return read_mcap_take(path), "centroids"

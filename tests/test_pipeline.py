@@ -43,7 +43,7 @@ def test_rendered_take_is_reconstructed_accurately(png_take):
     assert report.rmse_mm < 0.5
     assert report.completeness > 0.97
     assert report.ghost_rate < 0.005
-    assert report.id_switches == 0
+    assert report.switches == 0
     assert traj.camera_names == load_rig(take / "calibration.toml").names
 
 
@@ -78,7 +78,7 @@ def test_camera_black_for_a_while(png_take, tmp_path):
     traj = reconstruct(take, ReconstructOptions(progress=False))
     truth = load_truth(png_take[1])
     report = evaluate(traj, truth)
-    assert report.id_switches == 0 and report.ghost_rate < 0.005
+    assert report.switches == 0 and report.ghost_rate < 0.005
     assert report.completeness > 0.9
     cam3_bit = np.uint32(1 << 2)
     assert not np.any(traj.camera_masks[10:25] & cam3_bit)
