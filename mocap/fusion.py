@@ -23,7 +23,7 @@ from scipy.optimize import linear_sum_assignment
 
 from mocap.geometry import reprojection_jacobians
 from mocap.pairs import CameraPairs
-from mocap.stereo import match_pairs, triangulate_matches
+from mocap.stereo import dist2, match_pairs, triangulate_matches
 
 __all__ = ["Triangulated", "robust_triangulate", "repick", "new_points", "reidentify"]
 
@@ -49,30 +49,36 @@ class Triangulated:
     depth: np.ndarray
 
 
-def _gauss_newton(P: np.ndarray, uv: np.ndarray, W: np.ndarray, X: np.ndarray, iterations: int
-                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+def _gauss_newton(P: np.ndarray, uv: np.ndarray, W: np.ndarray, X: np.ndarray, iterations: int,
+                  tol_m: float = 1e-7) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Weighted Gauss-Newton refinement of K points from a start ``X`` (K, 3).
 
-    ``uv`` (C, K, 2) is zero where unseen and ``W`` (C, K, 2, 2) zero there. Returns X, cov (K, 3, 3),
-    reprojection (C, K, 2), residual vectors (C, K, 2) and depth (C, K).
+    ``uv`` (C, K, 2) is zero where unseen and ``W`` (C, K, 2, 2) zero there. Stops after ``iterations``
+    steps or when no point moves more than ``tol_m``. Returns X, cov (K, 3, 3) (inverse information at
+    the last linearisation), reprojection (C, K, 2) and residual vectors (C, K, 2) (both updated to
+    first order by the last step) and depth (C, K).
     """
-    for step in range(iterations + 1):
+    seen = W[..., 0, 0] > 0
+    few = seen.sum(axis=0) < 2
+    for _ in range(iterations):
         proj, J = reprojection_jacobians(P, X)
         r = uv - proj
         JtW = np.swapaxes(J, -1, -2) @ W  # (C, K, 3, 2)
         H = (JtW @ J).sum(axis=0)
-        singular = np.abs(np.linalg.det(H)) < 1e-30
-        H[singular] = np.eye(3)
-        if step == iterations:
+        H[few] = np.eye(3)
+        dx = np.linalg.solve(H, (JtW @ r[..., None]).sum(axis=0))  # (K, 3, 1)
+        X = X + dx[..., 0]
+        step = (J @ dx[None])[..., 0]  # (C, K, 2)
+        proj = proj + step
+        r = r - step
+        if np.abs(dx).max(initial=0.0) < tol_m:
             break
-        g = (JtW @ r[..., None]).sum(axis=0)  # (K, 3, 1)
-        X = X + np.linalg.solve(H, g)[..., 0]
     depth = X @ P[:, 2, :3].T + P[:, 2, 3]  # (K, C)
     return X, np.linalg.inv(H), proj, r, depth.T
 
 
 def robust_triangulate(P: np.ndarray, uv: np.ndarray, cov: np.ndarray, start: np.ndarray,
-                       outlier_sigma: float, outlier_min_px: float, iterations: int = 2) -> Triangulated:
+                       outlier_sigma: float, outlier_min_px: float, iterations: int = 3) -> Triangulated:
     """Covariance-weighted triangulation with per-camera outlier rejection.
 
     Starting from ``start`` (the tracks' predictions), Gauss-Newton over the cameras that hold a
@@ -88,7 +94,7 @@ def robust_triangulate(P: np.ndarray, uv: np.ndarray, cov: np.ndarray, start: np
         start: (K, 3) starting points, m (finite).
         outlier_sigma: rejection threshold in centroid standard deviations.
         outlier_min_px: rejection threshold floor, pixels.
-        iterations: Gauss-Newton steps per solve.
+        iterations: largest number of Gauss-Newton steps per solve (it stops when converged).
     """
     C, K = uv.shape[:2]
     used = np.isfinite(uv[..., 0])  # (C, K)
@@ -138,8 +144,7 @@ def repick(tri: Triangulated, D: np.ndarray, free: np.ndarray, limit_px: np.ndar
     if K == 0 or D.shape[1] == 0:
         return out
     want = ~tri.used.T & np.isfinite(tri.X[:, 0])[None, :]  # (C, K)
-    diff = tri.proj[:, :, None, :] - D[:, None, :, :]  # (C, K, N, 2)
-    d = np.sqrt((diff * diff).sum(axis=3))
+    d = np.sqrt(dist2(tri.proj[:, :, None, :], D[:, None, :, :]))  # (C, K, N)
     limit = np.broadcast_to(np.asarray(limit_px, dtype=float), free.shape)[:, None, :]
     ok = want[..., None] & free[:, None, :] & (d < limit)
     d = np.where(ok, d, np.inf)
@@ -208,8 +213,7 @@ def new_points(P: np.ndarray, pairs: CameraPairs, D: np.ndarray, cov: np.ndarray
     depth = np.einsum("cj,lj->cl", P[:, 2, :3], X) + P[:, 2, 3][:, None]
     framed = (depth > 0) & (proj >= 0).all(axis=2) & (proj < sizes[:, None, :]).all(axis=2)  # (C, L)
     framed &= np.isfinite(D).all(axis=2).any(axis=1)[:, None]  # a camera that saw nothing cannot object
-    diff = proj[:, :, None, :] - D[:, None, :, :]
-    d = np.where(free[:, None, :], np.sqrt((diff * diff).sum(axis=3)), np.inf)  # (C, L, N)
+    d = np.where(free[:, None, :], np.sqrt(dist2(proj[:, :, None, :], D[:, None, :, :])), np.inf)  # (C, L, N)
     nearest = np.argmin(d, axis=2)
     near_d = np.take_along_axis(d, nearest[..., None], axis=2)[..., 0]
     support = near_d < support_px  # (C, L)

@@ -24,7 +24,7 @@ from scipy.optimize import linear_sum_assignment
 from mocap.geometry import triangulate_weighted
 from mocap.pairs import CameraPairs
 
-__all__ = ["gate", "assign", "epipolar_distance", "epipolar_consistency", "match_pairs", "triangulate_matches"]
+__all__ = ["dist2", "gate", "assign", "epipolar_distance", "epipolar_consistency", "match_pairs", "triangulate_matches"]
 
 _FORBIDDEN = 1e6
 
@@ -40,9 +40,15 @@ def gate(pred: np.ndarray, radius: np.ndarray, D: np.ndarray) -> np.ndarray:
     Returns:
         (K, C, N) ``|pred - det|^2 / radius^2``; inf where undefined. In the gate when < 1.
     """
-    diff = pred[:, :, None, :] - D[None]
-    q = (diff * diff).sum(axis=3) / (radius * radius)[..., None]
+    q = dist2(pred[:, :, None, :], D[None]) / (radius * radius)[..., None]
     return np.where(np.isnan(q), np.inf, q)
+
+
+def dist2(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Squared distance of broadcast 2D points (component-wise: much faster than a sum over a size-2 axis)."""
+    dx = a[..., 0] - b[..., 0]
+    dy = a[..., 1] - b[..., 1]
+    return dx * dx + dy * dy
 
 
 def assign(q: np.ndarray, eligible: np.ndarray | None = None) -> np.ndarray:
@@ -97,7 +103,7 @@ def epipolar_distance(F: np.ndarray, p1: np.ndarray, p2: np.ndarray) -> np.ndarr
     h2 = np.concatenate([p2, np.ones(p2.shape[:-1] + (1,))], axis=-1)
     l2 = (F @ h1[..., None])[..., 0]  # lines in image 2
     l1 = (np.swapaxes(F, -1, -2) @ h2[..., None])[..., 0]  # lines in image 1
-    alg = np.abs((h2 * l2).sum(axis=-1))
+    alg = np.abs(p2[..., 0] * l2[..., 0] + p2[..., 1] * l2[..., 1] + l2[..., 2])
     return np.maximum(alg / np.hypot(l2[..., 0], l2[..., 1]), alg / np.hypot(l1[..., 0], l1[..., 1]))
 
 

@@ -28,6 +28,7 @@ its residual is the RMS reprojection error back-projected to the marker's depth 
 
 from __future__ import annotations
 
+from collections import deque
 from dataclasses import dataclass, field, fields
 
 import numpy as np
@@ -39,7 +40,7 @@ from mocap.errors import MocapError
 from mocap.fusion import NewPoints, new_points, reidentify, repick, robust_triangulate
 from mocap.geometry import reprojection_jacobians
 from mocap.pairs import camera_pairs
-from mocap.stereo import assign, epipolar_consistency, gate
+from mocap.stereo import assign, dist2, epipolar_consistency, gate
 from mocap.trajectories import Trajectories
 
 __all__ = ["TrackerConfig", "FrameResult", "Tracker"]
@@ -71,7 +72,10 @@ class TrackerConfig:
         weak_motion_m: a track started from a weak new point (fewer supporting cameras than ``new_min_views``
             where more frame it) is confirmed only once it has moved this far, m.
         min_separation_m: a new point closer than this to a measured track is that track's, not new.
-        clutter_px: a free detection this close to one of the previous frame is not new (see _known_clutter).
+        clutter_px: a free detection this close to a free one of the recent frames is not new (see
+            ``_known_clutter``).
+        clutter_frames: free detections are remembered for at most this many frames; then the memory is
+            cleared and everything is examined afresh (so a slow marker never stays hidden as clutter).
         merge_px: two tracks predicted closer than this in an image may share one merged blob there, pixels.
         merged_variance_scale: centroid variance multiplier of blobs flagged as merged (by the detector,
             or by two tracks predicted within ``merge_px``). A point is output only when two cameras
@@ -101,6 +105,7 @@ class TrackerConfig:
     weak_motion_m: float = 0.003
     min_separation_m: float = 0.012
     clutter_px: float = 0.5
+    clutter_frames: int = 30
     merge_px: float = 6.0
     merged_variance_scale: float = 100.0
     suspect_m: tuple[float, float] = (0.001, 0.003)
@@ -286,7 +291,7 @@ class Tracker:
         self._uid_ident = np.full(256, -1, dtype=np.intp)
         self._n_ident = 0
         self._records = _Records()
-        self._clutter = np.zeros((C, 0, 2))  # the previous frame's free detections, ideal px
+        self._clutter: deque[np.ndarray] = deque(maxlen=max(cfg.clutter_frames, 1))  # recent free detections
         self._first: int | None = None
         self._last = -1
 
@@ -406,8 +411,7 @@ class Tracker:
     def _crowded(self, pred: np.ndarray, play: np.ndarray) -> np.ndarray:
         """(K, C) bool: another track in play is predicted within ``merge_px`` in that image."""
         p = np.where(play[:, None, None], pred, np.nan).swapaxes(0, 1)  # (C, K, 2)
-        diff = p[:, :, None, :] - p[:, None, :, :]
-        d2 = (diff * diff).sum(axis=3)
+        d2 = dist2(p[:, :, None, :], p[:, None, :, :])
         K = len(play)
         d2[:, np.arange(K), np.arange(K)] = np.inf
         with np.errstate(invalid="ignore"):
@@ -510,8 +514,10 @@ class Tracker:
     def _new_markers(self, fr: _Frame, free: np.ndarray, meas: _Measurements) -> None:
         """Points from the free detections: re-acquire missed tracks, or start tentative tracks."""
         t, cfg = self._t, self._cfg
+        if len(self._clutter) == self._clutter.maxlen:
+            self._clutter.clear()
         fresh = free & ~self._known_clutter(fr.D)
-        self._clutter = np.where(free[..., None], fr.D, np.nan)
+        self._clutter.append(np.where(free[..., None], fr.D, np.nan)[:, free.any(axis=0)])
         if not fresh.any() or free.sum() < 2 or len(self._pairs) == 0:
             return
         pts = new_points(self._P, self._pairs, fr.D, fr.S, free, self._sizes, cfg.epipolar_px, cfg.support_px,
@@ -544,17 +550,18 @@ class Tracker:
         self._start(fr, pts.subset(rest), cand, meas)
 
     def _known_clutter(self, D: np.ndarray) -> np.ndarray:
-        """(C, N) bool: detections within ``clutter_px`` of a free detection of the previous frame.
+        """(C, N) bool: detections within ``clutter_px`` of a free detection of the recent frames.
 
-        Free detections that stay put (fixed reflections, a marker seen by one camera) were already
-        examined for new markers; they are only paired with fresh detections again.
+        Free detections that stay put (fixed or flickering reflections, a marker seen by one camera)
+        were already examined for new markers; they are only paired with fresh detections again.
         """
-        old = self._clutter
-        if old.shape[1] == 0 or D.shape[1] == 0:
+        if not self._clutter or D.shape[1] == 0:
             return np.zeros(D.shape[:2], dtype=bool)
-        diff = D[:, :, None, :] - old[:, None, :, :]
+        old = np.concatenate(self._clutter, axis=1)  # (C, M, 2), NaN where not free
+        if old.shape[1] == 0:
+            return np.zeros(D.shape[:2], dtype=bool)
         with np.errstate(invalid="ignore"):
-            return ((diff * diff).sum(axis=3) < self._cfg.clutter_px**2).any(axis=2)
+            return (dist2(D[:, :, None, :], old[:, None, :, :]) < self._cfg.clutter_px**2).any(axis=2)
 
     def _start(self, fr: _Frame, pts: NewPoints, cand: np.ndarray, meas: _Measurements) -> None:
         """Append tentative tracks at new points ``pts`` (and their measurements to ``meas``)."""
