@@ -130,7 +130,8 @@ def test_tracking_follows_fingertips_and_postures(clip):
     stable = clip.posture != ""
     stable[30:34] = False  # the hand is out of view
     assert (posture[stable] == clip.posture[stable]).mean() >= 0.95
-    assert np.isfinite(palm[stable]).all()
+    palm_err = np.linalg.norm(palm[stable] - clip.palm[0][stable], axis=1)
+    assert np.median(palm_err) < 6.0  # px; the palm is ~50 px tall here
 
 
 def test_recovers_within_ten_frames_after_the_hand_leaves_and_returns(clip):

@@ -410,7 +410,11 @@ class HandTracker:
         return conf.mean(axis=1)
 
     def _palm(self, mask: np.ndarray) -> np.ndarray:
-        """(2,) palm centre: the most-skin circle of ``palm_factor`` tip radii near the hand centroid, px."""
+        """(2,) palm centre: the most-skin circle of ``palm_factor`` tip radii near the hand centroid, px.
+
+        Among circles that are equally full of skin (a fist, a wide palm) the one deepest inside the hand
+        (largest distance to non-skin) wins; the paper leaves such ties open.
+        """
         h, w = mask.shape
         x, y, bw, bh = self.window if self.window is not None else (0, 0, w, h)
         roi = mask[y:y + bh, x:x + bw]
@@ -421,11 +425,14 @@ class HandTracker:
         radius = self.config.palm_factor * (self.tip_radius if np.isfinite(self.tip_radius) else 4.0)
         g = np.linspace(-0.5, 0.5, 7) * radius
         cand = centroid + np.stack(np.meshgrid(g, g), axis=-1).reshape(-1, 2)
-        cand = cand[np.argsort(np.hypot(*(cand - centroid).T), kind="stable")]
         pts = np.rint(cand[:, None, :] + radius * self._palm_disc).astype(np.intp)
         ok = (pts[..., 0] >= 0) & (pts[..., 0] < w) & (pts[..., 1] >= 0) & (pts[..., 1] < h)
         skin = mask[pts[..., 1].clip(0, h - 1), pts[..., 0].clip(0, w - 1)] > 0
-        return cand[int(np.argmax((skin & ok).mean(axis=1)))]
+        ci = np.rint(cand).astype(np.intp)
+        inside = (ci[:, 0] >= x) & (ci[:, 0] < x + bw) & (ci[:, 1] >= y) & (ci[:, 1] < y + bh)
+        depth = cv2.distanceTransform(roi, cv2.DIST_L2, 3)
+        deep = np.where(inside, depth[(ci[:, 1] - y).clip(0, bh - 1), (ci[:, 0] - x).clip(0, bw - 1)], 0.0)
+        return cand[int(np.argmax((skin & ok).mean(axis=1) + 1e-3 * deep))]
 
     # ----------------------------------------------------------------- step
     def update(self, frame: np.ndarray) -> HandEstimate:

@@ -242,6 +242,7 @@ class HeadTracker:
         fused = weighted_mean(states, w)
         if cfg.mode is CueMode.FUSED:
             self.cue_weights = self._adapt(k, features, fused, l_c, l_g)
+
         self.particles = states[systematic_resample(w, self.rng)]
         self.estimate = fused
         return HeadEstimate(fused[:2].copy(), np.array([fused[4], fused[4] * self.aspect]), k, float(w @ rho))

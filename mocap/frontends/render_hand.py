@@ -218,6 +218,7 @@ class HandClip:
         tips: (C, F, 5, 2) fingertip centres, distorted px; NaN where the finger is not fully extended.
         tips_world: (F, 5, 3) fingertip centres, metres; NaN where the finger is not fully extended.
         tip_radius: (C, F, 5) fingertip radii, px.
+        palm: (C, F, 2) palm centre, distorted px; NaN while the hand is removed.
         posture: (F,) posture letter, "" during a transition.
         fps: frame rate, Hz.
     """
@@ -226,6 +227,7 @@ class HandClip:
     tips: np.ndarray
     tips_world: np.ndarray
     tip_radius: np.ndarray
+    palm: np.ndarray
     posture: np.ndarray
     fps: float = 30.0
 
@@ -255,6 +257,7 @@ def hand_clip(rig: Rig, sequence: str = "FBCEDA", hold: int = 30, transition: in
     videos = np.empty((len(rig), n, rig[0].size[1], rig[0].size[0], 3), np.uint8)
     tips = np.full((len(rig), n, 5, 2), np.nan)
     radius = np.full((len(rig), n, 5), np.nan)
+    palm = np.full((len(rig), n, 2), np.nan)
     tips_world = np.full((n, 5, 3), np.nan)
     for k in range(n):
         offset = np.array([0.04 * np.sin(2 * np.pi * t[k] / 4.0), 0.02 * np.sin(2 * np.pi * t[k] / 3.0),
@@ -266,6 +269,6 @@ def hand_clip(rig: Rig, sequence: str = "FBCEDA", hold: int = 30, transition: in
                 videos[c, k] = add_noise(backgrounds[c], 3.0, rng)
                 continue
             videos[c, k], truth = render_hand(cam, pose, backgrounds[c], rng)
-            tips[c, k], radius[c, k] = truth.tips, truth.tip_radius
+            tips[c, k], radius[c, k], palm[c, k] = truth.tips, truth.tip_radius, truth.palm
             tips_world[k] = truth.tips_world
-    return HandClip(videos, tips, tips_world, radius, np.array(labels), fps)
+    return HandClip(videos, tips, tips_world, radius, palm, np.array(labels), fps)

@@ -209,12 +209,12 @@ class HeadTake:
 
 
 def head_take(rig: Rig, frames: int = 90, seed: int = 0, head_radii: tuple[float, float] = (0.08, 0.11),
-              fps: float = 30.0) -> HeadTake:
+              fps: float = 30.0, stripes: float = 0.25) -> HeadTake:
     """A head (facing -y, towards an :func:`~mocap.frontends.scenes.arc_rig`) walking a slow loop in 3D.
 
     Each camera renders the head as an ellipse at the projection of the head centre, half-axes scaled by
     focal length over depth, yaw = the angle between the face direction and the camera, and the
-    head turning +-40 degrees on the way. The scene's ``stripes`` panel covers each image's left quarter.
+    head turning +-40 degrees on the way. A striped panel covers the left ``stripes`` fraction of each image.
     """
     rng = np.random.default_rng(seed)
     t = np.arange(frames) / fps
@@ -224,7 +224,7 @@ def head_take(rig: Rig, frames: int = 90, seed: int = 0, head_radii: tuple[float
     face_dir = np.stack([np.sin(heading), -np.cos(heading), np.zeros(frames)], axis=1)
     videos, centres, axes_all = [], [], []
     for cam in rig.cameras:
-        background = _background(cam.size, 0.25 * cam.size[0], rng)
+        background = _background(cam.size, stripes * cam.size[0], rng)
         uv = cam.project(position)
         depth = cam.world_to_camera(position)[:, 2]
         f = cam.matrix[0, 0]
