@@ -176,7 +176,8 @@ class NewPoints:
 
 def new_points(P: np.ndarray, pairs: CameraPairs, D: np.ndarray, cov: np.ndarray, free: np.ndarray,
                sizes: np.ndarray, epipolar_px: float, support_px: float, min_views: int,
-               outlier_sigma: float, outlier_min_px: float, fresh: np.ndarray | None = None) -> NewPoints:
+               outlier_sigma: float, outlier_min_px: float, fresh: np.ndarray | None = None,
+               n_sigma: float = 4.0) -> NewPoints:
     """3D points explained by free detections in several cameras (multi-view consistent).
 
     All-pairs epipolar matching gives candidate correspondences; each is triangulated and projected
@@ -197,11 +198,13 @@ def new_points(P: np.ndarray, pairs: CameraPairs, D: np.ndarray, cov: np.ndarray
         min_views: supporting cameras required where that many cameras frame the point.
         outlier_sigma, outlier_min_px: see :func:`robust_triangulate`.
         fresh: (C, N) bool, see :func:`mocap.stereo.match_pairs`.
+        n_sigma: tolerances widen to ``n_sigma`` centroid stds where that is larger.
     """
     C = len(P)
     empty = NewPoints(np.zeros((0, 3)), np.zeros((0, 3, 3)), np.zeros(0), np.zeros((0, C), dtype=np.intp),
                       np.zeros(0, dtype=bool))
-    pair, n1, n2, dist = match_pairs(pairs, D, free, epipolar_px, fresh)
+    sigma = np.sqrt(0.5 * (cov[..., 0, 0] + cov[..., 1, 1]))  # (C, N)
+    pair, n1, n2, dist = match_pairs(pairs, D, free, epipolar_px, fresh, sigma, n_sigma)
     if pair.size == 0:
         return empty
     X, _, _ = triangulate_matches(P, pairs, D, cov, pair, n1, n2)
@@ -216,7 +219,7 @@ def new_points(P: np.ndarray, pairs: CameraPairs, D: np.ndarray, cov: np.ndarray
     d = np.where(free[:, None, :], np.sqrt(dist2(proj[:, :, None, :], D[:, None, :, :])), np.inf)  # (C, L, N)
     nearest = np.argmin(d, axis=2)
     near_d = np.take_along_axis(d, nearest[..., None], axis=2)[..., 0]
-    support = near_d < support_px  # (C, L)
+    support = near_d < np.maximum(support_px, n_sigma * np.take_along_axis(sigma, nearest, axis=1))  # (C, L)
     rows = np.arange(len(pair))
     for side, n in ((0, n1), (1, n2)):  # the pair's own detections support it by construction
         cams = pairs.index[pair, side]

@@ -107,13 +107,16 @@ def epipolar_distance(F: np.ndarray, p1: np.ndarray, p2: np.ndarray) -> np.ndarr
     return np.maximum(alg / np.hypot(l2[..., 0], l2[..., 1]), alg / np.hypot(l1[..., 0], l1[..., 1]))
 
 
-def epipolar_consistency(pairs: CameraPairs, uv: np.ndarray, tol_px: float) -> tuple[np.ndarray, np.ndarray]:
+def epipolar_consistency(pairs: CameraPairs, uv: np.ndarray, tol_px: float, sigma: np.ndarray | None = None,
+                         n_sigma: float = 4.0) -> tuple[np.ndarray, np.ndarray]:
     """Which cameras' choices for each track agree with a partner camera's.
 
     Args:
         pairs: the stereo pairs.
         uv: (K, C, 2) each track's chosen detection per camera, ideal pixels (NaN: none).
-        tol_px: largest symmetric epipolar distance of an agreeing pair, pixels.
+        tol_px: largest symmetric epipolar distance of an agreeing pair, pixels ...
+        sigma: (K, C) centroid std of each point, pixels (optional) ...
+        n_sigma: ... or ``n_sigma * hypot(sigma_1, sigma_2)`` if larger (small, far markers are noisier).
 
     Returns:
         ``supported`` (K, C) bool: the camera's point agrees with at least one partner's; and
@@ -127,7 +130,10 @@ def epipolar_consistency(pairs: CameraPairs, uv: np.ndarray, tol_px: float) -> t
     i, j = pairs.index[:, 0], pairs.index[:, 1]
     e = epipolar_distance(pairs.F[:, None], uv[:, i].swapaxes(0, 1), uv[:, j].swapaxes(0, 1))  # (P, K)
     have = np.isfinite(e)
-    good = have & (e < tol_px)
+    tol = tol_px
+    if sigma is not None:
+        tol = np.maximum(tol_px, n_sigma * np.hypot(sigma[:, i], sigma[:, j]).T)
+    good = have & (e < tol)
     for side in (i, j):  # scatter pair results onto their cameras
         np.logical_or.at(supported.T, side, good)
         np.logical_or.at(tested.T, side, have)
@@ -135,7 +141,8 @@ def epipolar_consistency(pairs: CameraPairs, uv: np.ndarray, tol_px: float) -> t
 
 
 def match_pairs(pairs: CameraPairs, D: np.ndarray, free: np.ndarray, tol_px: float,
-                fresh: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+                fresh: np.ndarray | None = None, sigma: np.ndarray | None = None, n_sigma: float = 4.0
+                ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """All-pairs epipolar matching of the free detections (all pairs in one vectorised pass).
 
     Args:
@@ -145,6 +152,7 @@ def match_pairs(pairs: CameraPairs, D: np.ndarray, free: np.ndarray, tol_px: flo
         tol_px: largest symmetric epipolar distance of a match, pixels.
         fresh: (C, N) bool; if given, a match needs a fresh detection on at least one side (so
             clutter already examined in earlier frames is not paired with itself again).
+        sigma, n_sigma: (C, N) centroid stds, pixels: the tolerance widens to ``n_sigma * hypot(s1, s2)``.
 
     Returns:
         ``pair`` (L,) pair index, ``n1`` (L,) detection index in the pair's first camera, ``n2`` (L,)
@@ -163,9 +171,14 @@ def match_pairs(pairs: CameraPairs, D: np.ndarray, free: np.ndarray, tol_px: flo
     pts = np.where((index >= 0)[..., None], D[np.arange(free.shape[0])[:, None], np.maximum(index, 0)], np.nan)
     i, j = pairs.index[:, 0], pairs.index[:, 1]
     e = epipolar_distance(pairs.F[:, None, None], pts[i][:, :, None, :], pts[j][:, None, :, :])  # (P, M, M)
-    ok = e < tol_px
+    rows = np.arange(free.shape[0])[:, None]
+    tol = tol_px
+    if sigma is not None:
+        s = np.where(index >= 0, sigma[rows, np.maximum(index, 0)], 0.0)
+        tol = np.maximum(tol_px, n_sigma * np.hypot(s[i][:, :, None], s[j][:, None, :]))
+    ok = e < tol
     if fresh is not None:
-        fr = np.where(index >= 0, fresh[np.arange(free.shape[0])[:, None], np.maximum(index, 0)], False)
+        fr = np.where(index >= 0, fresh[rows, np.maximum(index, 0)], False)
         ok &= fr[i][:, :, None] | fr[j][:, None, :]
     p, a, b = np.nonzero(ok)
     return p, index[i[p], a], index[j[p], b], e[p, a, b]

@@ -63,7 +63,9 @@ class TrackerConfig:
         gate_max_px: largest 2D search radius, pixels.
         new_track_speed: speed assumed for the first prediction of a new track, m/s (its first gate).
         reid_max_m: largest re-identification radius of a lost identity, m.
-        epipolar_px: largest symmetric epipolar distance of two views of one marker, pixels.
+        epipolar_px: largest symmetric epipolar distance of two views of one marker, pixels (or
+            ``n_sigma`` x the two centroid stds combined, if larger).
+        n_sigma: pixel tolerances (epipolar_px, repick_px, support_px) widen to this many centroid stds.
         outlier_sigma: a camera is rejected from a point beyond this many centroid stds ...
         outlier_min_px: ... and beyond this many pixels.
         repick_px: a free detection this close to a point's reprojection joins the point, pixels.
@@ -76,12 +78,14 @@ class TrackerConfig:
             ``_known_clutter``).
         clutter_frames: free detections are remembered for at most this many frames; then the memory is
             cleared and everything is examined afresh (so a slow marker never stays hidden as clutter).
-        merge_px: two tracks predicted closer than this in an image may share one merged blob there, pixels.
+        marker_mm: marker diameter, mm: two markers predicted closer than their image diameter plus
+            ``merge_px`` may share one merged blob in that image.
+        merge_px: margin of that test, pixels.
         merged_variance_scale: centroid variance multiplier of blobs flagged as merged (by the detector,
-            or by two tracks predicted within ``merge_px``). A point is output only when two cameras
+            or by two tracks predicted that close). A point is output only when two cameras
             without such blobs support it, or it lies within ``suspect_m`` (clipped to ``gate_scale`` x the
             running position error) of its prediction; otherwise it only updates its filter.
-        suspect_m: (low, high) bounds of that distance, m.
+        suspect_m: (low, high) bounds of that distance, m (high grows to ``n_sigma`` x the point's noise).
     """
 
     confirm_frames: int = 4
@@ -97,6 +101,7 @@ class TrackerConfig:
     new_track_speed: float = 3.0
     reid_max_m: float = 0.5
     epipolar_px: float = 2.0
+    n_sigma: float = 4.0
     outlier_sigma: float = 6.0
     outlier_min_px: float = 0.6
     repick_px: float = 1.5
@@ -106,7 +111,8 @@ class TrackerConfig:
     min_separation_m: float = 0.012
     clutter_px: float = 0.5
     clutter_frames: int = 30
-    merge_px: float = 6.0
+    marker_mm: float = 14.0
+    merge_px: float = 1.5
     merged_variance_scale: float = 100.0
     suspect_m: tuple[float, float] = (0.001, 0.003)
 
@@ -312,8 +318,8 @@ class Tracker:
         play = self._in_play()
         crowded = np.zeros((K, C), dtype=bool)
         if K and fr.D.shape[1]:
-            pred, radius = self._search_regions()
-            crowded = self._crowded(pred, play)
+            pred, radius, depth = self._search_regions()
+            crowded = self._crowded(pred, play, depth)
             q = gate(pred, radius, fr.D)
             conf = np.flatnonzero(play & (t.ident >= 0))
             tent = np.flatnonzero(play & (t.ident < 0))
@@ -394,8 +400,8 @@ class Tracker:
         x2, P2 = predict(t.x2.reshape(K * C, 6), t.P2.reshape(K * C, 6, 6), self._F2, self._Q2)
         t.x2, t.P2 = x2.reshape(K, C, 6), P2.reshape(K, C, 6, 6)
 
-    def _search_regions(self) -> tuple[np.ndarray, np.ndarray]:
-        """Predicted ideal pixels (K, C, 2) and search radii (K, C), pixels."""
+    def _search_regions(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Predicted ideal pixels (K, C, 2), search radii (K, C), pixels, and predicted depths (K, C), m."""
         t, cfg = self._t, self._cfg
         proj, _ = reprojection_jacobians(self._P, t.x3[:, :3])  # (C, K, 2)
         depth = np.einsum("cj,kj->kc", self._P[:, 2, :3], t.x3[:, :3]) + self._P[:, 2, 3]
@@ -406,23 +412,25 @@ class Tracker:
         pred = np.where(t.lock2[..., None], t.x2[..., :2], proj.swapaxes(0, 1))
         radius = np.clip(np.where(t.lock2, r2, r3px), cfg.gate_floor_px, cfg.gate_max_px)
         pred[depth <= 0] = np.nan
-        return pred, radius
+        return pred, radius, depth
 
-    def _crowded(self, pred: np.ndarray, play: np.ndarray) -> np.ndarray:
-        """(K, C) bool: another track in play is predicted within ``merge_px`` in that image."""
+    def _crowded(self, pred: np.ndarray, play: np.ndarray, depth: np.ndarray) -> np.ndarray:
+        """(K, C) bool: another track in play is predicted within a marker's image diameter + ``merge_px``."""
         p = np.where(play[:, None, None], pred, np.nan).swapaxes(0, 1)  # (C, K, 2)
         d2 = dist2(p[:, :, None, :], p[:, None, :, :])
         K = len(play)
         d2[:, np.arange(K), np.arange(K)] = np.inf
-        with np.errstate(invalid="ignore"):
-            return (d2 < self._cfg.merge_px**2).any(axis=2).T
+        with np.errstate(invalid="ignore", divide="ignore"):
+            reach = self._focal[None, :] * self._cfg.marker_mm / 1000.0 / depth + self._cfg.merge_px  # (K, C)
+            return (d2 < (reach * reach).T[:, :, None]).any(axis=2).T
 
     def _measure(self, fr: _Frame, crowded: np.ndarray, meas: _Measurements) -> None:
         """Epipolar pruning, robust fusion and re-pick of the assigned detections ``meas.asg``; fills ``meas``."""
         cfg = self._cfg
         asg = meas.asg
         uv = _gather(fr.D, asg)
-        supported, tested = epipolar_consistency(self._pairs, uv, cfg.epipolar_px)
+        sigma = np.sqrt(0.5 * (fr.S[..., 0, 0] + fr.S[..., 1, 1]))  # (C, N)
+        supported, tested = epipolar_consistency(self._pairs, uv, cfg.epipolar_px, _gather(sigma, asg), cfg.n_sigma)
         asg[tested & ~supported] = -1
         uv[asg < 0] = np.nan
         suspect = crowded & ~_gather(fr.merged, asg)  # merged blobs are down-weighted already
@@ -431,7 +439,7 @@ class Tracker:
                                  self._t.x3[:, :3], cfg.outlier_sigma, cfg.outlier_min_px)
         asg[~tri.used] = -1
         free = fr.valid & ~fr.merged & ~_taken(asg, fr.valid.shape)
-        extra = repick(tri, fr.D, free, cfg.repick_px)
+        extra = repick(tri, fr.D, free, np.maximum(cfg.repick_px, cfg.n_sigma * sigma))
         more = np.flatnonzero((extra >= 0).any(axis=1))
         if more.size:
             asg[more] = np.where(extra[more] >= 0, extra[more], asg[more])
@@ -446,8 +454,12 @@ class Tracker:
         clean = tri.used & ~crowded & ~_gather(fr.merged, asg)
         # A point leaning on a possibly merged blob is output only if it agrees with the prediction.
         t = self._t
-        agree = np.linalg.norm(tri.X - t.x3[:, :3], axis=1) < np.clip(
-            cfg.gate_scale * t.e3[:, 0], cfg.suspect_m[0], cfg.suspect_m[1])
+        with np.errstate(invalid="ignore", divide="ignore"):  # the point's own noise, m
+            noise = (np.where(tri.used, _gather(sigma, asg) * tri.depth.T / self._focal, 0.0).sum(axis=1)
+                     / tri.used.sum(axis=1))
+        high = np.fmax(cfg.suspect_m[1], cfg.n_sigma * noise)
+        agree = np.linalg.norm(tri.X - t.x3[:, :3], axis=1) < np.clip(cfg.gate_scale * t.e3[:, 0], cfg.suspect_m[0],
+                                                                      high)
         meas.out = meas.ok & ((clean.sum(axis=1) >= 2) | agree)
         meas.X, meas.cov, meas.rms_px = tri.X, tri.cov, tri.rms_px
 
@@ -521,7 +533,7 @@ class Tracker:
         if not fresh.any() or free.sum() < 2 or len(self._pairs) == 0:
             return
         pts = new_points(self._P, self._pairs, fr.D, fr.S, free, self._sizes, cfg.epipolar_px, cfg.support_px,
-                         cfg.new_min_views, cfg.outlier_sigma, cfg.outlier_min_px, fresh)
+                         cfg.new_min_views, cfg.outlier_sigma, cfg.outlier_min_px, fresh, cfg.n_sigma)
         measured = t.since == 0
         if len(pts.X) and measured.any():  # duplicates of markers measured this frame
             d = np.linalg.norm(pts.X[:, None] - t.x3[None, measured, :3], axis=2)
