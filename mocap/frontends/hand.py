@@ -127,6 +127,7 @@ class HandEstimate:
         confidence: (5,) mean particle confidence of each tracked finger (NaN otherwise).
         palm: (2,) palm centre, px; NaN without a hand.
         tracking: the fingertip filters are running.
+        box: the CAMShift hand box ``(x, y, w, h)``, px, while tracking.
     """
 
     posture: str

@@ -28,7 +28,7 @@ def parse_box(text: str) -> tuple[str | None, tuple[float, float, float, float]]
         values = ()
     if len(values) != 4 or values[2] <= 2 or values[3] <= 2:
         raise MocapError(f"--box {text!r}: expected CAMERA=x,y,w,h (pixels, w and h > 2), e.g. cam1=40,20,24,30")
-    return (name or None), values  # type: ignore[return-value]
+    return (name or None), (values[0], values[1], values[2], values[3])
 
 
 def configure_parser(parser: argparse.ArgumentParser) -> None:
