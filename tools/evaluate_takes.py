@@ -1,15 +1,15 @@
 """End-to-end accuracy and identity figures on rendered takes (issue 3's acceptance table).
 
-For each motion (the built-in marching body and every real C3D in ../shared/data/c3d/):
-``mocap synth`` renders a six-camera take with default realism, ``mocap reconstruct`` runs
-the engine on the images, ``mocap evaluate`` scores the result against the ground truth.
-The 3D motion of the C3D takes is real (recorded by OptiTrack systems); the 2D images are
-simulated by this project's renderer.
+For each named scenario of ``datasets/scenarios.toml`` (default: the built-in marching body and
+one scenario per real C3D file in ../shared/data/c3d/), ``mocap synth`` renders a six-camera take
+with default realism, ``mocap reconstruct`` runs the engine on the images, and ``mocap evaluate``
+scores the result against the ground truth. The 3D motion of the C3D takes is real (recorded by
+OptiTrack systems); the 2D images are simulated by this project's renderer.
 
 Usage:
-    python tools/evaluate_takes.py [--frames 600] [--work /tmp/mocap-eval] [--only NAME ...]
+    python tools/evaluate_takes.py [--work /tmp/mocap-eval] [--frames N] [SCENARIO ...]
 
-Prints one table row per take and writes ``summary.json`` into the work folder.
+Prints one line per take as it finishes, then a table, and writes ``summary.json`` into the work folder.
 """
 
 from __future__ import annotations
@@ -20,10 +20,16 @@ import platform
 import subprocess
 import sys
 import time
+import tomllib
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
-C3D_DIR = ROOT.parent / "shared" / "data" / "c3d"
+DATA = ROOT.parent / "shared" / "data"
+SCENARIOS = ROOT / "datasets" / "scenarios.toml"
+DEFAULT = ["march", "tennis_serve", "tennis_2players", "walking", "basket_sprint_start"]
+COLUMNS = [("take", "{}", 20), ("rmse_mm", "{:.3f}", 8), ("rmse_over_crlb", "{:.2f}", 9),
+           ("completeness", "{:.2%}", 9), ("ghost_rate", "{:.3%}", 8), ("switches", "{}", 6),
+           ("switches_per_10k", "{:.2f}", 8), ("idf1", "{:.4f}", 7), ("required", "{}", 8)]
 
 
 def _run(cmd: list[str]) -> float:
@@ -37,43 +43,44 @@ def _run(cmd: list[str]) -> float:
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--frames", type=int, default=600, help="frames rendered per take (default 600)")
+    ap.add_argument("scenarios", nargs="*", default=DEFAULT, help=f"scenario names (default {' '.join(DEFAULT)})")
+    ap.add_argument("--frames", type=int, help="override the number of frames rendered per take")
     ap.add_argument("--work", type=Path, default=Path("/tmp/mocap-eval"), help="scratch folder")
-    ap.add_argument("--only", nargs="*", help="take names to run (body, or a C3D file stem)")
     ap.add_argument("--synth-args", default="", help="extra arguments for mocap synth (quoted)")
     ap.add_argument("--reconstruct-args", default="", help="extra arguments for mocap reconstruct (quoted)")
     args = ap.parse_args()
     args.work.mkdir(parents=True, exist_ok=True)
-
-    motions: list[tuple[str, Path | None]] = [("body", None)]
-    if C3D_DIR.exists():
-        motions += [(p.stem, p) for p in sorted(C3D_DIR.glob("*.c3d"))]
-    else:
-        print(f"note: {C3D_DIR} is absent; only the built-in body is evaluated")
-    if args.only:
-        motions = [m for m in motions if m[0] in args.only]
-
+    with open(SCENARIOS, "rb") as fh:
+        scenarios = tomllib.load(fh)
+    unknown = [n for n in args.scenarios if n not in scenarios]
+    if unknown:
+        sys.exit(f"unknown scenario(s) {unknown}; see {SCENARIOS}")
     print(f"machine: {platform.platform()}, {platform.processor() or platform.machine()}, python "
           f"{platform.python_version()}")
     rows = []
-    for name, motion in motions:
-        take = args.work / name
-        truth = args.work / f"{name}.truth.npz"
-        out = args.work / f"{name}.c3d"
-        report = args.work / f"{name}.json"
-        synth = ["mocap", "synth", str(take), "--frames", str(args.frames), "--truth", str(truth), "--seed", "1",
-                 "--force"]
-        if motion is not None:
-            synth += ["--motion", str(motion)]
+    for name in args.scenarios:
+        spec = [a.replace("{data}", str(DATA)) for a in scenarios[name]["args"]]
+        if any("{data}" in a for a in scenarios[name]["args"]) and not DATA.exists():
+            print(f"skip {name}: {DATA} is absent")
+            continue
+        take, truth = args.work / name, args.work / f"{name}.truth.npz"
+        out, report = args.work / f"{name}.c3d", args.work / f"{name}.json"
+        synth = ["mocap", "synth", str(take), *spec, "--truth", str(truth), "--force", "--no-progress"]
+        if args.frames:
+            synth += ["--frames", str(args.frames)]
         t_synth = _run(synth + args.synth_args.split())
         t_rec = _run(["mocap", "reconstruct", str(take), "--c3d", str(out), "--no-progress"]
                      + args.reconstruct_args.split())
         _run(["mocap", "evaluate", str(out), "--truth", str(truth), "--json", str(report)])
         result = json.loads(report.read_text())
-        result.update({"take": name, "synth_s": t_synth, "reconstruct_s": t_rec})
+        result.update({"take": name, "synth_s": round(t_synth, 1), "reconstruct_s": round(t_rec, 1)})
         rows.append(result)
         print(json.dumps({k: v for k, v in result.items() if not isinstance(v, (dict, list))}), flush=True)
     (args.work / "summary.json").write_text(json.dumps(rows, indent=2))
+    print("  ".join(f"{name:>{width}}" for name, _, width in COLUMNS))
+    for row in rows:
+        cells = [fmt.format(row[key]) if row.get(key) is not None else "n/a" for key, fmt, _ in COLUMNS]
+        print("  ".join(f"{c:>{w}}" for c, (_, _, w) in zip(cells, COLUMNS, strict=True)))
 
 
 if __name__ == "__main__":
