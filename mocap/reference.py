@@ -1,7 +1,8 @@
 """The plain baseline tracker the engine is measured against (same API as :class:`mocap.tracker.Tracker`).
 
 Per frame: all-pairs epipolar matching of every camera's detections with a fixed tolerance, DLT
-triangulation of every match, points closer than ``merge_m`` averaged into one; then greedy
+triangulation of every match, points closer than ``merge_m`` averaged into one and kept when at
+least ``min_matches`` pair matches agree on them (a marker seen by three cameras gives three); then greedy
 frame-to-frame nearest-neighbour linking with a fixed distance threshold (shortest links first); an
 unlinked point starts a new identity. No motion model, no multi-view consistency test, no
 re-identification: what a straightforward implementation does.
@@ -32,11 +33,13 @@ class ReferenceConfig:
         epipolar_px: largest symmetric epipolar distance of a match, pixels.
         merge_m: points closer than this are one marker, m.
         link_m: largest frame-to-frame displacement of a marker, m.
+        min_matches: pair matches a point needs (1 keeps every two-view point, ghosts included).
     """
 
     epipolar_px: float = 2.0
     merge_m: float = 0.01
     link_m: float = 0.03
+    min_matches: int = 2
 
 
 class ReferenceTracker:
@@ -125,7 +128,7 @@ class ReferenceTracker:
                     continue
             merged.append(x)
             counts.append(1)
-        return np.array(merged).reshape(-1, 3)
+        return np.array(merged).reshape(-1, 3)[np.array(counts) >= self._cfg.min_matches]
 
     def _link(self, points: np.ndarray) -> np.ndarray:
         """(N,) identity of each point: greedy nearest previous point within ``link_m``, else new."""
