@@ -39,6 +39,7 @@ import math
 
 import cv2
 import numpy as np
+from scipy import special
 from scipy.spatial import cKDTree
 
 from mocap.detections import Detections
@@ -56,11 +57,21 @@ ROUND_SPLIT = 0.85  # roundness below this: searched for two or more peaks (one 
 AREA_MERGED = 2.5  # area above this many times the neighbours' median: flagged as merged
 MAX_DISCS = 4  # a blob is split into at most this many markers
 FIT_MAX_AREA = 1000  # px: larger blobs (with a raised max_area) get the weighted centroid, not a fit
-FIT_ITERATIONS = 8
-STEP_TOL = 2e-4  # px: a fit stops when its centres move less (the Cramer-Rao bound is >= 0.003 px)
+FIT_ITERATIONS = 3  # Gauss-Newton steps for a single disc (from the weighted centroid)
+SPLIT_ITERATIONS = 6  # ... for two or more discs fitted jointly (from the peaks)
+DAMPING = 1e-2  # Levenberg-style relative damping of every Gauss-Newton step
+MAX_STEP = 1.0  # px: a centre moves at most this far per step
 _SATURATED = 255
-_SQRT2 = math.sqrt(2.0)
-_SQRTPI = math.sqrt(math.pi)
+# bounds of each disc's (cx, cy, A, r, s) after every step, and of the step itself
+_PARAM_LOW = np.array([-np.inf, -np.inf, 1.0, 0.2, 0.25])
+_PARAM_HIGH = np.array([np.inf, np.inf, np.inf, 100.0, 5.0])
+_STEP_BOUND = np.array([MAX_STEP, MAX_STEP, np.inf, np.inf, np.inf])
+# the disc edge Phi(-z) and its slope phi(z), tabulated at z = -8 ... 8 in steps of 1/_Z_RES
+_Z_RES = 1024
+_Z_TABLE = np.arange(-8 * _Z_RES, 8 * _Z_RES + 1) / _Z_RES
+_EDGE = special.ndtr(-_Z_TABLE).astype(np.float32)
+_EDGE_SLOPE = (np.exp(-0.5 * _Z_TABLE**2) / math.sqrt(2.0 * math.pi)).astype(np.float32)
+_Z_ORIGIN = 8 * _Z_RES + 0.5  # table index of z = 0, + 0.5 so that truncation rounds
 _KERNEL = np.ones((CELL, CELL), np.uint8)
 _WINDOW_HALVES = 6 * 2 ** np.arange(12)  # fit window sizes, px: few, so that few vectorised fits run
 
@@ -166,116 +177,69 @@ def _label_blobs(image: np.ndarray, t: int, cell_labels: np.ndarray, boxes: np.n
 
 
 # --------------------------------------------------------------------------- blob model fit
-def _half_erfc(z: np.ndarray, e: np.ndarray) -> np.ndarray:
-    """``erfc(z) / 2`` given ``e = exp(-z^2)``: Abramowitz & Stegun 7.1.26 (abs. error < 1e-7), 4x faster
-    than ``scipy.special.erfc`` and reusing the exponential the Jacobian needs anyway."""
-    t = 1.0 / (1.0 + 0.3275911 * np.abs(z))
-    q = 0.5 * e * t * (0.254829592 + t * (-0.284496736 + t * (1.421413741 + t * (-1.453152027 + t * 1.061405429))))
-    return np.where(z >= 0, q, 1.0 - q)
+def _fit_discs(values: np.ndarray, ox: np.ndarray, oy: np.ndarray, weight: np.ndarray, saturated: np.ndarray | None,
+               params: np.ndarray, iterations: int) -> tuple[np.ndarray, np.ndarray]:
+    """Least-squares fit of blurred discs plus an offset, vectorised over blobs: a fixed number of
+    lightly damped Gauss–Newton steps.
 
-
-def _disc_model(params: np.ndarray, x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Sum of blurred discs plus an offset, and its Jacobian.
-
-    Args:
-        params: (N, 1 + 5K) ``b, (cx, cy, A, r, s) * K``.
-        x, y: (N, P) pixel coordinates.
-
-    Returns:
-        model (N, P) and Jacobian (N, 1 + 5K, P).
-    """
-    n, n_par = params.shape
-    disc = params[:, 1:].reshape(n, -1, 5)  # (N, K, 5)
-    cx, cy, amp, r, s = (disc[:, :, i, None] for i in range(5))  # (N, K, 1)
-    dx = x[:, None, :] - cx
-    dy = y[:, None, :] - cy
-    rho = np.sqrt(dx * dx + dy * dy)
-    z = (rho - r) * (1.0 / (_SQRT2 * s))
-    e = np.exp(-z * z)
-    f = _half_erfc(z, e)
-    slope = (amp / (_SQRT2 * _SQRTPI * s)) * e  # -dM/drho
-    unit = slope / np.maximum(rho, 1e-9)
-    jac = np.empty((n, n_par, x.shape[1]))
-    jac[:, 0] = 1.0
-    jd = jac[:, 1:].reshape(n, -1, 5, x.shape[1])  # (N, K, 5, P) view
-    np.multiply(unit, dx, out=jd[:, :, 0])
-    np.multiply(unit, dy, out=jd[:, :, 1])
-    jd[:, :, 2] = f
-    jd[:, :, 3] = slope
-    np.multiply(slope * _SQRT2, z, out=jd[:, :, 4])
-    return params[:, :1] + (amp * f).sum(axis=1), jac
-
-
-def _fit_discs(values: np.ndarray, x: np.ndarray, y: np.ndarray, weight: np.ndarray, saturated: np.ndarray,
-               params: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Levenberg–Marquardt least squares of :func:`_disc_model`, vectorised over blobs.
-
-    Saturated pixels are censored: they only say the model reaches their value, so they pull the model
-    up where it is below and count for nothing where it is above (this keeps a saturated blob's fit from
-    drifting along the height/radius/blur valley that its unsaturated skirt alone leaves open).
+    Model: ``b + sum_k A_k * Phi((r_k - |x - c_k|) / s_k)``, a disc of radius ``r`` whose edge is a Gaussian
+    of std ``s`` (px); ``Phi`` and its slope come from lookup tables. Saturated pixels are censored: they
+    only say the model reaches their value, so they pull the model up where it is below and count for
+    nothing where it is above. A centre moves at most ``MAX_STEP`` px per step.
 
     Args:
         values: (N, P) grey levels minus the frame's background level.
-        x, y: (N, P) pixel coordinates.
+        ox, oy: (P,) pixel offsets from each blob's window centre, px.
         weight: (N, P) 1 for pixels in the fit, 0 for the rest.
-        saturated: (N, P) bool, pixels at full scale.
-        params: (N, 1 + 5K) starting parameters.
+        saturated: (N, P) bool, pixels at full scale (None: there are none).
+        params: (N, 1 + 5K) starting ``b, (cx, cy, A, r, s) * K``, centres relative to the window centre.
+        iterations: Gauss–Newton steps.
 
     Returns:
-        params (N, 1 + 5K) and the unscaled parameter covariance ``(J^T W J)^-1`` (N, 1 + 5K, 1 + 5K).
+        params (N, 1 + 5K) and the unscaled covariance ``(J^T W J)^-1`` of the centres (N, 2K, 2K), from the
+        Jacobian at the last step's start.
     """
     params = params.copy()
     n, n_par = params.shape
-    eye = np.eye(n_par)
-    diag = np.arange(n_par)
-    damping = np.full(n, 1e-3)
-
-    def evaluate(p: np.ndarray, rows: np.ndarray | slice) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        model, jac = _disc_model(p, x[rows], y[rows])
-        w = np.where(saturated[rows] & (model >= values[rows]), 0.0, weight[rows])
-        resid = (values[rows] - model) * w
-        jac *= w[:, None, :]
-        return resid, jac, (resid * resid).sum(axis=1)
-
-    resid, jac, cost = evaluate(params, slice(None))
-    active = np.arange(n)  # blobs whose centre still moves by more than STEP_TOL
-    for _ in range(FIT_ITERATIONS):
-        j = jac[active]
-        jtj = np.matmul(j, j.transpose(0, 2, 1))
-        grad = np.matmul(j, resid[active][:, :, None])
-        lhs = jtj + eye * (damping[active, None] * jtj[:, diag, diag] + 1e-9)[:, :, None]
-        step = np.linalg.solve(lhs, grad)[:, :, 0]
-        trial = params[active] + step
-        trial[:, 3::5] = np.maximum(trial[:, 3::5], 1.0)  # heights
-        trial[:, 4::5] = np.clip(trial[:, 4::5], 0.2, 100.0)  # radii
-        trial[:, 5::5] = np.clip(trial[:, 5::5], 0.25, 5.0)  # blur
-        t_resid, t_jac, t_cost = evaluate(trial, active)
-        better = t_cost <= cost[active]
-        upd = active[better]
-        params[upd], resid[upd], jac[upd], cost[upd] = trial[better], t_resid[better], t_jac[better], t_cost[better]
-        damping[active] = np.where(better, damping[active] * 0.3, damping[active] * 10.0)
-        moving = np.abs(step[:, 1:].reshape(len(step), -1, 5)[:, :, :2]).max(axis=(1, 2)) > STEP_TOL
-        active = active[moving | ~better]
-        if len(active) == 0:
-            break
-    jtj = np.matmul(jac, jac.transpose(0, 2, 1))
+    disc = params[:, 1:].reshape(n, -1, 5)  # (N, K, 5) view
+    jac = np.empty((n, n_par, len(ox)), np.float32)
+    rows = jac[:, 1:].reshape(n, -1, 5, len(ox))  # (N, K, 5, P) view: d model / d (cx, cy, A, r, s)
+    for _ in range(iterations):
+        cx, cy, amp, r, s = (disc[:, :, i, None].astype(np.float32) for i in range(5))  # (N, K, 1)
+        dx, dy = ox - cx, oy - cy
+        rho = np.sqrt(dx * dx + dy * dy)
+        scale = _Z_RES / s
+        index = (rho * scale + (_Z_ORIGIN - r * scale)).astype(np.intp)  # truncation rounds: origin has +0.5
+        f = _EDGE.take(index, mode="clip")
+        model = params[:, :1].astype(np.float32) + (amp * f).sum(axis=1)
+        w = weight if saturated is None else np.where(saturated & (model >= values), 0.0, weight)
+        resid = (values - model) * w
+        w = w[:, None]
+        slope = _EDGE_SLOPE.take(index, mode="clip") * (amp / s) * w  # -d model / d rho, weighted
+        jac[:, 0] = w[:, 0]
+        np.multiply(f, w, out=rows[:, :, 2])
+        rows[:, :, 3] = slope
+        np.multiply(slope, (rho - r) / s, out=rows[:, :, 4])
+        slope /= np.maximum(rho, 1e-9)
+        np.multiply(slope, dx, out=rows[:, :, 0])
+        np.multiply(slope, dy, out=rows[:, :, 1])
+        jtj = np.matmul(jac, jac.transpose(0, 2, 1))
+        lhs = jtj.copy()
+        lhs.reshape(n, -1)[:, :: n_par + 1] *= 1.0 + DAMPING
+        lhs.reshape(n, -1)[:, :: n_par + 1] += 1e-9
+        step = np.linalg.solve(lhs.astype(np.float64), np.matmul(jac, resid[:, :, None]).astype(np.float64))[:, :, 0]
+        params[:, 0] += step[:, 0]
+        disc += np.minimum(np.maximum(step[:, 1:].reshape(disc.shape), -_STEP_BOUND), _STEP_BOUND)
+        np.minimum(np.maximum(disc, _PARAM_LOW, out=disc), _PARAM_HIGH, out=disc)
     try:
-        cov = np.linalg.inv(jtj)
+        cov = np.linalg.inv(jtj.astype(np.float64))
     except np.linalg.LinAlgError:  # a degenerate window somewhere (e.g. every pixel saturated)
         cov = np.linalg.pinv(jtj)
-    return params, cov
+    pos = (1 + 5 * np.arange(disc.shape[1])[:, None] + np.arange(2)).ravel()
+    return params, cov[:, pos[:, None], pos]
 
 
 # --------------------------------------------------------------------------- peaks (merged markers)
-def _box_mean3(image: np.ndarray, x: np.ndarray, y: np.ndarray, reach: int) -> np.ndarray:
-    """3x3 box means of ``image`` on the (2 reach + 1)^2 grid around each (x, y): (N, 2 reach + 1, 2 reach + 1)."""
-    h, w = image.shape
-    offs = np.arange(-reach - 1, reach + 2)
-    patch = image[np.clip(y[:, None, None] + offs[None, :, None], 0, h - 1),
-                  np.clip(x[:, None, None] + offs[None, None, :], 0, w - 1)].astype(np.float64)
-    return np.lib.stride_tricks.sliding_window_view(patch, (3, 3), axis=(1, 2)).mean(axis=(3, 4))
-
-
 def _peaks(image: np.ndarray, pixels: _Pixels, level: float, sigma: float
            ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Significant local maxima of each blob's 3x3-smoothed profile.
@@ -283,23 +247,39 @@ def _peaks(image: np.ndarray, pixels: _Pixels, level: float, sigma: float
     The highest maximum of a blob always counts; another counts when, towards every higher maximum of
     its blob, it lies 2 px or more away and the smoothed profile on the straight path dips below the
     lower of the two by more than ``max(4 sigma, 10 % of its height above the background)`` (plateaus
-    and noise bumps do not count).
+    and noise bumps do not count). The blobs' bounding boxes are smoothed as one padded stack (pixels
+    beyond the image border repeat the border).
 
     Returns:
         blob (M,), x (M,), y (M,): peak positions (px), sorted by blob, highest first within a blob.
     """
     if len(pixels.blob) == 0:
         return np.zeros(0, np.int64), np.zeros(0), np.zeros(0)
-    grid = _box_mean3(image, pixels.x, pixels.y, 1)  # (P, 3, 3)
-    value = grid[:, 1, 1]
-    idx = np.flatnonzero(value >= grid.reshape(len(value), 9).max(axis=1))
-    blob, px, py, pv = pixels.blob[idx], pixels.x[idx], pixels.y[idx], value[idx]
+    h, w = image.shape
+    starts = np.flatnonzero(np.r_[True, pixels.blob[1:] != pixels.blob[:-1]])
+    ids = pixels.blob[starts]
+    x0, y0 = np.minimum.reduceat(pixels.x, starts) - 1, np.minimum.reduceat(pixels.y, starts) - 1
+    bw = int((np.maximum.reduceat(pixels.x, starts) - x0).max()) + 2  # box with a 1 px margin
+    bh = int((np.maximum.reduceat(pixels.y, starts) - y0).max()) + 2
+    rows = np.clip(y0[:, None] + np.arange(-1, bh + 1), 0, h - 1) * w
+    cols = np.clip(x0[:, None] + np.arange(-1, bw + 1), 0, w - 1)
+    raw = image.ravel().take(rows[:, :, None] + cols[:, None, :]).astype(np.float32)  # (B, bh + 2, bw + 2)
+    rsum = raw[:, :-2] + raw[:, 1:-1] + raw[:, 2:]
+    smooth = (rsum[:, :, :-2] + rsum[:, :, 1:-1] + rsum[:, :, 2:]) * np.float32(1.0 / 9.0)  # (B, bh, bw)
+    rmax = np.maximum(np.maximum(smooth[:, :-2], smooth[:, 1:-1]), smooth[:, 2:])
+    nmax = np.maximum(np.maximum(rmax[:, :, :-2], rmax[:, :, 1:-1]), rmax[:, :, 2:])  # over 3x3, interior
+    inner = smooth[:, 1:-1, 1:-1]
+    own = np.zeros(inner.shape, bool)  # the blob's own pixels in its box
+    b_of = np.repeat(np.arange(len(starts)), np.diff(np.r_[starts, len(pixels.blob)]))
+    own[b_of, pixels.y - y0[b_of] - 1, pixels.x - x0[b_of] - 1] = True
+    b, i, j = np.nonzero(own & (inner >= nmax))
+    blob, px, py, pv = ids[b], x0[b] + 1 + j, y0[b] + 1 + i, inner[b, i, j].astype(np.float64)
     order = np.lexsort((-pv, blob))
-    blob, px, py, pv = blob[order], px[order], py[order], pv[order]
+    b, blob, px, py, pv = b[order], blob[order], px[order], py[order], pv[order]
     start = np.flatnonzero(np.r_[True, blob[1:] != blob[:-1]])
     rank = np.arange(len(blob)) - np.repeat(start, np.diff(np.r_[start, len(blob)]))  # 0: the blob's highest
     top = rank < 2 * MAX_DISCS  # the highest few maxima are enough to find up to MAX_DISCS markers
-    blob, px, py, pv, rank = blob[top], px[top], py[top], pv[top], rank[top]
+    b, blob, px, py, pv, rank = b[top], blob[top], px[top], py[top], pv[top], rank[top]
     # every maximum against every higher one of its blob: (i, j) pairs with rank(j) < rank(i)
     i = np.repeat(np.arange(len(blob)), rank)
     j = np.repeat(np.arange(len(blob)) - rank, rank) + (np.arange(len(i)) - np.repeat(np.cumsum(rank) - rank, rank))
@@ -307,9 +287,9 @@ def _peaks(image: np.ndarray, pixels: _Pixels, level: float, sigma: float
     failed = np.zeros(len(blob), bool)
     if len(i):
         steps = np.linspace(0.0, 1.0, 2 * int(np.ceil(dist.max())) + 1)
-        sx = np.rint(px[i, None] + (px[j] - px[i])[:, None] * steps).astype(np.int64)
+        sx = np.rint(px[i, None] + (px[j] - px[i])[:, None] * steps).astype(np.int64)  # inside the blob's box
         sy = np.rint(py[i, None] + (py[j] - py[i])[:, None] * steps).astype(np.int64)
-        path = _box_mean3(image, sx.ravel(), sy.ravel(), 0).reshape(sx.shape)
+        path = smooth.take((b[i, None] * bh + sy - y0[b[i], None]) * bw + sx - x0[b[i], None])
         dip = np.minimum(pv[i], pv[j]) - path.min(axis=1)
         bad = (dip <= np.maximum(4.0 * sigma, 0.1 * (pv[i] - level))) | (dist < 2.0)
         failed = np.bincount(i[bad], minlength=len(blob)) > 0
@@ -357,41 +337,45 @@ def _neighbour_median_area(xy: np.ndarray, area: np.ndarray, k: int = 5) -> np.n
 
 
 def _window(centre: np.ndarray, radius: np.ndarray, half: int, image: np.ndarray, label_image: np.ndarray,
-            own: np.ndarray, t: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+            own: np.ndarray, t: int, level: float) -> tuple[np.ndarray, ...]:
     """Round fit windows: pixels within ``radius`` (N,) px of each ``centre`` (N, 2), padded to ``half`` px.
 
     Returns:
-        x, y, grey, weight, saturated, each (N, P). Weight is 0 beyond the radius, off the image and on
-        other blobs' above-threshold pixels.
+        origin (N, 2) int: each window's centre pixel; ox, oy (P,): offsets from it, px; values (N, P): grey
+        levels minus ``level``; weight (N, P): 0 beyond the radius, off the image and on other blobs'
+        above-threshold pixels, else 1; saturated (N, P) bool (None if no pixel is saturated).
     """
     h, w = image.shape
-    dy, dx = np.mgrid[-half: half + 1, -half: half + 1].reshape(2, -1)
-    round_ = dx * dx + dy * dy <= (half + 0.5) ** 2
-    dx, dy = dx[round_], dy[round_]
-    xs = np.rint(centre[:, 0]).astype(np.int64)[:, None] + dx
-    ys = np.rint(centre[:, 1]).astype(np.int64)[:, None] + dy
+    oy, ox = np.mgrid[-half: half + 1, -half: half + 1].reshape(2, -1)
+    round_ = ox * ox + oy * oy <= (half + 0.5) ** 2
+    ox, oy = ox[round_], oy[round_]
+    origin = np.rint(centre).astype(np.int64)
+    xs, ys = origin[:, :1] + ox, origin[:, 1:] + oy
     xc, yc = np.clip(xs, 0, w - 1), np.clip(ys, 0, h - 1)
     flat = yc * w + xc
     grey = image.ravel().take(flat)
-    x, y = xs.astype(np.float64), ys.astype(np.float64)
+    fx, fy = (centre - origin).T[:, :, None]
     usable = ((xs == xc) & (ys == yc) & ((grey <= t) | (label_image.ravel().take(flat) == own[:, None] + 1))
-              & ((x - centre[:, :1]) ** 2 + (y - centre[:, 1:]) ** 2 <= (radius * radius)[:, None]))
-    return x, y, grey.astype(np.float64), usable.astype(np.float64), grey >= _SATURATED
+              & ((ox - fx) ** 2 + (oy - fy) ** 2 <= (radius * radius)[:, None]))
+    usable &= grey < _SATURATED
+    return (origin, ox.astype(np.float32), oy.astype(np.float32), (grey - np.float32(level)).astype(np.float32),
+            usable.astype(np.float32), None)
 
 
-def _disc_starts(blobs: np.ndarray, k: int, peaks: tuple[np.ndarray, np.ndarray, np.ndarray], stats: _Blobs,
-                 level: float) -> np.ndarray:
-    """(N, 1 + 5k) starting parameters: offset 0; per disc: centre, height, radius, blur 0.6 px."""
+def _disc_starts(blobs: np.ndarray, k: int, origin: np.ndarray, peaks: tuple[np.ndarray, np.ndarray, np.ndarray],
+                 stats: _Blobs, level: float) -> np.ndarray:
+    """(N, 1 + 5k) starting parameters: offset 0; per disc: centre (relative to ``origin`` (N, 2)), height,
+    radius, blur 0.6 px."""
     n = len(blobs)
     start = np.zeros((n, 1 + 5 * k))
     disc = start[:, 1:].reshape(n, k, 5)
     if k == 1:
-        disc[:, 0, :2] = stats.centroid[blobs]
+        disc[:, 0, :2] = stats.centroid[blobs] - origin
     else:
         pk_blob, pk_x, pk_y = peaks
         take = np.searchsorted(pk_blob, blobs)[:, None] + np.arange(k)
-        disc[:, :, 0] = pk_x[take]
-        disc[:, :, 1] = pk_y[take]
+        disc[:, :, 0] = pk_x[take] - origin[:, :1]
+        disc[:, :, 1] = pk_y[take] - origin[:, 1:]
     height = stats.peak[blobs] - level
     disc[:, :, 2] = np.where(stats.peak[blobs] >= _SATURATED, 1.3 * height, np.maximum(height, 1.0))[:, None]
     disc[:, :, 3] = np.maximum(stats.radius[blobs] / math.sqrt(k), 0.5)[:, None]
@@ -411,19 +395,19 @@ def _measure(image: np.ndarray, label_image: np.ndarray, blobs: np.ndarray, k: i
         the weighted centroid (k = 1) or the peaks (k > 1), with the centroid's noise covariance.
     """
     n = len(blobs)
-    x, y, grey, weight, saturated = _window(stats.centroid[blobs], radius, half, image, label_image, blobs, t)
-    start = _disc_starts(blobs, k, peaks, stats, level)
-    params, pcov = _fit_discs(grey - level, x, y, weight, saturated, start)
+    origin, ox, oy, values, weight, saturated = _window(stats.centroid[blobs], radius, half, image, label_image,
+                                                        blobs, t, level)
+    start = _disc_starts(blobs, k, origin, peaks, stats, level)
+    params, pcov = _fit_discs(values, ox, oy, weight, saturated, start, FIT_ITERATIONS if k == 1 else SPLIT_ITERATIONS)
     disc = params[:, 1:].reshape(n, k, 5)
-    centres = disc[:, :, :2]
-    pos = 1 + 5 * np.arange(k)[:, None] + np.arange(2)  # (k, 2) parameter indices of each centre
+    offset = disc[:, :, :2] - start[:, 1:].reshape(n, k, 5)[:, :, :2]
+    pos = 2 * np.arange(k)[:, None] + np.arange(2)  # (k, 2) covariance rows of each centre
     cov = pcov[np.arange(n)[:, None, None, None], pos[None, :, :, None], pos[None, :, None, :]] * sigma**2
-    start_xy = start[:, 1:].reshape(n, k, 5)[:, :, :2]
-    bad = (~np.isfinite(centres).all(axis=2) | ~np.isfinite(cov).all(axis=(2, 3))
-           | (np.hypot(*(centres - start_xy).transpose(2, 0, 1)) > np.maximum(1.5, disc[:, :, 3])))
+    bad = (~np.isfinite(offset).all(axis=2) | ~np.isfinite(cov).all(axis=(2, 3))
+           | (np.hypot(*offset.transpose(2, 0, 1)) > np.maximum(1.5, disc[:, :, 3])))
+    start_xy = start[:, 1:].reshape(n, k, 5)[:, :, :2] + origin[:, None]
     fallback_cov = stats.centroid_cov[blobs][:, None] * sigma**2 + np.eye(2) * (0.25 if k > 1 else 0.0)
-    return (np.where(bad[:, :, None], start_xy, centres),
-            np.where(bad[:, :, None, None], fallback_cov, cov))
+    return (start_xy + np.where(bad[:, :, None], 0.0, offset), np.where(bad[:, :, None, None], fallback_cov, cov))
 
 
 def detect(image: np.ndarray, *, threshold: float | None = None, min_area: int = 2, max_area: int = 1000,
