@@ -35,6 +35,7 @@ predicted boxes and do a full scan every few frames to pick up new markers.
 
 from __future__ import annotations
 
+import functools
 import math
 
 import cv2
@@ -57,11 +58,12 @@ ROUND_SPLIT = 0.85  # roundness below this: searched for two or more peaks (one 
 AREA_MERGED = 2.5  # area above this many times the neighbours' median: flagged as merged
 MAX_DISCS = 4  # a blob is split into at most this many markers
 FIT_MAX_AREA = 1000  # px: larger blobs (with a raised max_area) get the weighted centroid, not a fit
-FIT_ITERATIONS = 3  # Gauss-Newton steps for a single disc (from the weighted centroid)
+FIT_ITERATIONS = 2  # Gauss-Newton steps for a single disc (from the weighted centroid)
 SPLIT_ITERATIONS = 6  # ... for two or more discs fitted jointly (from the peaks)
 DAMPING = 1e-2  # Levenberg-style relative damping of every Gauss-Newton step
 MAX_STEP = 1.0  # px: a centre moves at most this far per step
 _SATURATED = 255
+_BRUTE_FORCE_NEIGHBOURS = 300  # blobs: up to this many, nearest neighbours from all pairwise distances
 # bounds of each disc's (cx, cy, A, r, s) after every step, and of the step itself
 _PARAM_LOW = np.array([-np.inf, -np.inf, 1.0, 0.2, 0.25])
 _PARAM_HIGH = np.array([np.inf, np.inf, np.inf, 100.0, 5.0])
@@ -109,18 +111,11 @@ def _groups(cells: np.ndarray, roi_cells: np.ndarray | None) -> tuple[np.ndarray
         labels: (Hc, Wc) int32 group label per cell (0: none).
         boxes: (G, 5) int ``label, cx0, cy0, cx1, cy1`` inclusive cell bounds of each kept group.
     """
-    n, labels = cv2.connectedComponents(cells, connectivity=8, ltype=cv2.CV_32S)
-    if n <= 1:
-        return labels, np.zeros((0, 5), np.int64)
-    cy, cx = np.nonzero(labels)
-    lab = labels[cy, cx]
-    order = np.argsort(lab, kind="stable")
-    lab, cy, cx = lab[order], cy[order], cx[order]
-    starts = np.flatnonzero(np.r_[True, lab[1:] != lab[:-1]])
-    boxes = np.stack([lab[starts], np.minimum.reduceat(cx, starts), np.minimum.reduceat(cy, starts),
-                      np.maximum.reduceat(cx, starts), np.maximum.reduceat(cy, starts)], axis=1).astype(np.int64)
+    n, labels, stats, _ = cv2.connectedComponentsWithStats(cells, connectivity=8, ltype=cv2.CV_32S)
+    left, top, width, height = stats[1:, :4].astype(np.int64).T
+    boxes = np.stack([np.arange(1, n), left, top, left + width - 1, top + height - 1], axis=1)
     if roi_cells is not None:
-        boxes = boxes[np.add.reduceat(roi_cells[cy, cx].astype(np.int64), starts) > 0]
+        boxes = boxes[np.bincount(labels[roi_cells], minlength=n)[1:] > 0]
     return labels, boxes
 
 
@@ -159,7 +154,7 @@ def _label_blobs(image: np.ndarray, t: int, cell_labels: np.ndarray, boxes: np.n
         sel = boxes[bucket == size]
         ys = (CELL * sel[:, 2] - MARGIN)[:, None] + np.arange(size)  # (n, S)
         xs = (CELL * sel[:, 1] - MARGIN)[:, None] + np.arange(size)
-        yc, xc = np.clip(ys, 0, h - 1), np.clip(xs, 0, w - 1)
+        yc, xc = np.minimum(np.maximum(ys, 0), h - 1), np.minimum(np.maximum(xs, 0), w - 1)
         inside = ((ys >= 0) & (ys < h))[:, :, None] & ((xs >= 0) & (xs < w))[:, None, :]
         grey = image.ravel().take(yc[:, :, None] * w + xc[:, None, :])
         own = cell_labels.ravel().take((yc // CELL)[:, :, None] * cell_labels.shape[1] + (xc // CELL)[:, None, :]
@@ -261,8 +256,8 @@ def _peaks(image: np.ndarray, pixels: _Pixels, level: float, sigma: float
     x0, y0 = np.minimum.reduceat(pixels.x, starts) - 1, np.minimum.reduceat(pixels.y, starts) - 1
     bw = int((np.maximum.reduceat(pixels.x, starts) - x0).max()) + 2  # box with a 1 px margin
     bh = int((np.maximum.reduceat(pixels.y, starts) - y0).max()) + 2
-    rows = np.clip(y0[:, None] + np.arange(-1, bh + 1), 0, h - 1) * w
-    cols = np.clip(x0[:, None] + np.arange(-1, bw + 1), 0, w - 1)
+    rows = np.minimum(np.maximum(y0[:, None] + np.arange(-1, bh + 1), 0), h - 1) * w
+    cols = np.minimum(np.maximum(x0[:, None] + np.arange(-1, bw + 1), 0), w - 1)
     raw = image.ravel().take(rows[:, :, None] + cols[:, None, :]).astype(np.float32)  # (B, bh + 2, bw + 2)
     rsum = raw[:, :-2] + raw[:, 1:-1] + raw[:, 2:]
     smooth = (rsum[:, :, :-2] + rsum[:, :, 1:-1] + rsum[:, :, 2:]) * np.float32(1.0 / 9.0)  # (B, bh, bw)
@@ -332,8 +327,13 @@ def _neighbour_median_area(xy: np.ndarray, area: np.ndarray, k: int = 5) -> np.n
     if len(xy) < 3:
         return np.full(len(xy), np.inf)
     k = min(k, len(xy) - 1)
-    _, nn = cKDTree(xy).query(xy, k + 1)
-    return np.median(area[nn[:, 1:]], axis=1)
+    if len(xy) <= _BRUTE_FORCE_NEIGHBOURS:
+        d2 = ((xy[:, None, :] - xy[None, :, :]) ** 2).sum(axis=2)
+        np.fill_diagonal(d2, np.inf)
+        nn = np.argpartition(d2, k - 1, axis=1)[:, :k]
+    else:
+        nn = cKDTree(xy).query(xy, k + 1)[1][:, 1:]
+    return np.median(area[nn], axis=1)
 
 
 def _window(centre: np.ndarray, radius: np.ndarray, half: int, image: np.ndarray, label_image: np.ndarray,
@@ -346,12 +346,10 @@ def _window(centre: np.ndarray, radius: np.ndarray, half: int, image: np.ndarray
         above-threshold pixels, else 1; saturated (N, P) bool (None if no pixel is saturated).
     """
     h, w = image.shape
-    oy, ox = np.mgrid[-half: half + 1, -half: half + 1].reshape(2, -1)
-    round_ = ox * ox + oy * oy <= (half + 0.5) ** 2
-    ox, oy = ox[round_], oy[round_]
+    ox, oy = _round_window(half)
     origin = np.rint(centre).astype(np.int64)
     xs, ys = origin[:, :1] + ox, origin[:, 1:] + oy
-    xc, yc = np.clip(xs, 0, w - 1), np.clip(ys, 0, h - 1)
+    xc, yc = np.minimum(np.maximum(xs, 0), w - 1), np.minimum(np.maximum(ys, 0), h - 1)
     flat = yc * w + xc
     grey = image.ravel().take(flat)
     fx, fy = (centre - origin).T[:, :, None]
@@ -360,6 +358,17 @@ def _window(centre: np.ndarray, radius: np.ndarray, half: int, image: np.ndarray
     usable &= grey < _SATURATED
     return (origin, ox.astype(np.float32), oy.astype(np.float32), (grey - np.float32(level)).astype(np.float32),
             usable.astype(np.float32), None)
+
+
+@functools.cache
+def _round_window(half: int) -> tuple[np.ndarray, np.ndarray]:
+    """x and y offsets (P,) int of the pixels within ``half + 0.5`` px of a centre pixel (read-only)."""
+    oy, ox = np.mgrid[-half: half + 1, -half: half + 1].reshape(2, -1)
+    round_ = ox * ox + oy * oy <= (half + 0.5) ** 2
+    ox, oy = ox[round_], oy[round_]
+    ox.setflags(write=False)
+    oy.setflags(write=False)
+    return ox, oy
 
 
 def _disc_starts(blobs: np.ndarray, k: int, origin: np.ndarray, peaks: tuple[np.ndarray, np.ndarray, np.ndarray],
@@ -456,8 +465,9 @@ def detect(image: np.ndarray, *, threshold: float | None = None, min_area: int =
     ids = np.flatnonzero(keep)
     if len(ids) == 0:
         return Detections.empty()
-    evals = np.linalg.eigvalsh(stats.second[ids])
-    roundness = np.sqrt(np.clip(evals[:, 0], 0, None) / np.maximum(evals[:, 1], 1e-12))
+    sxx, sxy, syy = stats.second[ids].reshape(-1, 4)[:, [0, 1, 3]].T  # eigenvalues of the 2x2 moments:
+    spread = np.sqrt(0.25 * (sxx - syy) ** 2 + sxy * sxy)
+    roundness = np.sqrt(np.maximum(0.5 * (sxx + syy) - spread, 0.0) / np.maximum(0.5 * (sxx + syy) + spread, 1e-12))
     too_big = stats.area[ids] > AREA_MERGED * _neighbour_median_area(stats.centroid[ids], stats.area[ids])
     elongated = roundness < ROUND_SPLIT
     flagged = too_big | ((roundness < ROUND_MERGED) & (stats.area[ids] >= MIN_SHAPE_AREA))
@@ -468,9 +478,11 @@ def detect(image: np.ndarray, *, threshold: float | None = None, min_area: int =
 
     # two markers side by side make an elongated (or oversized) blob: look for their peaks there
     candidates = ids[fit & (elongated | too_big)]
-    sel = np.isin(pixels.blob, candidates)
+    is_candidate = np.zeros(len(stats.area), bool)
+    is_candidate[candidates] = True
+    sel = is_candidate[pixels.blob]
     peaks = _peaks(image, _Pixels(pixels.blob[sel], pixels.x[sel], pixels.y[sel], pixels.grey[sel]), level, sigma)
-    n_discs = np.clip(np.bincount(peaks[0], minlength=len(stats.area))[ids], 1, MAX_DISCS)
+    n_discs = np.minimum(np.maximum(np.bincount(peaks[0], minlength=len(stats.area))[ids], 1), MAX_DISCS)
     radius = stats.reach[ids] + SKIRT
     half = _WINDOW_HALVES[np.searchsorted(_WINDOW_HALVES, radius)]  # a few window sizes
     for k in np.unique(n_discs[fit]):
