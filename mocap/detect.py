@@ -111,7 +111,8 @@ def _groups(cells: np.ndarray, roi_cells: np.ndarray | None) -> tuple[np.ndarray
         labels: (Hc, Wc) int32 group label per cell (0: none).
         boxes: (G, 5) int ``label, cx0, cy0, cx1, cy1`` inclusive cell bounds of each kept group.
     """
-    n, labels, stats, _ = cv2.connectedComponentsWithStats(cells, connectivity=8, ltype=cv2.CV_32S)
+    # Grana's algorithm: 3x faster here than OpenCV's default with statistics on one thread
+    n, labels, stats, _ = cv2.connectedComponentsWithStatsWithAlgorithm(cells, 8, cv2.CV_32S, cv2.CCL_GRANA)
     left, top, width, height = stats[1:, :4].astype(np.int64).T
     boxes = np.stack([np.arange(1, n), left, top, left + width - 1, top + height - 1], axis=1)
     if roi_cells is not None:
@@ -162,9 +163,10 @@ def _label_blobs(image: np.ndarray, t: int, cell_labels: np.ndarray, boxes: np.n
         mosaic = np.zeros((len(sel), size + 1, size), np.uint8)  # a blank row between patches
         mosaic[:, :size] = (grey > t) & own & inside
         n, labels = cv2.connectedComponents(mosaic.reshape(-1, size), connectivity=8, ltype=cv2.CV_32S)
-        p, i, j = np.nonzero(labels.reshape(len(sel), size + 1, size))
-        blob = labels.reshape(len(sel), size + 1, size)[p, i, j] - 1 + n_blobs
-        parts.append((blob, xs[p, j], ys[p, i], grey[p, i, j]))
+        flat = np.flatnonzero(labels)
+        p, i = np.divmod(flat, (size + 1) * size)
+        i, j = np.divmod(i, size)
+        parts.append((labels.ravel()[flat] - 1 + n_blobs, xs[p, j], ys[p, i], grey[p, i, j]))
         n_blobs += n - 1
     pixels = _Pixels(*(np.concatenate(a) for a in zip(*parts, strict=True)))
     label_image[pixels.y, pixels.x] = pixels.blob + 1
@@ -333,7 +335,8 @@ def _neighbour_median_area(xy: np.ndarray, area: np.ndarray, k: int = 5) -> np.n
         nn = np.argpartition(d2, k - 1, axis=1)[:, :k]
     else:
         nn = cKDTree(xy).query(xy, k + 1)[1][:, 1:]
-    return np.median(area[nn], axis=1)
+    near = np.sort(area[nn], axis=1)
+    return 0.5 * (near[:, (k - 1) // 2] + near[:, k // 2])
 
 
 def _window(centre: np.ndarray, radius: np.ndarray, half: int, image: np.ndarray, label_image: np.ndarray,
