@@ -196,19 +196,19 @@ def _fit_discs(values: np.ndarray, ox: np.ndarray, oy: np.ndarray, weight: np.nd
         params (N, 1 + 5K) and the unscaled covariance ``(J^T W J)^-1`` of the centres (N, 2K, 2K), from the
         Jacobian at the last step's start.
     """
-    params = params.copy()
+    params = params.astype(np.float32)  # centres are relative to the window: float32 resolves 1e-6 px
     n, n_par = params.shape
     disc = params[:, 1:].reshape(n, -1, 5)  # (N, K, 5) view
     jac = np.empty((n, n_par, len(ox)), np.float32)
     rows = jac[:, 1:].reshape(n, -1, 5, len(ox))  # (N, K, 5, P) view: d model / d (cx, cy, A, r, s)
-    for _ in range(iterations):
-        cx, cy, amp, r, s = (disc[:, :, i, None].astype(np.float32) for i in range(5))  # (N, K, 1)
+    for step_no in range(iterations):
+        cx, cy, amp, r, s = (disc[:, :, i, None] for i in range(5))  # (N, K, 1)
         dx, dy = ox - cx, oy - cy
         rho = np.sqrt(dx * dx + dy * dy)
         scale = _Z_RES / s
         index = (rho * scale + (_Z_ORIGIN - r * scale)).astype(np.intp)  # truncation rounds: origin has +0.5
         f = _EDGE.take(index, mode="clip")
-        model = params[:, :1].astype(np.float32) + (amp * f).sum(axis=1)
+        model = params[:, :1] + (amp * f).sum(axis=1)
         w = weight if saturated is None else np.where(saturated & (model >= values), 0.0, weight)
         resid = (values - model) * w
         w = w[:, None]
@@ -220,20 +220,24 @@ def _fit_discs(values: np.ndarray, ox: np.ndarray, oy: np.ndarray, weight: np.nd
         slope /= np.maximum(rho, 1e-9)
         np.multiply(slope, dx, out=rows[:, :, 0])
         np.multiply(slope, dy, out=rows[:, :, 1])
-        jtj = np.matmul(jac, jac.transpose(0, 2, 1))
-        lhs = jtj.copy()
-        lhs.reshape(n, -1)[:, :: n_par + 1] *= 1.0 + DAMPING
-        lhs.reshape(n, -1)[:, :: n_par + 1] += 1e-9
-        step = np.linalg.solve(lhs.astype(np.float64), np.matmul(jac, resid[:, :, None]).astype(np.float64))[:, :, 0]
+        jtj = np.matmul(jac, jac.transpose(0, 2, 1)).astype(np.float64)
+        grad = np.matmul(jac, resid[:, :, None]).astype(np.float64)
+        if step_no < iterations - 1:
+            lhs = jtj.copy()
+            lhs.reshape(n, -1)[:, :: n_par + 1] *= 1.0 + DAMPING
+            lhs.reshape(n, -1)[:, :: n_par + 1] += 1e-9
+            step = np.linalg.solve(lhs, grad)[:, :, 0]
+        else:  # the last step is undamped: its inverse is also the covariance
+            try:
+                cov = np.linalg.inv(jtj)
+            except np.linalg.LinAlgError:  # a degenerate window somewhere (e.g. every pixel saturated)
+                cov = np.linalg.pinv(jtj)
+            step = np.matmul(cov, grad)[:, :, 0]
         params[:, 0] += step[:, 0]
         disc += np.minimum(np.maximum(step[:, 1:].reshape(disc.shape), -_STEP_BOUND), _STEP_BOUND)
         np.minimum(np.maximum(disc, _PARAM_LOW, out=disc), _PARAM_HIGH, out=disc)
-    try:
-        cov = np.linalg.inv(jtj.astype(np.float64))
-    except np.linalg.LinAlgError:  # a degenerate window somewhere (e.g. every pixel saturated)
-        cov = np.linalg.pinv(jtj)
     pos = (1 + 5 * np.arange(disc.shape[1])[:, None] + np.arange(2)).ravel()
-    return params, cov[:, pos[:, None], pos]
+    return params.astype(np.float64), cov[:, pos[:, None], pos]
 
 
 # --------------------------------------------------------------------------- peaks (merged markers)
