@@ -137,20 +137,40 @@ class _Pixels:
         self.blob, self.x, self.y, self.grey = blob[order], x[order], y[order], grey[order]
 
 
-def _label_blobs(image: np.ndarray, t: int, cell_labels: np.ndarray, boxes: np.ndarray
-                 ) -> tuple[_Pixels, np.ndarray]:
+class _Owners:
+    """Which blob owns a pixel, from the labelled patches (no frame-sized label image).
+
+    Attributes:
+        labels: (L,) int32, every patch's labels (0: no blob), patches one after another; each blob's patch
+        starts at ``base`` (N,), has its top-left pixel at ``x0``, ``y0`` (N,) and ``size`` (N,) columns and
+        rows; ``local`` (N,) is the blob's label there.
+    """
+
+    def __init__(self, labels: np.ndarray, base: np.ndarray, x0: np.ndarray, y0: np.ndarray, size: np.ndarray,
+                 local: np.ndarray) -> None:
+        self.labels, self.base, self.x0, self.y0, self.size, self.local = labels, base, x0, y0, size, local
+
+    def owns(self, blobs: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+        """(N, P) bool: pixel (x, y) (N, P) int belongs to blob ``blobs`` (N,)."""
+        size = self.size[blobs, None]
+        rx, ry = x - self.x0[blobs, None], y - self.y0[blobs, None]
+        inside = (rx >= 0) & (ry >= 0) & (rx < size) & (ry < size)
+        index = self.base[blobs, None] + np.minimum(np.maximum(ry, 0), size - 1) * size + np.minimum(
+            np.maximum(rx, 0), size - 1)
+        return inside & (self.labels.take(index) == self.local[blobs, None])
+
+
+def _label_blobs(image: np.ndarray, t: int, cell_labels: np.ndarray, boxes: np.ndarray) -> tuple[_Pixels, _Owners]:
     """Label the blobs of each group of cells in a stacked mosaic of patches.
 
     Returns:
-        pixels: every blob pixel (blob ids 0..N-1); label image (H, W) int32 (blob id + 1 on blob
-        pixels, 0 elsewhere).
+        pixels: every blob pixel (blob ids 0..N-1); owners: which blob owns a pixel.
     """
     h, w = image.shape
     side = CELL * (np.maximum(boxes[:, 3] - boxes[:, 1], boxes[:, 4] - boxes[:, 2]) + 1) + 2 * MARGIN
     bucket = np.maximum(16, 2 ** np.ceil(np.log2(side))).astype(np.int64)  # few distinct patch sizes
-    label_image = np.zeros((h, w), np.int32)
-    parts = []
-    n_blobs = 0
+    parts, owners = [], []
+    n_blobs = n_labels = 0
     for size in np.unique(bucket):
         sel = boxes[bucket == size]
         ys = (CELL * sel[:, 2] - MARGIN)[:, None] + np.arange(size)  # (n, S)
@@ -164,13 +184,18 @@ def _label_blobs(image: np.ndarray, t: int, cell_labels: np.ndarray, boxes: np.n
         mosaic[:, :size] = (grey > t) & own & inside
         n, labels = cv2.connectedComponents(mosaic.reshape(-1, size), connectivity=8, ltype=cv2.CV_32S)
         flat = np.flatnonzero(labels)
+        local = labels.ravel()[flat]
         p, i = np.divmod(flat, (size + 1) * size)
         i, j = np.divmod(i, size)
-        parts.append((labels.ravel()[flat] - 1 + n_blobs, xs[p, j], ys[p, i], grey[p, i, j]))
+        parts.append((local - 1 + n_blobs, xs[p, j], ys[p, i], grey[p, i, j]))
+        patch = np.zeros(n - 1, np.int64)
+        patch[local - 1] = p
+        owners.append((labels.ravel(), n_labels + patch * ((size + 1) * size), xs[patch, 0], ys[patch, 0],
+                       np.full(n - 1, size), np.arange(1, n, dtype=np.int32)))
         n_blobs += n - 1
+        n_labels += labels.size
     pixels = _Pixels(*(np.concatenate(a) for a in zip(*parts, strict=True)))
-    label_image[pixels.y, pixels.x] = pixels.blob + 1
-    return pixels, label_image
+    return pixels, _Owners(*(np.concatenate(a) for a in zip(*owners, strict=True)))
 
 
 # --------------------------------------------------------------------------- blob model fit
@@ -343,7 +368,7 @@ def _neighbour_median_area(xy: np.ndarray, area: np.ndarray, k: int = 5) -> np.n
     return 0.5 * (near[:, (k - 1) // 2] + near[:, k // 2])
 
 
-def _window(centre: np.ndarray, radius: np.ndarray, half: int, image: np.ndarray, label_image: np.ndarray,
+def _window(centre: np.ndarray, radius: np.ndarray, half: int, image: np.ndarray, owners: _Owners,
             own: np.ndarray, t: int, level: float) -> tuple[np.ndarray, ...]:
     """Round fit windows: pixels within ``radius`` (N,) px of each ``centre`` (N, 2), padded to ``half`` px.
 
@@ -360,7 +385,7 @@ def _window(centre: np.ndarray, radius: np.ndarray, half: int, image: np.ndarray
     flat = yc * w + xc
     grey = image.ravel().take(flat)
     fx, fy = (centre - origin).T[:, :, None]
-    usable = ((xs == xc) & (ys == yc) & ((grey <= t) | (label_image.ravel().take(flat) == own[:, None] + 1))
+    usable = ((xs == xc) & (ys == yc) & ((grey <= t) | owners.owns(own, xs, ys))
               & ((ox - fx) ** 2 + (oy - fy) ** 2 <= (radius * radius)[:, None]))
     usable &= grey < _SATURATED
     return (origin, ox.astype(np.float32), oy.astype(np.float32), (grey - np.float32(level)).astype(np.float32),
@@ -399,7 +424,7 @@ def _disc_starts(blobs: np.ndarray, k: int, origin: np.ndarray, peaks: tuple[np.
     return start
 
 
-def _measure(image: np.ndarray, label_image: np.ndarray, blobs: np.ndarray, k: int, radius: np.ndarray, half: int,
+def _measure(image: np.ndarray, owners: _Owners, blobs: np.ndarray, k: int, radius: np.ndarray, half: int,
              peaks: tuple[np.ndarray, np.ndarray, np.ndarray], stats: _Blobs, level: float, sigma: float, t: int
              ) -> tuple[np.ndarray, np.ndarray]:
     """Fit ``k`` discs to each blob in ``blobs`` (N,) on the pixels within ``radius`` (N,) px of its
@@ -411,7 +436,7 @@ def _measure(image: np.ndarray, label_image: np.ndarray, blobs: np.ndarray, k: i
         the weighted centroid (k = 1) or the peaks (k > 1), with the centroid's noise covariance.
     """
     n = len(blobs)
-    origin, ox, oy, values, weight, saturated = _window(stats.centroid[blobs], radius, half, image, label_image,
+    origin, ox, oy, values, weight, saturated = _window(stats.centroid[blobs], radius, half, image, owners,
                                                         blobs, t, level)
     start = _disc_starts(blobs, k, origin, peaks, stats, level)
     params, pcov = _fit_discs(values, ox, oy, weight, saturated, start, FIT_ITERATIONS if k == 1 else SPLIT_ITERATIONS)
@@ -461,7 +486,7 @@ def detect(image: np.ndarray, *, threshold: float | None = None, min_area: int =
     cell_labels, boxes = _groups(cells, None if rois is None else _roi_cells(rois, cells.shape))
     if len(boxes) == 0:
         return Detections.empty()
-    pixels, label_image = _label_blobs(image, t, cell_labels, boxes)
+    pixels, owners = _label_blobs(image, t, cell_labels, boxes)
     stats = _Blobs(pixels, level)
     keep = (stats.area >= min_area) & (stats.area <= max_area)
     if rois is not None:
@@ -495,7 +520,7 @@ def detect(image: np.ndarray, *, threshold: float | None = None, min_area: int =
     for k in np.unique(n_discs[fit]):
         for hh in np.unique(half[fit & (n_discs == k)]):
             group = np.flatnonzero(fit & (n_discs == k) & (half == hh))
-            centres, covs = _measure(image, label_image, ids[group], int(k), radius[group], int(hh), peaks, stats,
+            centres, covs = _measure(image, owners, ids[group], int(k), radius[group], int(hh), peaks, stats,
                                      level, sigma, t)
             xy.append(centres.reshape(-1, 2))
             cov.append(covs.reshape(-1, 2, 2))
