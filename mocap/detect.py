@@ -266,6 +266,14 @@ def _fit_discs(values: np.ndarray, ox: np.ndarray, oy: np.ndarray, weight: np.nd
 
 
 # --------------------------------------------------------------------------- peaks (merged markers)
+def _runs(sorted_ids: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Runs of equal values in a sorted (M,) array: start index of each run (R,), and run index of each entry (M,)."""
+    new = np.empty(len(sorted_ids), bool)
+    new[:1] = True
+    np.not_equal(sorted_ids[1:], sorted_ids[:-1], out=new[1:])
+    return np.flatnonzero(new), np.cumsum(new) - 1
+
+
 def _peaks(image: np.ndarray, pixels: _Pixels, level: float, sigma: float
            ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Significant local maxima of each blob's 3x3-smoothed profile.
@@ -282,7 +290,7 @@ def _peaks(image: np.ndarray, pixels: _Pixels, level: float, sigma: float
     if len(pixels.blob) == 0:
         return np.zeros(0, np.int64), np.zeros(0), np.zeros(0)
     h, w = image.shape
-    starts = np.flatnonzero(np.r_[True, pixels.blob[1:] != pixels.blob[:-1]])
+    starts, b_of = _runs(pixels.blob)
     ids = pixels.blob[starts]
     x0, y0 = np.minimum.reduceat(pixels.x, starts) - 1, np.minimum.reduceat(pixels.y, starts) - 1
     bw = int((np.maximum.reduceat(pixels.x, starts) - x0).max()) + 2  # box with a 1 px margin
@@ -296,14 +304,13 @@ def _peaks(image: np.ndarray, pixels: _Pixels, level: float, sigma: float
     nmax = np.maximum(np.maximum(rmax[:, :, :-2], rmax[:, :, 1:-1]), rmax[:, :, 2:])  # over 3x3, interior
     inner = smooth[:, 1:-1, 1:-1]
     own = np.zeros(inner.shape, bool)  # the blob's own pixels in its box
-    b_of = np.repeat(np.arange(len(starts)), np.diff(np.r_[starts, len(pixels.blob)]))
     own[b_of, pixels.y - y0[b_of] - 1, pixels.x - x0[b_of] - 1] = True
     b, i, j = np.nonzero(own & (inner >= nmax))
     blob, px, py, pv = ids[b], x0[b] + 1 + j, y0[b] + 1 + i, inner[b, i, j].astype(np.float64)
     order = np.lexsort((-pv, blob))
     b, blob, px, py, pv = b[order], blob[order], px[order], py[order], pv[order]
-    start = np.flatnonzero(np.r_[True, blob[1:] != blob[:-1]])
-    rank = np.arange(len(blob)) - np.repeat(start, np.diff(np.r_[start, len(blob)]))  # 0: the blob's highest
+    start, run = _runs(blob)
+    rank = np.arange(len(blob)) - start[run]  # 0: the blob's highest
     top = rank < 2 * MAX_DISCS  # the highest few maxima are enough to find up to MAX_DISCS markers
     b, blob, px, py, pv, rank = b[top], blob[top], px[top], py[top], pv[top], rank[top]
     # every maximum against every higher one of its blob: (i, j) pairs with rank(j) < rank(i)
@@ -312,7 +319,8 @@ def _peaks(image: np.ndarray, pixels: _Pixels, level: float, sigma: float
     dist = np.hypot(px[i] - px[j], py[i] - py[j])
     failed = np.zeros(len(blob), bool)
     if len(i):
-        steps = np.linspace(0.0, 1.0, 2 * int(np.ceil(dist.max())) + 1)
+        n_steps = 2 * int(np.ceil(dist.max()))
+        steps = np.arange(n_steps + 1) / n_steps
         sx = np.rint(px[i, None] + (px[j] - px[i])[:, None] * steps).astype(np.int64)  # inside the blob's box
         sy = np.rint(py[i, None] + (py[j] - py[i])[:, None] * steps).astype(np.int64)
         path = smooth.take((b[i, None] * bh + sy - y0[b[i], None]) * bw + sx - x0[b[i], None])
@@ -336,10 +344,10 @@ class _Blobs:
 
     def __init__(self, pixels: _Pixels, level: float) -> None:
         b = pixels.blob
-        starts = np.flatnonzero(np.r_[True, b[1:] != b[:-1]])
+        starts, _ = _runs(b)
         x, y = pixels.x.astype(np.float64), pixels.y.astype(np.float64)
         wgt = np.maximum(pixels.grey - level, 1e-6)
-        self.area = np.diff(np.r_[starts, len(b)]).astype(np.float64)
+        self.area = np.diff(starts, append=len(b)).astype(np.float64)
         m0 = np.add.reduceat(wgt, starts)
         self.centroid = np.stack([np.add.reduceat(wgt * x, starts), np.add.reduceat(wgt * y, starts)], 1) / m0[:, None]
         dx, dy = x - self.centroid[b, 0], y - self.centroid[b, 1]
