@@ -11,16 +11,20 @@ Stages, all vectorised over the blobs of a frame (no per-blob Python loop):
 3. **Blobs**: the patches, thresholded and restricted to their own cells, are stacked in one
    small mosaic and labelled once (8-connectivity). Area, intensity-weighted centroid and second
    moments (roundness) come from ``bincount`` over the labelled pixels.
-4. **Sub-pixel fit**: maximum-likelihood (Levenberg–Marquardt) fit of a blurred-disc model to the
-   blob's window (blob bounding box + 3 px of skirt), saturated pixels and other blobs' pixels left
-   out::
+4. **Sub-pixel fit**: least-squares (maximum-likelihood under Gaussian noise) fit of a blurred-disc
+   model to a round window around the blob (its farthest pixel + 2 px of skirt), saturated pixels and
+   other blobs' pixels left out::
 
-       I(x) = level + b + sum_k A_k * erfc((|x - c_k| - r_k) / (sqrt(2) s_k)) / 2
+       I(x) = level + b + sum_k A_k * Phi((r_k - |x - c_k|) / s_k)
 
-   The fit's ``sigma^2 (J^T J)^-1`` is the reported centroid covariance; on synthetic blurred discs the
-   fit is unbiased (< 0.005 px) and its std is within a few % of the Cramér–Rao bound (tests), where a
-   thresholded intensity-weighted centroid is 2-3x above it. A fit that fails falls back to the
-   intensity-weighted centroid.
+   ``Phi`` (the blurred edge) and its slope are read from lookup tables. Two Gauss–Newton steps from the
+   intensity-weighted centroid (six for split blobs), all blobs of a window size at once in float32
+   arrays: the per-call overhead of numpy, not arithmetic, is what costs here. The last step's
+   ``sigma^2 (J^T J)^-1`` is the reported centroid covariance. On rendered blurred discs the fit is
+   unbiased (< 0.002 px) and its std is within ~10 % of the Cramér–Rao bound (tests), where a
+   thresholded intensity-weighted centroid is 2-3x above it; heavily saturated blobs (peak several
+   times full scale) reach only 2-3x the bound. A fit that fails falls back to the intensity-weighted
+   centroid.
 5. **Merged markers**: a blob with two or more local maxima separated by a clear saddle is split and
    fitted as that many discs jointly; a blob that is elongated (roundness below 0.7) or much larger than
    its neighbours is flagged ``merged`` but kept whole. Limits: two markers closer than about their
@@ -60,14 +64,14 @@ MAX_DISCS = 4  # a blob is split into at most this many markers
 FIT_MAX_AREA = 1000  # px: larger blobs (with a raised max_area) get the weighted centroid, not a fit
 FIT_ITERATIONS = 2  # Gauss-Newton steps for a single disc (from the weighted centroid)
 SPLIT_ITERATIONS = 6  # ... for two or more discs fitted jointly (from the peaks)
-DAMPING = 1e-2  # Levenberg-style relative damping of every Gauss-Newton step
+DAMPING = 1e-2  # Levenberg-style relative damping of every Gauss-Newton step but the last
 MAX_STEP = 1.0  # px: a centre moves at most this far per step
 _SATURATED = 255
 _BRUTE_FORCE_NEIGHBOURS = 300  # blobs: up to this many, nearest neighbours from all pairwise distances
 # bounds of each disc's (cx, cy, A, r, s) after every step, and of the step itself
-_PARAM_LOW = np.array([-np.inf, -np.inf, 1.0, 0.2, 0.25])
-_PARAM_HIGH = np.array([np.inf, np.inf, np.inf, 100.0, 5.0])
-_STEP_BOUND = np.array([MAX_STEP, MAX_STEP, np.inf, np.inf, np.inf])
+_PARAM_LOW = np.array([-np.inf, -np.inf, 1.0, 0.2, 0.25], np.float32)
+_PARAM_HIGH = np.array([np.inf, np.inf, np.inf, 100.0, 5.0], np.float32)
+_STEP_BOUND = np.array([MAX_STEP, MAX_STEP, np.inf, np.inf, np.inf], np.float32)
 # the disc edge Phi(-z) and its slope phi(z), tabulated at z = -8 ... 8 in steps of 1/_Z_RES
 _Z_RES = 1024
 _Z_TABLE = np.arange(-8 * _Z_RES, 8 * _Z_RES + 1) / _Z_RES
@@ -199,21 +203,20 @@ def _label_blobs(image: np.ndarray, t: int, cell_labels: np.ndarray, boxes: np.n
 
 
 # --------------------------------------------------------------------------- blob model fit
-def _fit_discs(values: np.ndarray, ox: np.ndarray, oy: np.ndarray, weight: np.ndarray, saturated: np.ndarray | None,
-               params: np.ndarray, iterations: int) -> tuple[np.ndarray, np.ndarray]:
+def _fit_discs(values: np.ndarray, ox: np.ndarray, oy: np.ndarray, weight: np.ndarray, params: np.ndarray,
+               iterations: int) -> tuple[np.ndarray, np.ndarray]:
     """Least-squares fit of blurred discs plus an offset, vectorised over blobs: a fixed number of
     lightly damped Gauss–Newton steps.
 
     Model: ``b + sum_k A_k * Phi((r_k - |x - c_k|) / s_k)``, a disc of radius ``r`` whose edge is a Gaussian
-    of std ``s`` (px); ``Phi`` and its slope come from lookup tables. Saturated pixels are censored: they
-    only say the model reaches their value, so they pull the model up where it is below and count for
-    nothing where it is above. A centre moves at most ``MAX_STEP`` px per step.
+    of std ``s`` (px); ``Phi`` and its slope come from lookup tables. All but the last step are damped
+    (``DAMPING``); a centre moves at most ``MAX_STEP`` px per step. Pixel arithmetic is float32 (centres are
+    relative to the window, so float32 resolves 1e-6 px); the normal equations are solved in float64.
 
     Args:
         values: (N, P) grey levels minus the frame's background level.
         ox, oy: (P,) pixel offsets from each blob's window centre, px.
         weight: (N, P) 1 for pixels in the fit, 0 for the rest.
-        saturated: (N, P) bool, pixels at full scale (None: there are none).
         params: (N, 1 + 5K) starting ``b, (cx, cy, A, r, s) * K``, centres relative to the window centre.
         iterations: Gauss–Newton steps.
 
@@ -221,7 +224,7 @@ def _fit_discs(values: np.ndarray, ox: np.ndarray, oy: np.ndarray, weight: np.nd
         params (N, 1 + 5K) and the unscaled covariance ``(J^T W J)^-1`` of the centres (N, 2K, 2K), from the
         Jacobian at the last step's start.
     """
-    params = params.astype(np.float32)  # centres are relative to the window: float32 resolves 1e-6 px
+    params = params.astype(np.float32)
     n, n_par = params.shape
     disc = params[:, 1:].reshape(n, -1, 5)  # (N, K, 5) view
     jac = np.empty((n, n_par, len(ox)), np.float32)
@@ -234,9 +237,8 @@ def _fit_discs(values: np.ndarray, ox: np.ndarray, oy: np.ndarray, weight: np.nd
         index = (rho * scale + (_Z_ORIGIN - r * scale)).astype(np.intp)  # truncation rounds: origin has +0.5
         f = _EDGE.take(index, mode="clip")
         model = params[:, :1] + (amp * f).sum(axis=1)
-        w = weight if saturated is None else np.where(saturated & (model >= values), 0.0, weight)
-        resid = (values - model) * w
-        w = w[:, None]
+        resid = (values - model) * weight
+        w = weight[:, None]
         slope = _EDGE_SLOPE.take(index, mode="clip") * (amp / s) * w  # -d model / d rho, weighted
         jac[:, 0] = w[:, 0]
         np.multiply(f, w, out=rows[:, :, 2])
@@ -381,9 +383,9 @@ def _window(centre: np.ndarray, radius: np.ndarray, half: int, image: np.ndarray
     """Round fit windows: pixels within ``radius`` (N,) px of each ``centre`` (N, 2), padded to ``half`` px.
 
     Returns:
-        origin (N, 2) int: each window's centre pixel; ox, oy (P,): offsets from it, px; values (N, P): grey
-        levels minus ``level``; weight (N, P): 0 beyond the radius, off the image and on other blobs'
-        above-threshold pixels, else 1; saturated (N, P) bool (None if no pixel is saturated).
+        origin (N, 2) int: each window's centre pixel; ox, oy (P,) float32: offsets from it, px; values (N, P)
+        float32: grey levels minus ``level``; weight (N, P) float32: 0 beyond the radius, off the image, on
+        saturated pixels (their true level is unknown) and on other blobs' above-threshold pixels, else 1.
     """
     h, w = image.shape
     ox, oy = _round_window(half)
@@ -397,7 +399,7 @@ def _window(centre: np.ndarray, radius: np.ndarray, half: int, image: np.ndarray
               & ((ox - fx) ** 2 + (oy - fy) ** 2 <= (radius * radius)[:, None]))
     usable &= grey < _SATURATED
     return (origin, ox.astype(np.float32), oy.astype(np.float32), (grey - np.float32(level)).astype(np.float32),
-            usable.astype(np.float32), None)
+            usable.astype(np.float32))
 
 
 @functools.cache
@@ -444,10 +446,10 @@ def _measure(image: np.ndarray, owners: _Owners, blobs: np.ndarray, k: int, radi
         the weighted centroid (k = 1) or the peaks (k > 1), with the centroid's noise covariance.
     """
     n = len(blobs)
-    origin, ox, oy, values, weight, saturated = _window(stats.centroid[blobs], radius, half, image, owners,
-                                                        blobs, t, level)
+    origin, ox, oy, values, weight = _window(stats.centroid[blobs], radius, half, image, owners,
+                                              blobs, t, level)
     start = _disc_starts(blobs, k, origin, peaks, stats, level)
-    params, pcov = _fit_discs(values, ox, oy, weight, saturated, start, FIT_ITERATIONS if k == 1 else SPLIT_ITERATIONS)
+    params, pcov = _fit_discs(values, ox, oy, weight, start, FIT_ITERATIONS if k == 1 else SPLIT_ITERATIONS)
     disc = params[:, 1:].reshape(n, k, 5)
     offset = disc[:, :, :2] - start[:, 1:].reshape(n, k, 5)[:, :, :2]
     pos = 2 * np.arange(k)[:, None] + np.arange(2)  # (k, 2) covariance rows of each centre
