@@ -173,3 +173,29 @@ def test_roi_mode_finds_the_same_blobs_as_a_full_scan():
     np.testing.assert_allclose(part.xy[order_part], full.xy[inside][order_full], atol=1e-9)
     np.testing.assert_allclose(part.cov[order_part], full.cov[inside][order_full], atol=1e-12)
     assert len(detect(image, rois=np.zeros((0, 4), int))) == 0
+
+
+@pytest.mark.parametrize("shape", [(480, 640), (61, 83)])
+def test_blobs_touching_the_image_border(shape):
+    """Blobs cut by every edge and corner (single, saturated, touching pairs) never raise, in every mode."""
+    h, w = shape
+    sensor = Sensor()
+    rng = np.random.default_rng(h)
+    for _ in range(10):
+        image = sensor.background_frame(shape, rng)
+        n = 12
+        edge = np.c_[rng.choice([0.0, w - 1.0], n) + rng.uniform(-2, 2, n), rng.uniform(-2, h + 1, n)]
+        flip = rng.random(n) < 0.5
+        edge[flip] = np.c_[rng.uniform(-2, w + 1, flip.sum()), rng.choice([0.0, h - 1.0], flip.sum())
+                           + rng.uniform(-2, 2, flip.sum())]
+        uv = np.r_[edge, edge + rng.uniform(-5, 5, (n, 2)), [[0.0, 0.0], [w - 1.0, h - 1.0]]]
+        sensor.draw(image, uv, rng.uniform(1.0, 5.0, len(uv)), rng.uniform(50, 900, len(uv)), rng)
+        full = detect(image)
+        assert len(full) > 0 and np.isfinite(full.xy).all() and np.isfinite(full.cov).all()
+        assert len(detect(image, refine="centroid")) > 0
+        detect(image, rois=np.array([[0, 0, w - 1, 3], [w - 4, 0, w + 5, h + 5]]))
+    # an isolated half-disc on the left edge is still found near its true centre
+    image = sensor.background_frame(shape, rng)
+    sensor.draw(image, [[0.4, h / 2]], [3.0], [200.0], rng)
+    det = detect(image)
+    assert len(det) == 1 and np.hypot(det.xy[0, 0] - 0.4, det.xy[0, 1] - h / 2) < 1.5
