@@ -198,4 +198,4 @@ def test_blobs_touching_the_image_border(shape):
     image = sensor.background_frame(shape, rng)
     sensor.draw(image, [[0.4, h / 2]], [3.0], [200.0], rng)
     det = detect(image)
-    assert len(det) == 1 and np.hypot(det.xy[0, 0] - 0.4, det.xy[0, 1] - h / 2) < 1.5
+    assert len(det) == 1 and np.hypot(det.xy[0, 0] - 0.4, det.xy[0, 1] - h / 2) < 0.1
