@@ -26,6 +26,7 @@ from mocap.detect import detect
 from mocap.detections import Detections
 from mocap.errors import MocapError
 from mocap.fitcheck import check_calibration_fit
+from mocap.relabel import repair_identities
 from mocap.tracker import Tracker, TrackerConfig
 from mocap.trajectories import Trajectories
 
@@ -48,6 +49,8 @@ class ReconstructOptions:
             windows and scans the full frame every N frames (new markers wait at most N frames).
         progress: show a progress bar on a terminal.
         tracker: tracker settings.
+        relabel: run the offline identity repair (:mod:`mocap.relabel`) on the finished take;
+            the live MCAP log holds the tracker's online identities.
     """
 
     fps: float | None = None
@@ -56,6 +59,7 @@ class ReconstructOptions:
     roi_scan_every: int = 0
     progress: bool = True
     tracker: TrackerConfig | None = None
+    relabel: bool = True
 
 
 def _open_source(path: Path, fps: float | None) -> tuple[Any, str]:
@@ -152,6 +156,9 @@ def reconstruct(take: str | os.PathLike, options: ReconstructOptions | None = No
         if not fit_checked and first_frames:
             _warn_if_calibration_does_not_fit(rig, first_frames, path)
     traj = tracker.finish()
+    if opts.relabel:
+        stats = repair_identities(traj)
+        log.info("identity repair: %d swaps undone, %d identities re-linked", stats.swaps, stats.stitches)
     traj.camera_names = rig.names
     traj.metadata.update({"source": str(path), "software": f"mocap {__version__}", "cameras": len(rig)})
     if traj.n_markers == 0:
@@ -201,6 +208,8 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--stop", type=int, help="frame to stop before (default: the end)")
     parser.add_argument("--roi-scan-every", type=int, default=0, metavar="N",
                         help="search only predicted windows, with a full-frame scan every N frames (0: always scan)")
+    parser.add_argument("--no-relabel", action="store_true",
+                        help="keep the tracker's online identities (skip the offline swap repair and re-linking)")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
 
 
@@ -211,7 +220,7 @@ def run(args: argparse.Namespace) -> int:
     if args.mcap and Path(args.mcap).resolve() == Path(args.take).resolve():
         raise MocapError(f"{args.mcap}: the output MCAP would overwrite the input log; choose another name")
     opts = ReconstructOptions(fps=args.fps, start=args.start, stop=args.stop, roi_scan_every=args.roi_scan_every,
-                              progress=not args.no_progress)
+                              progress=not args.no_progress, relabel=not args.no_relabel)
     traj = reconstruct(args.take, opts, mcap=args.mcap)
     written = write_outputs(traj, c3d=args.c3d, trc=args.trc, csv=args.csv)
     if args.mcap:

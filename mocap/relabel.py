@@ -1,0 +1,232 @@
+"""Offline identity repair on finished trajectories: swap repair and fragment stitching.
+
+The online tracker decides each frame's identities from the past alone. Once the take is done,
+the frames on both sides of a decision are known, and two kinds of identity error are easy to
+see and undo:
+
+* **Swaps.** Two identities exchange markers between frame ``f`` and ``f + 1`` (fast motion next to
+  a close neighbour). Relabelling the tails after ``f`` with a permutation ``pi`` changes the
+  second differences (accelerations, m/frame^2) at ``f`` and ``f + 1`` of the tracks involved.
+  For every frame, :func:`repair_swaps` finds the permutation of the tracks alive on
+  ``f - 1 .. f + 2`` that minimises the summed squared accelerations (Hungarian,
+  ``scipy.optimize.linear_sum_assignment``) and applies it only when it is far smoother than
+  keeping the labels (ratio and absolute margin), so real hard accelerations are left alone.
+* **Fragments and swaps through gaps.** An identity is lost and the marker comes back as a new one,
+  or two identities exchange markers across a missing frame. :func:`relink_tracklets` cuts every
+  identity into tracklets (at gaps and at acceleration spikes) and re-links them in time order:
+  tracklets starting together are assigned (Hungarian) to identities that ended shortly before,
+  by how well the constant-velocity extrapolations of both agree across the gap; the tracker's
+  own link is preferred, kept across any gap, and is the fallback when nothing else fits, so
+  re-linking never splits an identity the tracker kept.
+
+Both passes only move whole samples between identity columns (positions, residuals and camera
+masks together); they never change a position.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.optimize import linear_sum_assignment
+
+from mocap.trajectories import Trajectories
+
+__all__ = ["RelabelConfig", "RelabelStats", "relink_tracklets", "repair_identities", "repair_swaps"]
+
+
+@dataclass(frozen=True)
+class RelabelConfig:
+    """Settings of the offline identity repair.
+
+    Attributes:
+        swap_ratio: a tail permutation is applied when its acceleration cost is below this fraction
+            of the cost of keeping the labels.
+        swap_margin_m: ... and below it by at least this acceleration, m/frame^2 (squared internally),
+            so that noise-level differences never relabel anything.
+        max_gap: longest gap, frames, a fragment may be stitched across.
+        stitch_gate_m: extrapolation disagreement allowed for a one-frame gap, metres.
+        stitch_acc_m: extra disagreement allowed per squared frame of gap (unmodelled acceleration),
+            m/frame^2; half the speed times the gap is allowed too.
+        own_link_weight: the tracker's own link (same identity before and after) costs this fraction
+            of its disagreement, and is kept across any gap (the tracker re-identified it).
+        split_acc_m: a track is cut where its acceleration exceeds this on two consecutive samples,
+            m/frame^2 (a jump to another marker), and the pieces are re-linked.
+    """
+
+    swap_ratio: float = 0.25
+    swap_margin_m: float = 0.01
+    max_gap: int = 12
+    stitch_gate_m: float = 0.02
+    stitch_acc_m: float = 0.01
+    own_link_weight: float = 0.5
+    split_acc_m: float = 0.06
+
+
+@dataclass
+class RelabelStats:
+    """What the repair changed: tail permutations applied and fragments joined."""
+
+    swaps: int = 0
+    stitches: int = 0
+
+
+def _permute_tails(traj: Trajectories, start: int, order: np.ndarray, columns: np.ndarray) -> None:
+    """From frame ``start`` on, column ``columns[k]`` receives what column ``order[k]`` held."""
+    for array in (traj.positions, traj.residuals, traj.camera_masks):
+        array[start:, columns] = array[start:, order]
+
+
+def repair_swaps(traj: Trajectories, config: RelabelConfig | None = None) -> int:
+    """Undo identity swaps in place (see the module docstring); returns how many frames were relabelled."""
+    cfg = config or RelabelConfig()
+    P = traj.positions
+    F = traj.n_frames
+    swaps = 0
+    margin = cfg.swap_margin_m**2
+    for f in range(1, F - 2):
+        alive = np.flatnonzero(np.isfinite(P[f - 1 : f + 3, :, 0]).all(axis=0))
+        if alive.size < 2:
+            continue
+        a, b, c, d = (P[f + k, alive] for k in (-1, 0, 1, 2))  # (K, 3) each
+        # cost[i, k]: track i keeps its head (f-1, f) and takes track k's tail (f+1, f+2).
+        acc_f = c[None, :, :] - 2 * b[:, None, :] + a[:, None, :]
+        acc_f1 = d[None, :, :] - 2 * c[None, :, :] + b[:, None, :]
+        cost = (acc_f**2).sum(axis=2) + (acc_f1**2).sum(axis=2)
+        keep = np.diag(cost)
+        # Only pairs that could plausibly swap matter: cheap pre-check before the assignment.
+        if not np.any(cost < cfg.swap_ratio * keep[:, None] - margin):
+            continue
+        rows, cols = linear_sum_assignment(cost)
+        moved = rows != cols
+        if not moved.any():
+            continue
+        new, old = cost[rows[moved], cols[moved]].sum(), keep[rows[moved]].sum()
+        if new < cfg.swap_ratio * old and old - new > margin:
+            _permute_tails(traj, f + 1, alive[cols[moved]], alive[rows[moved]])
+            swaps += 1
+    return swaps
+
+
+def _tracklets(P: np.ndarray, split_acc: float) -> list[np.ndarray]:
+    """Cut every identity column into runs of consecutive samples, also where the acceleration
+    (second difference, m/frame^2) exceeds ``split_acc``; returns (frames, column) index pairs per run."""
+    valid = np.isfinite(P[:, :, 0])
+    acc = np.full(valid.shape, np.inf)
+    acc[1:-1] = np.linalg.norm(P[2:] - 2 * P[1:-1] + P[:-2], axis=2)
+    runs = []
+    for col in range(P.shape[1]):
+        frames = np.flatnonzero(valid[:, col])
+        if frames.size == 0:
+            continue
+        # A break before sample k: a gap, or a jump at k-1 -> k (acceleration spike at k-1 or k).
+        jump = np.zeros(frames.size, dtype=bool)
+        jump[1:] = (np.diff(frames) > 1) | (
+            (acc[frames[:-1], col] > split_acc) & np.isfinite(acc[frames[:-1], col])
+            & (acc[frames[1:], col] > split_acc) & np.isfinite(acc[frames[1:], col]))
+        for piece in np.split(frames, np.flatnonzero(jump)):
+            runs.append(np.stack([piece, np.full(piece.size, col)], axis=1))
+    return runs
+
+
+def _end_state(P: np.ndarray, run: np.ndarray, at_start: bool) -> tuple[int, np.ndarray, np.ndarray]:
+    """Frame, position and velocity (m/frame, pointing forward in time) at one end of a tracklet."""
+    k = 0 if at_start else -1
+    frame, col = run[k]
+    pos = P[frame, col]
+    if run.shape[0] < 2:
+        return int(frame), pos, np.zeros(3)
+    other = run[1] if at_start else run[-2]
+    return int(frame), pos, (P[run[1][0], run[1][1]] - P[run[0][0], run[0][1]]) if at_start else (
+        pos - P[other[0], other[1]])
+
+
+def relink_tracklets(traj: Trajectories, config: RelabelConfig | None = None) -> int:
+    """Re-link identities globally, in place; returns the number of identities saved.
+
+    Tracklets (see :func:`_tracklets`) are taken in order of their first frame; those starting at
+    the same frame are assigned together (Hungarian) to identities that ended within ``max_gap``
+    frames before, by the mean disagreement of the two constant-velocity extrapolations across
+    the gap (the identity's forwards, the tracklet's backwards); a tracklet with no identity within
+    the gate starts a new one. Output columns are the resulting identities.
+    """
+    cfg = config or RelabelConfig()
+    P = traj.positions
+    runs = _tracklets(P, cfg.split_acc_m)
+    if not runs:
+        return 0
+    runs.sort(key=lambda r: int(r[0, 0]))
+    chains: list[list[np.ndarray]] = []
+    ends: list[tuple[int, np.ndarray, np.ndarray]] = []  # per chain: last frame, position, velocity
+    i = 0
+    while i < len(runs):
+        start = int(runs[i][0, 0])
+        group = []
+        while i < len(runs) and int(runs[i][0, 0]) == start:
+            group.append(runs[i])
+            i += 1
+        columns = {int(run[0, 1]) for run in group}
+        open_chains = [c for c, (e, _, _) in enumerate(ends)
+                       if 0 < start - e and (start - e <= cfg.max_gap or int(chains[c][-1][0, 1]) in columns)]
+        assigned: dict[int, int] = {}
+        if open_chains:
+            cost = np.full((len(group), len(open_chains)), np.inf)
+            for g, run in enumerate(group):
+                _, p0, v0 = _end_state(P, run, at_start=True)
+                for j, c in enumerate(open_chains):
+                    e, pe, ve = ends[c]
+                    gap = start - e
+                    same = int(chains[c][-1][0, 1]) == int(run[0, 1])  # the tracker's own link
+                    miss = 0.5 * (np.linalg.norm(pe + ve * gap - p0) + np.linalg.norm(p0 - v0 * gap - pe))
+                    speed = 0.5 * (np.linalg.norm(ve) + np.linalg.norm(v0))
+                    gate = cfg.stitch_gate_m + speed * 0.5 * gap + cfg.stitch_acc_m * gap * gap
+                    if same:
+                        cost[g, j] = cfg.own_link_weight * miss if gap > cfg.max_gap or miss < gate else np.inf
+                    elif gap <= cfg.max_gap and miss < gate:
+                        cost[g, j] = miss
+            finite = np.isfinite(cost)
+            if finite.any():
+                rows, cols = linear_sum_assignment(np.where(finite, cost, 1e9))
+                for g, j in zip(rows, cols, strict=True):
+                    if finite[g, j]:
+                        assigned[g] = open_chains[j]
+        taken = set(assigned.values())
+        for g, run in enumerate(group):
+            c = assigned.get(g)
+            if c is None:  # nothing fits: keep the tracker's own link if that identity is free
+                own = [c for c in open_chains if int(chains[c][-1][0, 1]) == int(run[0, 1]) and c not in taken]
+                c = own[0] if own else None
+                if c is not None:
+                    taken.add(c)
+            if c is None:
+                chains.append([run])
+                ends.append(_end_state(P, run, at_start=False))
+            else:
+                chains[c].append(run)
+                ends[c] = _end_state(P, run, at_start=False)
+    before = traj.n_markers
+    F = traj.n_frames
+    positions = np.full((F, len(chains), 3), np.nan)
+    residuals = np.full((F, len(chains)), np.nan)
+    masks = np.zeros((F, len(chains)), dtype=np.uint32)
+    for c, pieces in enumerate(chains):
+        idx = np.concatenate(pieces)
+        positions[idx[:, 0], c] = P[idx[:, 0], idx[:, 1]]
+        residuals[idx[:, 0], c] = traj.residuals[idx[:, 0], idx[:, 1]]
+        masks[idx[:, 0], c] = traj.camera_masks[idx[:, 0], idx[:, 1]]
+    traj.positions, traj.residuals, traj.camera_masks = positions, residuals, masks
+    traj.labels = [f"M{k + 1:03d}" for k in range(len(chains))]
+    return before - len(chains)
+
+
+def repair_identities(traj: Trajectories, config: RelabelConfig | None = None) -> RelabelStats:
+    """Swap repair, then fragment stitching, in place; empty identity columns are dropped.
+
+    Labels of the remaining identities are renumbered ``M001``, ``M002`` ... in column order.
+    """
+    stats = RelabelStats()
+    if traj.n_markers == 0 or traj.n_frames < 4:
+        return stats
+    stats.swaps = repair_swaps(traj, config)
+    stats.stitches = relink_tracklets(traj, config)
+    return stats
