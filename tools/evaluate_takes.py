@@ -46,6 +46,7 @@ def main() -> None:
     ap.add_argument("scenarios", nargs="*", default=DEFAULT, help=f"scenario names (default {' '.join(DEFAULT)})")
     ap.add_argument("--frames", type=int, help="override the number of frames rendered per take")
     ap.add_argument("--work", type=Path, default=Path("/tmp/mocap-eval"), help="scratch folder")
+    ap.add_argument("--reuse", action="store_true", help="keep takes already rendered in the work folder")
     ap.add_argument("--synth-args", default="", help="extra arguments for mocap synth (quoted)")
     ap.add_argument("--reconstruct-args", default="", help="extra arguments for mocap reconstruct (quoted)")
     args = ap.parse_args()
@@ -68,7 +69,8 @@ def main() -> None:
         synth = ["mocap", "synth", str(take), *spec, "--truth", str(truth), "--force", "--no-progress"]
         if args.frames:
             synth += ["--frames", str(args.frames)]
-        t_synth = _run(synth + args.synth_args.split())
+        reuse = args.reuse and truth.exists() and (take / "calibration.toml").exists()
+        t_synth = 0.0 if reuse else _run(synth + args.synth_args.split())
         t_rec = _run(["mocap", "reconstruct", str(take), "--c3d", str(out), "--no-progress"]
                      + args.reconstruct_args.split())
         _run(["mocap", "evaluate", str(out), "--truth", str(truth), "--json", str(report)])
