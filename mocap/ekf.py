@@ -32,9 +32,14 @@ __all__ = [
 ]
 
 
-def ca_transition(dt: float, dims: int) -> np.ndarray:
-    """(n, n) constant-acceleration transition matrix, n = 3 ``dims``; ``dt`` in seconds."""
-    block = np.array([[1.0, dt, 0.5 * dt * dt], [0.0, 1.0, dt], [0.0, 0.0, 1.0]])
+def ca_transition(dt: float, dims: int, damping: float = 1.0) -> np.ndarray:
+    """(n, n) constant-acceleration transition matrix, n = 3 ``dims``; ``dt`` in seconds.
+
+    With ``damping`` rho < 1 the acceleration decays by rho per step and only rho a drives the step
+    (``p' = p + v dt + rho a dt^2/2``, ``v' = v + rho a dt``, ``a' = rho a``); rho = 0 is constant velocity.
+    """
+    r = damping
+    block = np.array([[1.0, dt, 0.5 * r * dt * dt], [0.0, 1.0, r * dt], [0.0, 0.0, r]])
     return np.kron(block, np.eye(dims))
 
 

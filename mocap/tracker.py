@@ -56,6 +56,12 @@ class TrackerConfig:
         keep_lost_s: seconds a lost identity waits for re-identification before it is retired.
         jerk_std_3d: process noise of the 3D filters, std of the jerk, m/s^3.
         jerk_std_2d: process noise of the 2D image filters, std of the jerk, px/s^3.
+        accel_damping: factor rho by which the filters' acceleration decays every frame (and only rho a
+            drives the step, see :func:`mocap.ekf.ca_transition`): 1 is constant acceleration, 0 (the
+            default) constant velocity. Constant acceleration extrapolated from precise measurements
+            turns one swap of two neighbouring markers into a self-sustaining a, a, b, b swap cycle
+            (the extrapolation 3 x1 - 3 x2 + x3 of that sequence always lands on the next one); at 50 Hz
+            it also overshoots in fast, jerky motion.
         error_alpha: smoothing factor of the running prediction errors (paper 004).
         gate_scale: search radius = gate_scale x the running prediction error (+ floor).
         gate_floor_m: smallest 3D search radius, m.
@@ -93,6 +99,7 @@ class TrackerConfig:
     keep_lost_s: float = 10.0
     jerk_std_3d: float = 200.0
     jerk_std_2d: float = 50000.0
+    accel_damping: float = 0.0
     error_alpha: float = 0.3
     gate_scale: float = 3.0
     gate_floor_m: float = 0.01
@@ -124,6 +131,8 @@ class TrackerConfig:
                      "support_px", "outlier_min_px", "reid_max_m"):
             if not getattr(self, name) > 0:
                 raise MocapError(f"tracker setting {name} = {getattr(self, name)} must be > 0")
+        if not 0 <= self.accel_damping <= 1:
+            raise MocapError(f"tracker setting accel_damping = {self.accel_damping} must be in [0, 1]")
         if not 0 < self.error_alpha <= 1:
             raise MocapError(f"tracker setting error_alpha = {self.error_alpha} must be in (0, 1]")
 
@@ -287,8 +296,8 @@ class Tracker:
         self._pairs = camera_pairs(rig)
         self._focal = np.array([0.5 * (c.matrix[0, 0] + c.matrix[1, 1]) for c in rig.cameras])
         self._sizes = np.array([c.size for c in rig.cameras], dtype=float)
-        self._F3, self._Q3 = ca_transition(dt, 3), ca_process_noise(dt, 3, cfg.jerk_std_3d)
-        self._F2, self._Q2 = ca_transition(dt, 2), ca_process_noise(dt, 2, cfg.jerk_std_2d)
+        self._F3, self._Q3 = ca_transition(dt, 3, cfg.accel_damping), ca_process_noise(dt, 3, cfg.jerk_std_3d)
+        self._F2, self._Q2 = ca_transition(dt, 2, cfg.accel_damping), ca_process_noise(dt, 2, cfg.jerk_std_2d)
         self._H3, self._H2 = position_jacobian(3), position_jacobian(2)
         self._running = RunningError(cfg.error_alpha, cfg.gate_scale)
         self._keep_lost = max(1, int(round(cfg.keep_lost_s * self._fps)))
