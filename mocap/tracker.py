@@ -29,6 +29,7 @@ its residual is the RMS reprojection error back-projected to the marker's depth 
 from __future__ import annotations
 
 from collections import deque
+from collections.abc import Iterator
 from dataclasses import dataclass, field, fields
 
 import numpy as np
@@ -165,29 +166,40 @@ _IMAGE_ACCEL_STD = 1e5
 
 
 class _Records:
-    """Growable columns of per-frame measurements (amortised doubling; no per-frame objects)."""
+    """Per-frame measurements in fixed-size chunks: appending never copies what is stored, so memory
+    grows only by what the take adds (no per-frame objects, no capacity doubling)."""
 
-    _COLUMNS = (("frame", (), np.int64), ("uid", (), np.int64), ("pos", (3,), np.float64),
+    CHUNK = 1 << 16
+    _COLUMNS = (("frame", (), np.int32), ("uid", (), np.int32), ("pos", (3,), np.float64),
                 ("res", (), np.float32), ("mask", (), np.uint32))
 
     def __init__(self) -> None:
-        self.n = 0
-        self.cols = {name: np.zeros((1024,) + shape, dtype=dtype) for name, shape, dtype in self._COLUMNS}
+        self._chunks: list[dict[str, np.ndarray]] = []
+        self._fill = self.CHUNK  # samples used in the last chunk
 
     def append(self, **values: np.ndarray) -> None:
         k = len(values["uid"])
-        size = len(self.cols["uid"])
-        if self.n + k > size:
-            for name, col in self.cols.items():
-                grown = np.zeros((max(2 * size, self.n + k),) + col.shape[1:], dtype=col.dtype)
-                grown[: self.n] = col[: self.n]
-                self.cols[name] = grown
-        for name, value in values.items():
-            self.cols[name][self.n : self.n + k] = value
-        self.n += k
+        done = 0
+        while done < k:
+            if self._fill == self.CHUNK:
+                self._chunks.append({name: np.empty((self.CHUNK,) + shape, dtype=dtype)
+                                     for name, shape, dtype in self._COLUMNS})
+                self._fill = 0
+            take = min(k - done, self.CHUNK - self._fill)
+            chunk = self._chunks[-1]
+            for name, value in values.items():
+                full = np.broadcast_to(value, (k,) + chunk[name].shape[1:])
+                chunk[name][self._fill : self._fill + take] = full[done : done + take]
+            self._fill += take
+            done += take
 
-    def __getitem__(self, name: str) -> np.ndarray:
-        return self.cols[name][: self.n]
+    def drain(self) -> Iterator[dict[str, np.ndarray]]:
+        """Yield the stored samples chunk by chunk, releasing each chunk once yielded."""
+        while self._chunks:
+            chunk = self._chunks.pop(0)
+            used = self._fill if not self._chunks else self.CHUNK
+            yield {name: column[:used] for name, column in chunk.items()}
+        self._fill = self.CHUNK
 
 
 @dataclass
@@ -306,6 +318,7 @@ class Tracker:
         self._uid_ident = np.full(256, -1, dtype=np.intp)
         self._n_ident = 0
         self._records = _Records()
+        self._result: Trajectories | None = None
         self._clutter: deque[np.ndarray] = deque(maxlen=max(cfg.clutter_frames, 1))  # recent free detections
         self._first: int | None = None
         self._last = -1
@@ -360,23 +373,30 @@ class Tracker:
         return out
 
     def finish(self) -> Trajectories:
-        """All frames stepped so far as :class:`Trajectories` (one column per confirmed identity)."""
+        """All frames stepped so far as :class:`Trajectories` (one column per confirmed identity).
+
+        Ends the run: the stored measurements are moved into the output (so the two are never held
+        twice in full); calling it again returns the same result.
+        """
+        if self._result is not None:
+            return self._result
         first = self._first if self._first is not None else 0
         F = max(self._last - first + 1, 0)
         M = self._n_ident
         pos = np.full((F, M, 3), np.nan)
         res = np.full((F, M), np.nan)
         mask = np.zeros((F, M), dtype=np.uint32)
-        rec = self._records
-        ident = self._uid_ident[rec["uid"]]
-        ok = ident >= 0
-        rows, cols = rec["frame"][ok] - first, ident[ok]
-        pos[rows, cols] = rec["pos"][ok]
-        res[rows, cols] = rec["res"][ok]
-        mask[rows, cols] = rec["mask"][ok]
+        for rec in self._records.drain():
+            ident = self._uid_ident[rec["uid"]]
+            ok = ident >= 0
+            rows, cols = rec["frame"][ok] - first, ident[ok]
+            pos[rows, cols] = rec["pos"][ok]
+            res[rows, cols] = rec["res"][ok]
+            mask[rows, cols] = rec["mask"][ok]
         labels = [f"M{i + 1:03d}" for i in range(M)]
-        return Trajectories(labels, self._fps, pos, res, mask, self._rig.names, first,
-                            {"tracker": "mocap.tracker", "identities": M})
+        self._result = Trajectories(labels, self._fps, pos, res, mask, self._rig.names, first,
+                                    {"tracker": "mocap.tracker", "identities": M})
+        return self._result
 
     # ------------------------------------------------------------------ stages
     def _prepare(self, detections: list[Detections]) -> _Frame:
