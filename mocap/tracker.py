@@ -22,6 +22,10 @@ Per frame, for all tracks at once (numpy arrays, no per-marker Python objects):
    identity when confirmed; any other starts a tentative track that gets a new identity after
    ``confirm_frames`` consecutive frames. Lost identities are kept ``keep_lost_s`` seconds.
 
+Between 4 and 5, where the measured neighbours of a track (markers within ``neighbour_m``) were
+mispredicted alike by more than ``gate_floor_m``, their median error shifts the track's prediction
+and steps 2-4 run again from the corrected predictions (fast swings at low frame rates).
+
 The output position of a marker in a frame is its multi-view triangulation (not the filter state);
 its residual is the RMS reprojection error back-projected to the marker's depth (px * depth / f).
 """
@@ -93,6 +97,10 @@ class TrackerConfig:
             without such blobs support it, or it lies within ``suspect_m`` (clipped to ``gate_scale`` x the
             running position error) of its prediction; otherwise it only updates its filter.
         suspect_m: (low, high) bounds of that distance, m (high grows to ``n_sigma`` x the point's noise).
+        neighbour_m: tracks predicted this close are neighbours: markers of one body segment that fast motion
+            mispredicts alike. When the median prediction error of a track's measured neighbours (itself
+            included) exceeds ``gate_floor_m``, its prediction is shifted by it and the frame is associated again.
+        neighbour_min: measured neighbours (itself included) needed for that correction.
     """
 
     confirm_frames: int = 4
@@ -123,6 +131,8 @@ class TrackerConfig:
     merge_px: float = 1.5
     merged_variance_scale: float = 100.0
     suspect_m: tuple[float, float] = (0.001, 0.003)
+    neighbour_m: float = 0.2
+    neighbour_min: int = 2
 
     def __post_init__(self) -> None:
         for name in ("confirm_frames", "new_min_views"):
@@ -338,17 +348,15 @@ class Tracker:
         K = len(t)
         meas = _Measurements.empty(K, C)
         play = self._in_play()
-        crowded = np.zeros((K, C), dtype=bool)
         if K and fr.D.shape[1]:
-            pred, radius, depth = self._search_regions()
-            crowded = self._crowded(pred, play, depth)
-            q = gate(pred, radius, fr.D)
-            conf = np.flatnonzero(play & (t.ident >= 0))
-            tent = np.flatnonzero(play & (t.ident < 0))
-            meas.asg[conf] = assign(q[conf], fr.valid)
-            if tent.size:
-                meas.asg[tent] = assign(q[tent], fr.valid & ~_taken(meas.asg, fr.valid.shape))
-            self._measure(fr, crowded, meas)
+            self._associate(fr, play, t.lock2, meas)
+            shift = self._neighbour_shift(meas, play)
+            moved = np.linalg.norm(shift, axis=1) > self._cfg.gate_floor_m
+            if moved.any():  # the neighbours say the prediction was off: associate again from corrected ones
+                t.x3[moved, :3] += shift[moved]
+                meas = _Measurements.empty(K, C)
+                self._associate(fr, play, t.lock2 & ~moved[:, None], meas)
+                t.x3[moved, :3] -= shift[moved]
             self._update(fr, meas, np.flatnonzero(meas.ok))
         self._new_markers(fr, fr.valid & ~_taken(meas.asg, fr.valid.shape), meas)
         self._lifecycle(meas)
@@ -429,7 +437,38 @@ class Tracker:
         x2, P2 = predict(t.x2.reshape(K * C, 6), t.P2.reshape(K * C, 6, 6), self._F2, self._Q2)
         t.x2, t.P2 = x2.reshape(K, C, 6), P2.reshape(K, C, 6, 6)
 
-    def _search_regions(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def _associate(self, fr: _Frame, play: np.ndarray, lock: np.ndarray, meas: _Measurements) -> None:
+        """Gate, assign and measure the tracks in ``play`` (fills ``meas``); ``lock`` (K, C): image filters
+        that give the search centres (elsewhere the projected 3D prediction)."""
+        t = self._t
+        pred, radius, depth = self._search_regions(lock)
+        crowded = self._crowded(pred, play, depth)
+        q = gate(pred, radius, fr.D)
+        conf = np.flatnonzero(play & (t.ident >= 0))
+        tent = np.flatnonzero(play & (t.ident < 0))
+        meas.asg[conf] = assign(q[conf], fr.valid)
+        if tent.size:
+            meas.asg[tent] = assign(q[tent], fr.valid & ~_taken(meas.asg, fr.valid.shape))
+        self._measure(fr, crowded, meas)
+
+    def _neighbour_shift(self, meas: _Measurements, play: np.ndarray) -> np.ndarray:
+        """(K, 3) m: per track the median prediction error of the measured tracks within ``neighbour_m`` of it
+        (itself included; zero with fewer than ``neighbour_min``). In a fast swing a whole segment is
+        mispredicted alike, and a track's own error is wrong when it took a neighbour's detections."""
+        t = self._t
+        good = meas.ok & play & (t.since == 1)
+        shift = np.zeros((len(t), 3))
+        if not good.any():
+            return shift
+        y = meas.X[good] - t.x3[good, :3]
+        near = np.linalg.norm(t.x3[:, None, :3] - t.x3[None, good, :3], axis=2) < self._cfg.neighbour_m
+        cnt = near.sum(axis=1)
+        rows = np.flatnonzero(play & (cnt >= self._cfg.neighbour_min))
+        if rows.size:
+            shift[rows] = np.nanmedian(np.where(near[rows, :, None], y[None], np.nan), axis=1)
+        return shift
+
+    def _search_regions(self, lock: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Predicted ideal pixels (K, C, 2), search radii (K, C), pixels, and predicted depths (K, C), m."""
         t, cfg = self._t, self._cfg
         proj, _ = reprojection_jacobians(self._P, t.x3[:, :3])  # (C, K, 2)
@@ -438,8 +477,8 @@ class Tracker:
         with np.errstate(divide="ignore", invalid="ignore"):
             r3px = r3[:, None] * self._focal[None, :] / depth
         r2 = self._running.radius(*np.moveaxis(t.e2, 2, 0), 1, self._dt, cfg.gate_floor_px)
-        pred = np.where(t.lock2[..., None], t.x2[..., :2], proj.swapaxes(0, 1))
-        radius = np.clip(np.where(t.lock2, r2, r3px), cfg.gate_floor_px, cfg.gate_max_px)
+        pred = np.where(lock[..., None], t.x2[..., :2], proj.swapaxes(0, 1))
+        radius = np.clip(np.where(lock, r2, r3px), cfg.gate_floor_px, cfg.gate_max_px)
         pred[depth <= 0] = np.nan
         return pred, radius, depth
 
