@@ -101,6 +101,8 @@ class TrackerConfig:
             mispredicts alike. When the median prediction error of a track's measured neighbours (itself
             included) exceeds ``gate_floor_m``, its prediction is shifted by it and the frame is associated again.
         neighbour_min: measured neighbours (itself included) needed for that correction.
+        noisy_point_m: a track whose last point's std exceeds this (m) gets proportionally more 3D process
+            noise (up to 10x ``jerk_std_3d``): noisy points (small, far markers) must not make the filter lag.
     """
 
     confirm_frames: int = 4
@@ -132,6 +134,7 @@ class TrackerConfig:
     merged_variance_scale: float = 100.0
     suspect_m: tuple[float, float] = (0.001, 0.003)
     neighbour_m: float = 0.2
+    noisy_point_m: float = 0.0003
     neighbour_min: int = 2
 
     def __post_init__(self) -> None:
@@ -234,6 +237,7 @@ class _Tracks:
     last_uvv: np.ndarray  # (K, C, 2) last measured image velocity, px/s
     weak: np.ndarray  # (K,) started from a two-view point that not all framing cameras supported
     origin: np.ndarray  # (K, 3) where the track started, m
+    noise: np.ndarray  # (K,) std of the last measured point, m
 
     @classmethod
     def empty(cls, C: int) -> _Tracks:
@@ -241,7 +245,7 @@ class _Tracks:
         return cls(i, i, i, i, i, np.zeros((0, 9)), np.zeros((0, 9, 9)), np.zeros((0, 3)), np.zeros((0, 3)),
                    np.zeros((0, 3)), np.zeros((0, C, 6)), np.zeros((0, C, 6, 6)), np.zeros((0, C), dtype=bool),
                    np.zeros((0, C, 3)), np.zeros((0, C, 2)), np.zeros((0, C, 2)), np.zeros(0, dtype=bool),
-                   np.zeros((0, 3)))
+                   np.zeros((0, 3)), np.zeros(0))
 
     def __len__(self) -> int:
         return len(self.uid)
@@ -433,7 +437,8 @@ class Tracker:
         t, K, C = self._t, len(self._t), self._C
         if K == 0:
             return
-        t.x3, t.P3 = predict(t.x3, t.P3, self._F3, self._Q3)
+        scale = np.clip(t.noise / self._cfg.noisy_point_m, 1.0, 10.0)
+        t.x3, t.P3 = predict(t.x3, t.P3, self._F3, self._Q3 * (scale * scale)[:, None, None])
         x2, P2 = predict(t.x2.reshape(K * C, 6), t.P2.reshape(K * C, 6, 6), self._F2, self._Q2)
         t.x2, t.P2 = x2.reshape(K, C, 6), P2.reshape(K, C, 6, 6)
 
@@ -551,6 +556,7 @@ class Tracker:
         t.x3[idx], t.P3[idx] = x_new, P_new
         t.last_v[idx] = np.where(consecutive[:, None], v_meas, np.nan)
         t.last_X[idx] = X
+        t.noise[idx] = _point_std(meas.cov[idx])
         t.hits[idx] = np.where(consecutive, t.hits[idx] + 1, 1)
         t.since[idx] = 0
         # Image filters of the cameras used.
@@ -666,7 +672,8 @@ class Tracker:
         last_uv[k, c] = z
         i = np.zeros(n, dtype=np.intp)
         new = _Tracks(uid, i - 1, cand, i + 1, i.copy(), x3, P3, e3, pts.X.copy(), np.full((n, 3), np.nan), x2, P2,
-                      used, np.zeros((n, C, 3)), last_uv, np.zeros((n, C, 2)), ~pts.strong, pts.X.copy())
+                      used, np.zeros((n, C, 3)), last_uv, np.zeros((n, C, 2)), ~pts.strong, pts.X.copy(),
+                      _point_std(pts.cov))
         base = len(self._t)
         self._t.extend(new)
         self._t.e2[base + k, c] = self._e2_from_3d(base + k, c)
@@ -731,6 +738,11 @@ def _gather(values: np.ndarray, asg: np.ndarray) -> np.ndarray:
     if values.ndim == 3:
         return np.where((asg >= 0)[..., None], got, np.nan)
     return got
+
+
+def _point_std(cov: np.ndarray) -> np.ndarray:
+    """(K,) RMS std, m, of points with covariances ``cov`` (K, 3, 3) m^2."""
+    return np.sqrt(np.trace(cov, axis1=1, axis2=2) / 3.0)
 
 
 def _taken(asg: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
