@@ -132,7 +132,7 @@ class TrackerConfig:
     marker_mm: float = 14.0
     merge_px: float = 1.5
     merged_variance_scale: float = 100.0
-    suspect_m: tuple[float, float] = (0.001, 0.003)
+    suspect_m: tuple[float, float] = (0.001, 0.002)
     neighbour_m: float = 0.2
     noisy_point_m: float = 0.0003
     neighbour_min: int = 2
