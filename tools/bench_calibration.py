@@ -9,13 +9,13 @@ from __future__ import annotations
 
 import argparse
 import os
-import platform
 import time
 
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import numpy as np  # noqa: E402
+from machine_info import describe  # noqa: E402  (tools/ is on sys.path when run as a script)
 
 from calibration.align import DEFAULT_LFRAME  # noqa: E402
 from calibration.compare import compare_rigs  # noqa: E402
@@ -26,24 +26,13 @@ from mocap.geometry import triangulate_weighted  # noqa: E402
 from mocap.synth.wand import DEFAULT_WAND_M, simulate_wand_take  # noqa: E402
 
 
-def _cpu() -> str:
-    try:
-        with open("/proc/cpuinfo", encoding="utf-8") as f:
-            for line in f:
-                if line.startswith("model name"):
-                    return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
-    return platform.processor() or "unknown"
-
-
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__)
     parser.add_argument("--frames", type=int, default=1200, help="frames of the wave (120 Hz)")
     parser.add_argument("--max-frames", type=int, default=600, help="frames in the bundle adjustment")
     parser.add_argument("--extra-noise", type=float, default=0.0, help="centroid noise beyond the CRLB, px")
     args = parser.parse_args()
-    print(f"machine: {platform.platform()}, {_cpu()}, {os.cpu_count()} cores (BLAS threads limited to 1)")
+    print(f"machine: {describe()} (BLAS threads limited to 1)")
 
     take = simulate_wand_take(n_frames=args.frames, extra_noise_px=args.extra_noise)
     wand = Wand(DEFAULT_WAND_M)

@@ -25,12 +25,11 @@ Run: ``python tools/bench_detect.py [--frames N] [--rounds N]``.
 from __future__ import annotations
 
 import argparse
-import os
-import platform
 import time
 
 import cv2
 import numpy as np
+from machine_info import describe  # noqa: E402  (tools/ is on sys.path when run as a script)
 from scipy.spatial import cKDTree
 
 from mocap.detect import K_SIGMA, MIN_CONTRAST, background_level, detect
@@ -96,18 +95,6 @@ def accuracy(found: list[np.ndarray], truths: list[np.ndarray], bounds: list[np.
     return float(np.sqrt((e**2).mean())), float(np.sqrt((s**2).mean())), n_hit / max(n_true, 1)
 
 
-def machine() -> str:
-    cpu = platform.processor() or "?"
-    try:
-        with open("/proc/cpuinfo") as f:
-            cpu = next(line.split(":", 1)[1].strip() for line in f if line.startswith("model name"))
-    except (OSError, StopIteration):
-        pass
-    load = os.getloadavg() if hasattr(os, "getloadavg") else ("?",)
-    return (f"{cpu}; {os.cpu_count()} logical cores; load average {load[0]:.2f}; Python {platform.python_version()}; "
-            f"numpy {np.__version__}; OpenCV {cv2.__version__} ({cv2.getNumThreads()} threads)")
-
-
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--frames", type=int, default=20, help="distinct frames (default 20)")
@@ -138,7 +125,7 @@ def main() -> None:
                 method(i)
             times[name].append((time.perf_counter() - t0) / len(frames))
 
-    print(f"machine: {machine()}")
+    print(f"machine: {describe()}")
     crlb = np.concatenate(bounds)
     print(f"{len(frames)} frames {SIZE[1]}x{SIZE[0]}, {args.markers} markers + 3 ghosts each, {args.rounds} rounds; "
           f"Cramér–Rao bound of the isolated markers per axis: mean {crlb.mean():.4f} px, "

@@ -12,8 +12,6 @@ from __future__ import annotations
 
 import argparse
 import io
-import os
-import platform
 import sys
 import tempfile
 import time
@@ -24,18 +22,13 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
 from conftest import ring_rig  # noqa: E402 - the tests' rig and synthetic data
 from helpers_export import synthetic_detections, synthetic_trajectories  # noqa: E402
+from machine_info import describe  # noqa: E402  (tools/ is on sys.path when run as a script)
 
 from mocap.camera import rig_to_toml  # noqa: E402
 from mocap.export.c3d import MAX_FRAMES  # noqa: E402
 from mocap.export.formats import read_trajectories, write_trajectories  # noqa: E402
 from mocap.export.mcap import McapLogger  # noqa: E402
 from mocap.trajectories import Trajectories  # noqa: E402
-
-
-def machine() -> str:
-    load = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
-    return (f"{platform.machine()} {platform.processor() or ''} {os.cpu_count()} cores, Python "
-            f"{platform.python_version()}, numpy {np.__version__}, load average {load:.2f}")
 
 
 def bench_formats(traj: Trajectories, folder: Path) -> None:
@@ -104,7 +97,7 @@ def main() -> None:
     parser.add_argument("--fps", type=float, default=120.0)
     parser.add_argument("--logger-frames", type=int, default=2000)
     args = parser.parse_args()
-    print(f"machine: {machine()}")
+    print(f"machine: {describe()}")
     n_frames = round(args.minutes * 60 * args.fps)
     with tempfile.TemporaryDirectory() as tmp:
         bench_logger(args.logger_frames, args.markers, args.fps, Path(tmp))

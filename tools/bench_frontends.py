@@ -19,7 +19,6 @@ from __future__ import annotations
 
 import argparse
 import os
-import platform
 import time
 
 os.environ.setdefault("OMP_NUM_THREADS", "1")
@@ -27,6 +26,7 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import cv2  # noqa: E402
 import numpy as np  # noqa: E402
+from machine_info import describe  # noqa: E402  (tools/ is on sys.path when run as a script)
 
 from mocap.frontends.hand import HandTracker, hand_contour, posture_features, track_hand  # noqa: E402
 from mocap.frontends.head import CueMode, HeadConfig, HeadTracker, track_head  # noqa: E402
@@ -38,17 +38,6 @@ from mocap.frontends.scenes import hand_rig, head_rig  # noqa: E402
 from mocap.frontends.skin import skin_mask  # noqa: E402
 
 cv2.setNumThreads(1)
-
-
-def _cpu() -> str:
-    try:
-        with open("/proc/cpuinfo", encoding="utf-8") as f:
-            for line in f:
-                if line.startswith("model name"):
-                    return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
-    return platform.processor() or "unknown"
 
 
 def _box(centre: np.ndarray, axes: np.ndarray) -> tuple[float, float, float, float]:
@@ -155,7 +144,7 @@ def _rate(fn, frames: np.ndarray, repeat: int = 3) -> float:
 
 
 def speed() -> None:
-    print(f"machine: {platform.platform()}, {_cpu()}, {os.cpu_count()} cores (OpenCV and BLAS limited to 1 thread)")
+    print(f"machine: {describe()} (OpenCV and BLAS limited to 1 thread)")
     clip = head_clip(60, seed=0)
     box = _box(clip.centre[0], clip.axes[0])
     probe = HeadTracker(clip.frames[0], box)

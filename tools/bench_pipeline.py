@@ -18,8 +18,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
-import platform
 import resource
 import subprocess
 import sys
@@ -28,19 +26,7 @@ import time
 from pathlib import Path
 
 import numpy as np
-
-
-def machine() -> str:
-    cpu = platform.processor() or platform.machine()
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                cpu = line.split(":", 1)[1].strip()
-                break
-    except OSError:
-        pass
-    return (f"{cpu}; {os.cpu_count()} logical cores; load average {os.getloadavg()[0]:.2f}; "
-            f"Python {platform.python_version()}; numpy {np.__version__}")
+from machine_info import describe  # noqa: E402  (tools/ is on sys.path when run as a script)
 
 
 def bench_speed(frames: int) -> None:
@@ -132,7 +118,7 @@ def main() -> None:
     if args.memory_child is not None:
         print(json.dumps(_memory_child(args.memory_child)))
         return
-    print(f"machine: {machine()}")
+    print(f"machine: {describe()}")
     if not args.skip_speed:
         bench_speed(args.frames)
     if not args.skip_memory:

@@ -9,8 +9,6 @@ the whole take to MKV and to PNG, and the truth computation; then the projected 
 from __future__ import annotations
 
 import argparse
-import os
-import platform
 import shutil
 import tempfile
 import time
@@ -19,22 +17,10 @@ from pathlib import Path
 
 import cv2
 import numpy as np
+from machine_info import describe  # noqa: E402  (tools/ is on sys.path when run as a script)
 
 from mocap.synth import SynthSettings, marching_motion, plan_take, render_frame, ring_rig
 from mocap.synth.writer import write_take
-
-
-def machine() -> str:
-    cpu = platform.processor() or "unknown CPU"
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                cpu = line.split(":", 1)[1].strip()
-                break
-    except OSError:
-        pass
-    return (f"{platform.platform()}; {cpu}; {os.cpu_count()} logical cores; Python {platform.python_version()}, "
-            f"numpy {np.__version__}, OpenCV {cv2.__version__}")
 
 
 def rate(n: int, fn: Callable[[], None]) -> tuple[float, float]:
@@ -56,7 +42,7 @@ def main() -> None:
     settings = SynthSettings(seed=0)
     motion = marching_motion(F, seed=0)
     n = F * C
-    print(f"machine: {machine()}")
+    print(f"machine: {describe()}")
     print(f"scene: built-in body, {len(motion.labels)} markers, {C} cameras at {w}x{h}, {F} frames "
           f"({n} camera-frames), default settings (noise {settings.noise}, {settings.ghosts} ghosts/camera)")
 

@@ -19,10 +19,10 @@ for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ.setdefault(_var, "1")
 
 import argparse  # noqa: E402
-import platform  # noqa: E402
 import time  # noqa: E402
 
 import numpy as np  # noqa: E402
+from machine_info import describe  # noqa: E402  (tools/ is on sys.path when run as a script)
 
 from mocap.evaluate import evaluate  # noqa: E402
 from mocap.reference import ReferenceTracker  # noqa: E402
@@ -61,9 +61,7 @@ def main() -> None:
     args = ap.parse_args()
 
     rig, truth, frames = _take(args)
-    load = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
-    print(f"machine: {platform.platform()}, {platform.processor() or platform.machine()}, "
-          f"{os.cpu_count()} cpus, load {load:.2f}, python {platform.python_version()}, numpy {np.__version__}")
+    print(f"machine: {describe()}")
     n_blobs = np.mean([sum(len(d) for d in dets) for dets in frames])
     print(f"take: {args.motion}, {len(frames)} frames at {truth.fps:g} Hz, {truth.positions.shape[1]} markers, "
           f"{len(rig)} cameras, {n_blobs:.0f} blobs per frame (all cameras); centroid-level simulation")
