@@ -131,14 +131,13 @@ def _tracklets(P: np.ndarray, split_acc: float) -> list[np.ndarray]:
 
 def _end_state(P: np.ndarray, run: np.ndarray, at_start: bool) -> tuple[int, np.ndarray, np.ndarray]:
     """Frame, position and velocity (m/frame, pointing forward in time) at one end of a tracklet."""
-    k = 0 if at_start else -1
-    frame, col = run[k]
+    frame, col = run[0] if at_start else run[-1]
     pos = P[frame, col]
     if run.shape[0] < 2:
         return int(frame), pos, np.zeros(3)
-    other = run[1] if at_start else run[-2]
-    return int(frame), pos, (P[run[1][0], run[1][1]] - P[run[0][0], run[0][1]]) if at_start else (
-        pos - P[other[0], other[1]])
+    if at_start:
+        return int(frame), pos, P[run[1][0], run[1][1]] - pos
+    return int(frame), pos, pos - P[run[-2][0], run[-2][1]]
 
 
 def relink_tracklets(traj: Trajectories, config: RelabelConfig | None = None) -> int:

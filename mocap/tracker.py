@@ -215,8 +215,20 @@ class _Records:
         self._fill = self.CHUNK
 
 
+class _Rows:
+    """Parallel arrays, one row per track: select rows, or append another record's rows."""
+
+    def keep(self, mask: np.ndarray) -> None:
+        for f in fields(self):
+            setattr(self, f.name, getattr(self, f.name)[mask])
+
+    def extend(self, other: _Rows) -> None:
+        for f in fields(self):
+            setattr(self, f.name, np.concatenate([getattr(self, f.name), getattr(other, f.name)]))
+
+
 @dataclass
-class _Tracks:
+class _Tracks(_Rows):
     """The live tracks as parallel arrays (first axis: track)."""
 
     uid: np.ndarray  # (K,) unique per track start; keys the records
@@ -250,17 +262,9 @@ class _Tracks:
     def __len__(self) -> int:
         return len(self.uid)
 
-    def keep(self, mask: np.ndarray) -> None:
-        for f in fields(self):
-            setattr(self, f.name, getattr(self, f.name)[mask])
-
-    def extend(self, other: _Tracks) -> None:
-        for f in fields(self):
-            setattr(self, f.name, np.concatenate([getattr(self, f.name), getattr(other, f.name)]))
-
 
 @dataclass
-class _Measurements:
+class _Measurements(_Rows):
     """This frame's measurements of the K live tracks (row k: track k)."""
 
     ok: np.ndarray  # (K,) measured: the filters take it
@@ -279,14 +283,6 @@ class _Measurements:
         """Copy ``other``'s rows (len(rows) of them) into ``rows``."""
         for f in fields(self):
             getattr(self, f.name)[rows] = getattr(other, f.name)
-
-    def keep(self, mask: np.ndarray) -> None:
-        for f in fields(self):
-            setattr(self, f.name, getattr(self, f.name)[mask])
-
-    def extend(self, other: _Measurements) -> None:
-        for f in fields(self):
-            setattr(self, f.name, np.concatenate([getattr(self, f.name), getattr(other, f.name)]))
 
 
 @dataclass
