@@ -5,6 +5,7 @@ from __future__ import annotations
 import warnings
 
 import c3d as c3d_package
+import ezc3d
 import numpy as np
 import pytest
 from conftest import require_shared_data
@@ -121,9 +122,19 @@ def test_csv_reader_assumes_motive_y_up_and_skips_rigid_body_columns(tmp_path):
     assert not traj.valid[1, 0]
 
 
-def test_c3d_round_trip_and_the_c3d_package_reads_the_same_values(traj, tmp_path):
+# (frames, markers, first frame): a short take, one longer than the C3D header's 16-bit frame count, and one
+# whose last frame number passes 65,535 (the header cannot hold its range either)
+C3D_TAKES = {"short": (150, 9, 17), "70,000 frames": (70_000, 3, 4321), "ends after frame 65535": (10_000, 3, 60_000)}
+
+
+@pytest.mark.parametrize("take", C3D_TAKES)
+def test_c3d_round_trip_and_the_c3d_package_reads_the_same_values(take, tmp_path):
+    n_frames, n_markers, first_frame = C3D_TAKES[take]
+    traj = synthetic_trajectories(n_frames, n_markers, gap_fraction=0.15, seed=3, first_frame=first_frame)
     traj.camera_masks &= 0x7F  # C3D stores 7 camera bits
+    traj.residuals = np.minimum(traj.residuals, 2.5)  # the step asserted below assumes residuals < 2.55 mm
     write_c3d(traj, tmp_path / "a.c3d")
+    assert ezc3d.c3d(str(tmp_path / "a.c3d"))["data"]["points"].shape[2] == n_frames  # ezc3d reads every frame
     back = read_c3d(tmp_path / "a.c3d")
     assert_same_samples(back, traj, rtol=6e-8)  # float32 storage
     step = 0.005  # residuals here are < 2.55 mm: POINT:SCALE chosen as 0.01 mm, rounding error <= half a step
@@ -134,8 +145,11 @@ def test_c3d_round_trip_and_the_c3d_package_reads_the_same_values(traj, tmp_path
         reader = c3d_package.Reader(f)
         assert reader.point_rate == traj.fps
         assert reader.first_frame == traj.first_frame + 1  # C3D frames are 1-based
+        assert reader.frame_count == n_frames
         assert [label.strip() for label in reader.point_labels] == traj.labels
-        frames = np.array([points for _, points, _ in reader.read_frames()])  # (F, M, 5) mm
+        numbers, frames = zip(*[(i, points) for i, points, _ in reader.read_frames()], strict=True)
+    np.testing.assert_array_equal(numbers, np.arange(n_frames) + first_frame + 1)
+    frames = np.array(frames)  # (F, M, 5) mm
     valid = traj.valid
     np.testing.assert_allclose(frames[valid][:, :3] / 1000.0, traj.positions[valid], rtol=2e-7)  # float32 twice
     np.testing.assert_array_equal(frames[~valid][:, 3], -1.0)  # invalid samples: residual -1

@@ -6,6 +6,12 @@ to steps of |POINT:SCALE| (chosen from the data so the largest residual fits the
 bits); invalid samples have residual -1; the camera mask holds the first 7 cameras (a C3D
 limit). Labels must be printable ASCII.
 
+Any length: the header counts frames in 16 bits, so every file also carries
+TRIAL:ACTUAL_START_FIELD / ACTUAL_END_FIELD (1-based first and last frame as two 16-bit words,
+low word first; c3d.org, "Maintaining C3D frame count compatibility"), plus POINT:LONG_FRAMES
+(float) above 65,535 frames. Files have no ROTATION group: with one, ezc3d 1.7 stops reading
+after 65,535 frames; without, it reads POINT:FRAMES = 0xFFFF as "to the end of the data".
+
 The residual/camera word follows the C3D spec (c3d.org, "Notes for programmers"): residual in
 the low byte, camera bits in the high byte. ezc3d 1.7 swaps the two bytes, so both are written
 and read here straight from the file's point records (Intel-format files; for DEC/MIPS files
@@ -33,7 +39,7 @@ UNIT_TO_METRES = {"mm": 1e-3, "cm": 1e-2, "dm": 1e-1, "m": 1.0, "in": 0.0254, "i
 _RESIDUAL_STEPS_MM = (0.001, 0.002, 0.005, 0.01, 0.02, 0.05, 0.1, 0.2, 0.5, 1.0, 2.0, 5.0)
 _C3D_CAMERA_BITS = 7
 _HEADER_SCALE_OFFSET = 12  # header words 7-8: the POINT scale factor, a float (Intel byte order)
-MAX_FRAMES = 65535  # the C3D header's 16-bit frame count; ezc3d 1.7 silently drops frames beyond it
+_WORD_MAX = 0xFFFF  # header frame numbers and POINT:FRAMES are 16-bit words
 
 
 def _residual_scale(residuals_mm: np.ndarray) -> float:
@@ -52,11 +58,6 @@ def write_c3d(traj: Trajectories, path: str | os.PathLike) -> None:
     F, M = traj.n_frames, traj.n_markers
     if F == 0:
         raise MocapError(f"{path}: no frames to write; a C3D file needs at least one frame")
-    if F > MAX_FRAMES:
-        raise MocapError(
-            f"{path}: {F} frames do not fit in a C3D file written by ezc3d (at most {MAX_FRAMES}, "
-            f"{MAX_FRAMES / traj.fps / 60:.1f} min at {traj.fps:g} Hz); split the take (mocap reconstruct "
-            f"--start/--stop) or write TRC, CSV or MCAP, which have no such limit")
     valid = traj.valid
     points = np.zeros((4, M, F))
     points[:3] = np.transpose(np.where(valid[..., None], traj.positions * 1000.0, np.nan), (2, 1, 0))
@@ -68,6 +69,7 @@ def write_c3d(traj: Trajectories, path: str | os.PathLike) -> None:
     bits = (traj.camera_masks[..., None] >> np.arange(_C3D_CAMERA_BITS, dtype=np.uint32)) & 1  # (F, M, 7)
     masks = np.transpose(bits.astype(bool) & valid[..., None], (2, 1, 0))
     c3d = ezc3d.c3d()
+    del c3d["data"]["rotations"]  # no ROTATION group (see the module docstring)
     c3d["parameters"]["POINT"]["RATE"]["value"] = [float(traj.fps)]
     c3d["parameters"]["POINT"]["LABELS"]["value"] = list(traj.labels)
     c3d["parameters"]["POINT"]["UNITS"]["value"] = ["mm"]
@@ -75,6 +77,7 @@ def write_c3d(traj: Trajectories, path: str | os.PathLike) -> None:
     if traj.camera_names:
         c3d.add_parameter("POINT", "CAMERAS", list(traj.camera_names)[:_C3D_CAMERA_BITS])
     c3d["header"]["points"]["first_frame"] = int(traj.first_frame)
+    _add_frame_range(c3d, int(traj.first_frame), F)
     c3d["data"]["points"] = points
     c3d["data"]["meta_points"] = {"residuals": residuals.T[None], "camera_masks": masks}
     with atomic_output(path) as tmp:
@@ -89,6 +92,31 @@ def write_c3d(traj: Trajectories, path: str | os.PathLike) -> None:
             words.flush()
 
 
+def _add_frame_range(c3d: ezc3d.c3d, first_frame: int, n_frames: int) -> None:
+    """TRIAL:ACTUAL_START_FIELD / ACTUAL_END_FIELD (and POINT:LONG_FRAMES above 65,535 frames)."""
+    for name, frame in (("ACTUAL_START_FIELD", first_frame + 1), ("ACTUAL_END_FIELD", first_frame + n_frames)):
+        c3d.add_parameter("TRIAL", name, [0, 0])  # ezc3d's Python API stores int lists as floats ...
+        param = c3d["parameters"]["TRIAL"][name]
+        param["type"] = ezc3d.ezc3d.INT  # ... the spec wants two 16-bit words: low, high
+        param["value"] = np.array([frame & _WORD_MAX, frame >> 16])
+    if n_frames > _WORD_MAX:
+        c3d.add_parameter("POINT", "LONG_FRAMES", [float(n_frames)])
+
+
+def _trial_frames(c3d: ezc3d.c3d) -> int | None:
+    """Frame count from TRIAL:ACTUAL_START_FIELD / ACTUAL_END_FIELD, or None if the file lacks them."""
+    trial = c3d["parameters"].get("TRIAL", {})
+    if "ACTUAL_START_FIELD" not in trial or "ACTUAL_END_FIELD" not in trial:
+        return None
+    frames = []
+    for name in ("ACTUAL_START_FIELD", "ACTUAL_END_FIELD"):
+        words = np.asarray(trial[name]["value"]).ravel().astype(np.int64) & _WORD_MAX  # ezc3d reads them signed
+        if words.size != 2:
+            return None
+        frames.append(int(words[0] | words[1] << 16))
+    return frames[1] - frames[0] + 1
+
+
 @dataclass(frozen=True)
 class _Layout:
     """Where a C3D file's point records are: byte offset, word type, words per frame, processor."""
@@ -98,6 +126,7 @@ class _Layout:
     frame_words: int
     intel: bool
     declared_frames: int
+    saturated: bool  # the header's last frame is 65535: its 16-bit frame range may have overflowed
 
     @classmethod
     def of(cls, path: Path, n_points: int, scale: float) -> _Layout:
@@ -110,7 +139,7 @@ class _Layout:
         dtype = np.dtype(f"{order}f4") if scale < 0 else np.dtype(f"{order}i2")
         words = struct.unpack(f"{order}9H", header[:18])
         return cls((words[8] - 1) * 512, dtype, 4 * n_points + words[2], processor == b"\x54",
-                   words[4] - words[3] + 1)
+                   words[4] - words[3] + 1, words[4] == _WORD_MAX)
 
     def frames_in(self, path: Path) -> int:
         """Complete frames the file holds."""
@@ -129,6 +158,8 @@ def _point_words(path: Path, n_points: int, n_frames: int, scale: float, mode: s
 
 def _residuals_and_masks(path: Path, c3d: ezc3d.c3d, n_points: int, n_frames: int) -> tuple[np.ndarray, np.ndarray]:
     """(F, M) residuals (in POINT:UNITS, -1 where invalid) and (F, M) uint32 camera masks, per the C3D spec."""
+    if not n_points:
+        return np.zeros((n_frames, 0)), np.zeros((n_frames, 0), dtype=np.uint32)
     scale = float(c3d["parameters"]["POINT"]["SCALE"]["value"][0])
     words = _point_words(path, n_points, n_frames, scale)
     if words is not None:
@@ -167,9 +198,16 @@ def read_c3d(path: str | os.PathLike) -> Trajectories:
     pts = np.asarray(c3d["data"]["points"], dtype=np.float64)  # (4, M, F)
     labels = labels[: pts.shape[1]] + [f"M{i:03d}" for i in range(len(labels), pts.shape[1])]
     layout = _Layout.of(path, pts.shape[1], float(params["SCALE"]["value"][0]))
-    held = min(pts.shape[2], layout.frames_in(path)) if pts.shape[1] else layout.declared_frames
-    if held < layout.declared_frames:
-        raise MocapError(f"{path}: the file is truncated: its header declares {layout.declared_frames} frames but "
+    declared, source = layout.declared_frames, "its header"
+    trial = _trial_frames(c3d) if layout.saturated else None
+    if trial is not None:  # more frames than the header can count; ezc3d reads these files to the end of the data
+        declared, source = trial, "TRIAL:ACTUAL_START_FIELD/ACTUAL_END_FIELD"
+        pts = pts[:, :, :declared]
+    if not pts.shape[1]:  # no points: only the header / TRIAL count the frames
+        pts = np.zeros((4, 0, declared))
+    held = min(pts.shape[2], layout.frames_in(path)) if pts.shape[1] else declared
+    if held < declared:
+        raise MocapError(f"{path}: the file is truncated: {source} declares {declared} frames but "
                          f"it holds {held}; re-export it")
     positions = np.transpose(pts[:3], (2, 1, 0)) * UNIT_TO_METRES[units]
     residuals, masks = _residuals_and_masks(path, c3d, pts.shape[1], pts.shape[2])
