@@ -1,5 +1,5 @@
-"""C3D files longer than the header's 16-bit frame count (65,535 frames): reading other writers' files,
-truncation, takes without markers. The round trip itself is in test_export_formats.py."""
+"""C3D frame ranges beyond the header's 16-bit words (65,535): reading other writers' long files, truncation,
+takes without markers, late first frames. The long round trip itself is in test_export_formats.py."""
 
 from __future__ import annotations
 
@@ -8,6 +8,7 @@ import warnings
 import c3d as c3d_package
 import numpy as np
 import pytest
+from helpers_export import synthetic_trajectories
 
 from mocap.errors import MocapError
 from mocap.export.c3d import read_c3d, write_c3d
@@ -48,3 +49,16 @@ def test_a_long_take_without_markers_keeps_its_frame_count(tmp_path):
     write_c3d(Trajectories([], 120.0, np.zeros((LONG, 0, 3)), first_frame=12), tmp_path / "e.c3d")
     back = read_c3d(tmp_path / "e.c3d")
     assert (back.n_markers, back.n_frames, back.first_frame) == (0, LONG, 12)
+
+
+def test_a_take_starting_after_frame_65535_keeps_its_first_frame(tmp_path):
+    traj = synthetic_trajectories(n_frames=1000, n_markers=3, seed=5, first_frame=70_000)
+    write_c3d(traj, tmp_path / "late.c3d")
+    back = read_c3d(tmp_path / "late.c3d")
+    assert (back.n_frames, back.first_frame) == (1000, 70_000)  # the header's 16-bit first frame cannot hold it
+    np.testing.assert_array_equal(back.valid, traj.valid)
+    np.testing.assert_allclose(back.positions, traj.positions, rtol=6e-8)  # float32 storage
+    with open(tmp_path / "late.c3d", "rb") as f, warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # "no analog data"
+        samples = np.array([points for _, points, _ in c3d_package.Reader(f).read_frames()])  # (F, M, 5) mm
+    np.testing.assert_allclose(samples[traj.valid][:, :3] / 1000.0, traj.positions[traj.valid], rtol=2e-7)

@@ -38,6 +38,7 @@ __all__ = ["write_c3d", "read_c3d", "UNIT_TO_METRES"]
 UNIT_TO_METRES = {"mm": 1e-3, "cm": 1e-2, "dm": 1e-1, "m": 1.0, "in": 0.0254, "inch": 0.0254, "ft": 0.3048}
 _RESIDUAL_STEPS_MM = (0.001, 0.002, 0.005, 0.01, 0.02, 0.05, 0.1, 0.2, 0.5, 1.0, 2.0, 5.0)
 _C3D_CAMERA_BITS = 7
+_HEADER_FIRST_FRAME_OFFSET = 6  # header word 4: the 1-based first frame, 16 bits
 _HEADER_SCALE_OFFSET = 12  # header words 7-8: the POINT scale factor, a float (Intel byte order)
 _WORD_MAX = 0xFFFF  # header frame numbers and POINT:FRAMES are 16-bit words
 
@@ -82,7 +83,9 @@ def write_c3d(traj: Trajectories, path: str | os.PathLike) -> None:
     c3d["data"]["meta_points"] = {"residuals": residuals.T[None], "camera_masks": masks}
     with atomic_output(path) as tmp:
         c3d.write(str(tmp))
-        with open(tmp, "r+b") as f:  # ezc3d leaves the header's scale at -1; make it match POINT:SCALE
+        with open(tmp, "r+b") as f:  # ezc3d wraps a first frame above 65535 and leaves the scale at -1
+            f.seek(_HEADER_FIRST_FRAME_OFFSET)
+            f.write(struct.pack("<H", min(int(traj.first_frame) + 1, _WORD_MAX)))  # the TRIAL fields hold the rest
             f.seek(_HEADER_SCALE_OFFSET)
             f.write(struct.pack("<f", -step))
         words = _point_words(tmp, M, F, -step, mode="r+")
@@ -103,8 +106,8 @@ def _add_frame_range(c3d: ezc3d.c3d, first_frame: int, n_frames: int) -> None:
         c3d.add_parameter("POINT", "LONG_FRAMES", [float(n_frames)])
 
 
-def _trial_frames(c3d: ezc3d.c3d) -> int | None:
-    """Frame count from TRIAL:ACTUAL_START_FIELD / ACTUAL_END_FIELD, or None if the file lacks them."""
+def _trial_range(c3d: ezc3d.c3d) -> tuple[int, int] | None:
+    """1-based first and last frame from TRIAL:ACTUAL_START_FIELD / ACTUAL_END_FIELD, or None if absent."""
     trial = c3d["parameters"].get("TRIAL", {})
     if "ACTUAL_START_FIELD" not in trial or "ACTUAL_END_FIELD" not in trial:
         return None
@@ -114,7 +117,7 @@ def _trial_frames(c3d: ezc3d.c3d) -> int | None:
         if words.size != 2:
             return None
         frames.append(int(words[0] | words[1] << 16))
-    return frames[1] - frames[0] + 1
+    return frames[0], frames[1]
 
 
 @dataclass(frozen=True)
@@ -198,10 +201,10 @@ def read_c3d(path: str | os.PathLike) -> Trajectories:
     pts = np.asarray(c3d["data"]["points"], dtype=np.float64)  # (4, M, F)
     labels = labels[: pts.shape[1]] + [f"M{i:03d}" for i in range(len(labels), pts.shape[1])]
     layout = _Layout.of(path, pts.shape[1], float(params["SCALE"]["value"][0]))
-    declared, source = layout.declared_frames, "its header"
-    trial = _trial_frames(c3d) if layout.saturated else None
-    if trial is not None:  # more frames than the header can count; ezc3d reads these files to the end of the data
-        declared, source = trial, "TRIAL:ACTUAL_START_FIELD/ACTUAL_END_FIELD"
+    first, declared, source = int(c3d["header"]["points"].get("first_frame", 0)), layout.declared_frames, "its header"
+    trial = _trial_range(c3d) if layout.saturated else None
+    if trial is not None:  # a range the header cannot hold; ezc3d reads these files to the end of the data
+        first, declared, source = trial[0] - 1, trial[1] - trial[0] + 1, "TRIAL:ACTUAL_START_FIELD/ACTUAL_END_FIELD"
         pts = pts[:, :, :declared]
     if not pts.shape[1]:  # no points: only the header / TRIAL count the frames
         pts = np.zeros((4, 0, declared))
@@ -217,6 +220,5 @@ def read_c3d(path: str | os.PathLike) -> Trajectories:
     residuals = np.where(invalid, np.nan, residuals)
     masks[invalid] = 0
     cameras = params.get("CAMERAS", {}).get("value", [])
-    first = int(c3d["header"]["points"].get("first_frame", 0))
     return Trajectories(labels, fps, positions, residuals, masks, [str(c) for c in cameras], first,
                         {"units": units})
