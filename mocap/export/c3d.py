@@ -9,8 +9,9 @@ limit). Labels must be printable ASCII.
 Any length: the header counts frames in 16 bits, so every file also carries
 TRIAL:ACTUAL_START_FIELD / ACTUAL_END_FIELD (1-based first and last frame as two 16-bit words,
 low word first; c3d.org, "Maintaining C3D frame count compatibility"), plus POINT:LONG_FRAMES
-(float) above 65,535 frames. Files have no ROTATION group: with one, ezc3d 1.7 stops reading
-after 65,535 frames; without, it reads POINT:FRAMES = 0xFFFF as "to the end of the data".
+(float) above 65,535 frames; the header's first and last frame are capped at 65,535. Files have
+no ROTATION group: with one, ezc3d 1.7 stops reading after 65,535 frames; without, it reads
+POINT:FRAMES = 0xFFFF as "to the end of the data".
 
 The residual/camera word follows the C3D spec (c3d.org, "Notes for programmers"): residual in
 the low byte, camera bits in the high byte. ezc3d 1.7 swaps the two bytes, so both are written
