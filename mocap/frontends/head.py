@@ -10,11 +10,12 @@ State per particle: ``(x, y, vx, vy, a)`` - ellipse centre (px), velocity (px/fr
 * Shape cue: for each of ``n_outline`` points on the upright ellipse, the largest Sobel gradient magnitude
   among Canny edge pixels on a short normal segment; the mean over the outline, divided by that of the
   initial box, is ``G``; ``w_g = exp(-(1 - G)^2 / 2 sigma_g^2)``.
-* Democratic integration: ``w = k_c w_c + k_g w_g`` with each cue's weights first normalised over the
-  particles (the paper's Gaussian normalising constants would otherwise decide the mix). Per frame each
-  cue's reliability ``q`` is measured against the fused estimate (see :meth:`HeadTracker._adapt` for why
-  not exactly as the paper says); ``k <- k + (dt / tau) (q_normalised - k)``, renormalised, and kept above
-  ``min_weight`` so a cue that failed can come back. Then systematic resampling.
+* Democratic integration: ``w = w_c^k_c * w_g^k_g`` (log-linear pooling: a particle needs the support of
+  both cues, so a cue that is drawn to a distractor the other cue rejects cannot drag the estimate; the
+  paper's sum ``k_c w_c + k_g w_g`` averages the two modes instead). Per frame each cue's reliability
+  ``q`` is measured at the fused estimate (see :meth:`HeadTracker._adapt`);
+  ``k <- k + (dt / tau) (q_normalised - k)``, renormalised, and kept above ``min_weight`` so a cue that
+  failed can come back. Then systematic resampling. ``k = (1, 0)`` / ``(0, 1)`` are the single-cue modes.
 
 Both cues are evaluated for all particles at once: kernel and outline sample offsets are precomputed, the
 histograms are one ``np.bincount`` over every particle's samples.
@@ -66,6 +67,7 @@ class HeadConfig:
         canny: Canny hysteresis thresholds on the grey image.
         rate: adaptation rate ``dt / tau`` of the cue weights per frame.
         min_weight: lower bound of each cue weight.
+        probe_shift: reliability probes sit this many half-axes from the fused estimate.
     """
 
     particles: int = 200
@@ -82,6 +84,7 @@ class HeadConfig:
     canny: tuple[float, float] = (40.0, 100.0)
     rate: float = 0.25
     min_weight: float = 0.05
+    probe_shift: float = 0.6
 
 
 @dataclass
@@ -153,6 +156,8 @@ class HeadTracker:
         psi = np.linspace(0.0, 2 * np.pi, cfg.n_outline, endpoint=False)
         self._cos, self._sin = np.cos(psi), np.sin(psi)
         self._t = np.linspace(-1.0, 1.0, 7)
+        ring = np.linspace(0.0, 2 * np.pi, 8, endpoint=False)
+        self._ring = cfg.probe_shift * np.stack([np.cos(ring), np.sin(ring)], axis=1)
         self.A = np.eye(5)
         self.A[0, 2] = self.A[1, 3] = 1.0
         self.A[2, 2] = self.A[3, 3] = cfg.damping
@@ -238,28 +243,32 @@ class HeadTracker:
         features = self._features(frame)
         l_c, l_g, rho = self.likelihoods(features, states)
         k = self.cue_weights
-        w = normalise(k[0] * normalise(l_c) + k[1] * normalise(l_g))
+        log_w = k[0] * np.log(l_c) + k[1] * np.log(l_g)
+        w = normalise(np.exp(log_w - log_w.max()))
         fused = weighted_mean(states, w)
         if cfg.mode is CueMode.FUSED:
-            self.cue_weights = self._adapt(k, features, fused, l_c, l_g)
+            self.cue_weights = self._adapt(k, features, fused)
 
         self.particles = states[systematic_resample(w, self.rng)]
         self.estimate = fused
         return HeadEstimate(fused[:2].copy(), np.array([fused[4], fused[4] * self.aspect]), k, float(w @ rho))
 
-    def _adapt(self, k: np.ndarray, features: tuple[np.ndarray, np.ndarray], fused: np.ndarray,
-               l_c: np.ndarray, l_g: np.ndarray) -> np.ndarray:
+    def _adapt(self, k: np.ndarray, features: tuple[np.ndarray, np.ndarray], fused: np.ndarray) -> np.ndarray:
         """Democratic integration: move the (2,) cue weights towards the cues' normalised reliabilities.
 
-        Reliability of a cue = how well it supports the fused estimate compared with the particles' average,
-        ``q = max(0, L(x_hat) - mean L) / (max L - mean L)`` (Triesch & von der Malsburg 2001). The paper's
-        version, ``q = exp(-alpha D)`` with D the distance between the cue's own estimate and the fused one,
-        has a fixed point at equal weights: the fused mean of normalised cue weights is ``k_c x_c + k_g x_g``,
-        so ``D_c / D_g = k_g / k_c`` and from 0.5/0.5 neither cue can ever gain.
+        Reliability of a cue = how much better it rates the fused estimate than 8 probe states around it
+        (``probe_shift`` half-axes away): ``q = max(0, L(x_hat) - mean L(probes))``. A cue that is flat there
+        (shape in front of stripes), or that prefers a neighbouring place (colour on the neck when the head
+        turns away; colour after a lighting change), loses weight. Triesch & von der Malsburg (2001) compare
+        with the particles' mean instead; the particles crowd round the estimate, so that contrast is weak.
+        The paper's ``q = exp(-alpha D)`` (D: distance of the cue's own estimate from the fused one) has a fixed
+        point at equal weights under the paper's sum fusion (``D_c / D_g = k_g / k_c``).
         """
         cfg = self.config
-        at_c, at_g, _ = self.likelihoods(features, fused[None])
-        q = np.maximum([at_c[0] - l_c.mean(), at_g[0] - l_g.mean()], 0.0)
+        probes = np.repeat(fused[None], 1 + len(self._ring), axis=0)
+        probes[1:, :2] += self._ring * fused[4] * np.array([1.0, self.aspect])
+        at_c, at_g, _ = self.likelihoods(features, probes)
+        q = np.maximum([at_c[0] - at_c[1:].mean(), at_g[0] - at_g[1:].mean()], 0.0)
         if q.sum() <= 0:
             return k
         k = k + cfg.rate * (q / q.sum() - k)
