@@ -13,7 +13,9 @@ from mocap.frontends.render_head import HEAD_SEGMENTS, head_clip
 
 @pytest.fixture(scope="module")
 def clip():
-    return head_clip(segment_frames=40, seed=2)  # faster motion than the benchmark's 60-frame segments
+    # Seed 2: a bookshelf whose books draw the shape cue away during the turn (in seeds 6-9 they do not, and
+    # shape-only ties the fused tracker at 100 % there; see docs/frontends.md).
+    return head_clip(segment_frames=60, seed=2)
 
 
 def _box(clip, k=0):
@@ -21,9 +23,13 @@ def _box(clip, k=0):
     return (c[0] - a[0], c[1] - a[1], 2 * a[0], 2 * a[1])
 
 
-def _success(clip, centre):
-    ok = np.linalg.norm(centre - clip.centre, axis=1) < 0.2 * clip.head_size
-    return {name: ok[a:b].mean() for name, (a, b) in clip.segments.items()}
+def _segment_success(clip, mode, seed=2):
+    """Track each segment on its own from its true first box -> {segment: fraction of frames within 20 %}."""
+    rates = {}
+    for name, (a, b) in clip.segments.items():
+        centre, _, weights = track_head(clip.frames[a:b], _box(clip, a), HeadConfig(mode=mode), seed=seed)
+        rates[name] = (np.linalg.norm(centre - clip.centre[a:b], axis=1) < 0.2 * clip.head_size[a:b]).mean()
+    return rates
 
 
 def test_colour_histogram_matches_a_per_pixel_loop(clip):
@@ -55,22 +61,21 @@ def test_shape_cue_peaks_on_the_drawn_ellipse():
     assert max(g[-10], g[-8], g[8], g[10]) < 0.4 * g[0]
 
 
-def test_fusion_beats_each_single_cue_where_that_cue_fails(clip):
-    box = _box(clip)
-    rates = {mode: _success(clip, track_head(clip.frames, box, HeadConfig(mode=mode), seed=2)[0]) for mode in CueMode}
+def test_fusion_beats_both_single_cues_on_every_hard_segment(clip):
+    rates = {mode: _segment_success(clip, mode) for mode in CueMode}
     fused, colour, shape = rates[CueMode.FUSED], rates[CueMode.COLOUR], rates[CueMode.SHAPE]
-    for seg in HEAD_SEGMENTS:
-        assert fused[seg] >= 0.9, (seg, rates)
-        assert fused[seg] >= min(colour[seg], shape[seg]), (seg, rates)
-    assert colour["turn"] < 0.6 < fused["turn"]  # hair replaces skin: colour follows the neck
-    assert shape["stripes"] < 0.7 < fused["stripes"]  # edges everywhere: shape wanders
+    assert min(fused.values()) >= 0.8, rates
+    for seg in HEAD_SEGMENTS[1:]:  # every hard segment challenges both cues; fusion must do strictly better
+        assert fused[seg] > max(colour[seg], shape[seg]), (seg, rates)
+    assert colour["turn"] < 0.6 and colour["tilt"] < 0.6, rates  # hair replaces skin; the light dims
+    assert shape["stripes"] < 0.6, rates  # edges everywhere: shape wanders
 
 
 def test_cue_weights_shift_to_shape_when_the_head_turns_away(clip):
-    _, _, weights = track_head(clip.frames, _box(clip), seed=2)
     a, b = clip.segments["turn"]
-    mid = (a + b) // 2
-    assert weights[mid, 1] > 0.7 > weights[a - 1, 1]
+    _, _, weights = track_head(clip.frames[a:b], _box(clip, a), seed=2)
+    mid = (b - a) // 2
+    assert weights[mid, 1] > 0.7 > weights[0, 1]
     np.testing.assert_allclose(weights.sum(axis=1), 1.0)
 
 
