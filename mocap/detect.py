@@ -79,7 +79,7 @@ _EDGE = special.ndtr(-_Z_TABLE).astype(np.float32)
 _EDGE_SLOPE = (np.exp(-0.5 * _Z_TABLE**2) / math.sqrt(2.0 * math.pi)).astype(np.float32)
 _Z_ORIGIN = 8 * _Z_RES + 0.5  # table index of z = 0, + 0.5 so that truncation rounds
 _KERNEL = np.ones((CELL, CELL), np.uint8)
-_WINDOW_HALVES = 6 * 2 ** np.arange(12)  # fit window sizes, px: few, so that few vectorised fits run
+_WINDOW_HALVES = 6 * 2 ** np.arange(12)  # sizes of the cached window templates, px
 
 
 # --------------------------------------------------------------------------- background
@@ -155,13 +155,13 @@ class _Owners:
         self.labels, self.base, self.x0, self.y0, self.size, self.local = labels, base, x0, y0, size, local
 
     def owns(self, blobs: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
-        """(N, P) bool: pixel (x, y) (N, P) int belongs to blob ``blobs`` (N,)."""
-        size = self.size[blobs, None]
-        rx, ry = x - self.x0[blobs, None], y - self.y0[blobs, None]
+        """(T,) bool: pixel (x, y) (T,) int belongs to blob ``blobs`` (T,)."""
+        size = self.size[blobs]
+        rx, ry = x - self.x0[blobs], y - self.y0[blobs]
         inside = (rx >= 0) & (ry >= 0) & (rx < size) & (ry < size)
-        index = self.base[blobs, None] + np.minimum(np.maximum(ry, 0), size - 1) * size + np.minimum(
+        index = self.base[blobs] + np.minimum(np.maximum(ry, 0), size - 1) * size + np.minimum(
             np.maximum(rx, 0), size - 1)
-        return inside & (self.labels.take(index) == self.local[blobs, None])
+        return inside & (self.labels.take(index) == self.local[blobs])
 
 
 def _label_blobs(image: np.ndarray, t: int, cell_labels: np.ndarray, boxes: np.ndarray) -> tuple[_Pixels, _Owners]:
@@ -203,8 +203,8 @@ def _label_blobs(image: np.ndarray, t: int, cell_labels: np.ndarray, boxes: np.n
 
 
 # --------------------------------------------------------------------------- blob model fit
-def _fit_discs(values: np.ndarray, ox: np.ndarray, oy: np.ndarray, weight: np.ndarray, params: np.ndarray,
-               iterations: int) -> tuple[np.ndarray, np.ndarray]:
+def _fit_discs(values: np.ndarray, ox: np.ndarray, oy: np.ndarray, weight: np.ndarray, seg: np.ndarray,
+               starts: np.ndarray, params: np.ndarray, iterations: int) -> tuple[np.ndarray, np.ndarray]:
     """Least-squares fit of blurred discs plus an offset, vectorised over blobs: a fixed number of
     lightly damped Gauss–Newton steps.
 
@@ -212,11 +212,14 @@ def _fit_discs(values: np.ndarray, ox: np.ndarray, oy: np.ndarray, weight: np.nd
     of std ``s`` (px); ``Phi`` and its slope come from lookup tables. All but the last step are damped
     (``DAMPING``); a centre moves at most ``MAX_STEP`` px per step. Pixel arithmetic is float32 (centres are
     relative to the window, so float32 resolves 1e-6 px); the normal equations are solved in float64.
+    The windows of all blobs lie one after another in flat (T,) pixel arrays (no padding).
 
     Args:
-        values: (N, P) grey levels minus the frame's background level.
-        ox, oy: (P,) pixel offsets from each blob's window centre, px.
-        weight: (N, P) 1 for pixels in the fit, 0 for the rest.
+        values: (T,) grey levels minus the frame's background level.
+        ox, oy: (T,) pixel offsets from the window's centre pixel, px.
+        weight: (T,) 1 for pixels in the fit, 0 for the rest.
+        seg: (T,) the blob (0..N-1) of each pixel, non-decreasing; starts: (N,) each blob's first pixel
+            (every blob has one or more).
         params: (N, 1 + 5K) starting ``b, (cx, cy, A, r, s) * K``, centres relative to the window centre.
         iterations: Gauss–Newton steps.
 
@@ -227,28 +230,29 @@ def _fit_discs(values: np.ndarray, ox: np.ndarray, oy: np.ndarray, weight: np.nd
     params = params.astype(np.float32)
     n, n_par = params.shape
     disc = params[:, 1:].reshape(n, -1, 5)  # (N, K, 5) view
-    jac = np.empty((n, n_par, len(ox)), np.float32)
-    rows = jac[:, 1:].reshape(n, -1, 5, len(ox))  # (N, K, 5, P) view: d model / d (cx, cy, A, r, s)
+    jac = np.empty((n_par, len(seg)), np.float32)  # parameter-major: every product below runs along the pixels
+    rows = jac[1:].reshape(-1, 5, len(seg))  # (K, 5, T) view: d model / d (cx, cy, A, r, s)
+    jac[0] = weight
+    upper = np.triu_indices(n_par)
     for step_no in range(iterations):
-        cx, cy, amp, r, s = (disc[:, :, i, None] for i in range(5))  # (N, K, 1)
+        cx, cy, amp, r, s = disc.transpose(2, 1, 0)[:, :, seg]  # (K, T) each
         dx, dy = ox - cx, oy - cy
         rho = np.sqrt(dx * dx + dy * dy)
         scale = _Z_RES / s
         index = (rho * scale + (_Z_ORIGIN - r * scale)).astype(np.intp)  # truncation rounds: origin has +0.5
         f = _EDGE.take(index, mode="clip")
-        model = params[:, :1] + (amp * f).sum(axis=1)
-        resid = (values - model) * weight
-        w = weight[:, None]
-        slope = _EDGE_SLOPE.take(index, mode="clip") * (amp / s) * w  # -d model / d rho, weighted
-        jac[:, 0] = w[:, 0]
-        np.multiply(f, w, out=rows[:, :, 2])
-        rows[:, :, 3] = slope
-        np.multiply(slope, (rho - r) / s, out=rows[:, :, 4])
+        resid = (values - params[seg, 0] - (amp * f).sum(axis=0)) * weight
+        slope = _EDGE_SLOPE.take(index, mode="clip") * (amp / s) * weight  # -d model / d rho, weighted
+        np.multiply(f, weight, out=rows[:, 2])
+        rows[:, 3] = slope
+        np.multiply(slope, (rho - r) / s, out=rows[:, 4])
         slope /= np.maximum(rho, 1e-9)
-        np.multiply(slope, dx, out=rows[:, :, 0])
-        np.multiply(slope, dy, out=rows[:, :, 1])
-        jtj = np.matmul(jac, jac.transpose(0, 2, 1)).astype(np.float64)
-        grad = np.matmul(jac, resid[:, :, None]).astype(np.float64)
+        np.multiply(slope, dx, out=rows[:, 0])
+        np.multiply(slope, dy, out=rows[:, 1])
+        jtj = np.empty((n, n_par, n_par))
+        jtj[:, upper[0], upper[1]] = jtj[:, upper[1], upper[0]] = np.add.reduceat(
+            jac[upper[0]] * jac[upper[1]], starts, axis=1).T
+        grad = np.add.reduceat(jac * resid, starts, axis=1).T.astype(np.float64)[:, :, None]  # (N, n_par, 1)
         if step_no < iterations - 1:
             lhs = jtj.copy()
             lhs.reshape(n, -1)[:, :: n_par + 1] *= 1.0 + DAMPING
@@ -378,39 +382,48 @@ def _neighbour_median_area(xy: np.ndarray, area: np.ndarray, k: int = 5) -> np.n
     return 0.5 * (near[:, (k - 1) // 2] + near[:, k // 2])
 
 
-def _window(centre: np.ndarray, radius: np.ndarray, half: int, image: np.ndarray, owners: _Owners,
-            own: np.ndarray, t: int, level: float) -> tuple[np.ndarray, ...]:
-    """Round fit windows: pixels within ``radius`` (N,) px of each ``centre`` (N, 2), padded to ``half`` px.
+def _window(centre: np.ndarray, radius: np.ndarray, image: np.ndarray, owners: _Owners, own: np.ndarray, t: int,
+            level: float) -> tuple[np.ndarray, ...]:
+    """Round fit windows: the pixels within ``radius`` (N,) px of each ``centre`` (N, 2), one window after another.
 
     Returns:
-        origin (N, 2) int: each window's centre pixel; ox, oy (P,) float32: offsets from it, px; values (N, P)
-        float32: grey levels minus ``level``; weight (N, P) float32: 0 beyond the radius, off the image, on
-        saturated pixels (their true level is unknown) and on other blobs' above-threshold pixels, else 1.
+        origin (N, 2) int: each window's centre pixel; seg (T,) int: the window of each pixel; starts (N,):
+        each window's first pixel; ox, oy (T,) float32: offsets from the window's origin, px; values (T,)
+        float32: grey levels minus ``level``; weight (T,) float32: 0 off the image, on saturated pixels (their
+        true level is unknown) and on other blobs' above-threshold pixels, else 1.
     """
     h, w = image.shape
-    ox, oy = _round_window(half)
     origin = np.rint(centre).astype(np.int64)
-    xs, ys = origin[:, :1] + ox, origin[:, 1:] + oy
+    reach = radius + 0.7072  # a pixel within radius of the centre lies within this of the centre pixel
+    half = _WINDOW_HALVES[np.searchsorted(_WINDOW_HALVES, reach.max())]
+    all_ox, all_oy, all_r2 = _disc_offsets(int(half))
+    count = np.searchsorted(all_r2, reach * reach, side="right")  # (N,) >= 1
+    starts = np.cumsum(count) - count
+    seg = np.repeat(np.arange(len(count)), count)
+    nearest = np.arange(len(seg)) - starts[seg]
+    ox, oy = all_ox[nearest], all_oy[nearest]
+    xs, ys = origin[seg, 0] + ox, origin[seg, 1] + oy
     xc, yc = np.minimum(np.maximum(xs, 0), w - 1), np.minimum(np.maximum(ys, 0), h - 1)
-    flat = yc * w + xc
-    grey = image.ravel().take(flat)
-    fx, fy = (centre - origin).T[:, :, None]
-    usable = ((xs == xc) & (ys == yc) & ((grey <= t) | owners.owns(own, xs, ys))
-              & ((ox - fx) ** 2 + (oy - fy) ** 2 <= (radius * radius)[:, None]))
-    usable &= grey < _SATURATED
-    return (origin, ox.astype(np.float32), oy.astype(np.float32), (grey - np.float32(level)).astype(np.float32),
-            usable.astype(np.float32))
+    grey = image.ravel().take(yc * w + xc)
+    fx, fy = (centre - origin)[seg].T
+    usable = ((xs == xc) & (ys == yc) & ((grey <= t) | owners.owns(own[seg], xs, ys))
+              & ((ox - fx) ** 2 + (oy - fy) ** 2 <= radius[seg] ** 2) & (grey < _SATURATED))
+    return (origin, seg, starts, ox.astype(np.float32), oy.astype(np.float32),
+            (grey - np.float32(level)).astype(np.float32), usable.astype(np.float32))
 
 
 @functools.cache
-def _round_window(half: int) -> tuple[np.ndarray, np.ndarray]:
-    """x and y offsets (P,) int of the pixels within ``half + 0.5`` px of a centre pixel (read-only)."""
+def _disc_offsets(half: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """x and y offsets (P,) int of the pixels within ``half`` px of a centre pixel, nearest first, and their
+    squared distances (read-only)."""
     oy, ox = np.mgrid[-half: half + 1, -half: half + 1].reshape(2, -1)
-    round_ = ox * ox + oy * oy <= (half + 0.5) ** 2
-    ox, oy = ox[round_], oy[round_]
-    ox.setflags(write=False)
-    oy.setflags(write=False)
-    return ox, oy
+    r2 = ox * ox + oy * oy
+    order = np.argsort(r2, kind="stable")
+    order = order[r2[order] <= half * half]
+    out = ox[order], oy[order], r2[order]
+    for a in out:
+        a.setflags(write=False)
+    return out
 
 
 def _disc_starts(blobs: np.ndarray, k: int, origin: np.ndarray, peaks: tuple[np.ndarray, np.ndarray, np.ndarray],
@@ -434,11 +447,11 @@ def _disc_starts(blobs: np.ndarray, k: int, origin: np.ndarray, peaks: tuple[np.
     return start
 
 
-def _measure(image: np.ndarray, owners: _Owners, blobs: np.ndarray, k: int, radius: np.ndarray, half: int,
+def _measure(image: np.ndarray, owners: _Owners, blobs: np.ndarray, k: int, radius: np.ndarray,
              peaks: tuple[np.ndarray, np.ndarray, np.ndarray], stats: _Blobs, level: float, sigma: float, t: int
              ) -> tuple[np.ndarray, np.ndarray]:
     """Fit ``k`` discs to each blob in ``blobs`` (N,) on the pixels within ``radius`` (N,) px of its
-    centroid (``half`` >= every radius).
+    centroid.
 
     Returns:
         centres (N, k, 2) px and their covariances (N, k, 2, 2) px^2. A fit that fails (not finite, or a
@@ -446,10 +459,11 @@ def _measure(image: np.ndarray, owners: _Owners, blobs: np.ndarray, k: int, radi
         the weighted centroid (k = 1) or the peaks (k > 1), with the centroid's noise covariance.
     """
     n = len(blobs)
-    origin, ox, oy, values, weight = _window(stats.centroid[blobs], radius, half, image, owners,
-                                              blobs, t, level)
+    origin, seg, starts, ox, oy, values, weight = _window(stats.centroid[blobs], radius, image, owners, blobs, t,
+                                                          level)
     start = _disc_starts(blobs, k, origin, peaks, stats, level)
-    params, pcov = _fit_discs(values, ox, oy, weight, start, FIT_ITERATIONS if k == 1 else SPLIT_ITERATIONS)
+    params, pcov = _fit_discs(values, ox, oy, weight, seg, starts, start,
+                              FIT_ITERATIONS if k == 1 else SPLIT_ITERATIONS)
     disc = params[:, 1:].reshape(n, k, 5)
     offset = disc[:, :, :2] - start[:, 1:].reshape(n, k, 5)[:, :, :2]
     pos = 2 * np.arange(k)[:, None] + np.arange(2)  # (k, 2) covariance rows of each centre
@@ -526,15 +540,12 @@ def detect(image: np.ndarray, *, threshold: float | None = None, min_area: int =
     peaks = _peaks(image, _Pixels(pixels.blob[sel], pixels.x[sel], pixels.y[sel], pixels.grey[sel]), level, sigma)
     n_discs = np.minimum(np.maximum(np.bincount(peaks[0], minlength=len(stats.area))[ids], 1), MAX_DISCS)
     radius = stats.reach[ids] + SKIRT
-    half = _WINDOW_HALVES[np.searchsorted(_WINDOW_HALVES, radius)]  # a few window sizes
     for k in np.unique(n_discs[fit]):
-        for hh in np.unique(half[fit & (n_discs == k)]):
-            group = np.flatnonzero(fit & (n_discs == k) & (half == hh))
-            centres, covs = _measure(image, owners, ids[group], int(k), radius[group], int(hh), peaks, stats,
-                                     level, sigma, t)
-            xy.append(centres.reshape(-1, 2))
-            cov.append(covs.reshape(-1, 2, 2))
-            part.append(np.repeat(group, k))
+        group = np.flatnonzero(fit & (n_discs == k))
+        centres, covs = _measure(image, owners, ids[group], int(k), radius[group], peaks, stats, level, sigma, t)
+        xy.append(centres.reshape(-1, 2))
+        cov.append(covs.reshape(-1, 2, 2))
+        part.append(np.repeat(group, k))
     part = np.concatenate(part)
     return Detections(np.concatenate(xy), stats.area[ids][part] / n_discs[part], roundness[part],
                       np.concatenate(cov), flagged[part] | (n_discs[part] > 1))
