@@ -7,8 +7,13 @@ the same frames on one core (BLAS threads pinned to 1); the figures are frames p
 ``Tracker.step`` (undistortion, prediction, association, fusion, identities, recording) plus
 ``finish``, and the accuracy / identity scores of both outputs from ``mocap.evaluate``.
 
+``--stages`` adds one more (untimed-for-the-table) tracker run with a timer around each stage method of
+``Tracker`` and prints milliseconds per frame per stage (inclusive: a stage called from another
+counts in both), to see where the time goes.
+
 Usage:
     python tools/bench_tracking.py [--frames 1200] [--markers 40] [--cameras 6] [--motion body|FILE.c3d]
+                                   [--stages]
 """
 
 from __future__ import annotations
@@ -50,6 +55,38 @@ def _time(make, rig, fps, frames) -> tuple[float, object]:
     return time.perf_counter() - t0, traj
 
 
+# Tracker methods timed by --stages (names missing from the current Tracker are skipped).
+_STAGES = ("_prepare", "_predict", "_associate", "_search_regions", "_crowded", "_measure", "_neighbour_shift",
+           "_update", "_new_markers", "_lifecycle", "_record", "finish")
+
+
+def _stage_times(rig, fps, frames) -> dict[str, tuple[float, int]]:
+    """Per stage (seconds, calls) over one run: each stage method of a Tracker wrapped in a timer."""
+    tracker = Tracker(rig, fps)
+    totals: dict[str, list] = {}
+
+    def timed(name, method):
+        def wrapper(*a, **kw):
+            t0 = time.perf_counter()
+            try:
+                return method(*a, **kw)
+            finally:
+                entry = totals.setdefault(name, [0.0, 0])
+                entry[0] += time.perf_counter() - t0
+                entry[1] += 1
+        return wrapper
+
+    for name in _STAGES:
+        if hasattr(tracker, name):
+            setattr(tracker, name, timed(name, getattr(tracker, name)))
+    t0 = time.perf_counter()
+    for k, dets in enumerate(frames):
+        tracker.step(k, dets)
+    tracker.finish()
+    totals["(all)"] = [time.perf_counter() - t0, len(frames)]
+    return {name: (sec, calls) for name, (sec, calls) in totals.items()}
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--frames", type=int, default=1200)
@@ -58,6 +95,7 @@ def main() -> None:
     ap.add_argument("--motion", default="body", help="'body' (marching person, 120 Hz) or a C3D file")
     ap.add_argument("--seed", type=int, default=1)
     ap.add_argument("--repeat", type=int, default=3, help="timed runs of each tracker (best is reported)")
+    ap.add_argument("--stages", action="store_true", help="also print the tracker's time per stage")
     args = ap.parse_args()
 
     rig, truth, frames = _take(args)
@@ -77,6 +115,13 @@ def main() -> None:
         print(f"{name:10s} {fps:9.0f} {fps / base:6.2f} {r.rmse_mm:8.3f} {r.rmse_over_crlb:6.2f} "
               f"{100 * r.completeness:9.2f} {100 * r.ghost_rate:7.3f} {r.switches:8d} {r.switches_per_10k:6.1f} "
               f"{r.idf1:6.4f}")
+    if args.stages:
+        stages = _stage_times(rig, truth.fps, frames)
+        print(f"tracker stages (inclusive, one run with timers; {len(frames)} frames):")
+        print(f"{'stage':18s} {'ms/frame':>9s} {'calls':>7s} {'share':>6s}")
+        total = stages["(all)"][0]
+        for name, (sec, calls) in sorted(stages.items(), key=lambda kv: -kv[1][0]):
+            print(f"{name:18s} {1000 * sec / len(frames):9.3f} {calls:7d} {100 * sec / total:5.1f}%")
 
 
 if __name__ == "__main__":
