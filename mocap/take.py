@@ -18,6 +18,7 @@ import os
 import re
 import tomllib
 from collections.abc import Iterator
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -35,6 +36,8 @@ __all__ = ["Take", "open_take", "VIDEO_SUFFIXES"]
 log = logging.getLogger(__name__)
 
 VIDEO_SUFFIXES = (".avi", ".mp4", ".mkv")
+DECODE_THREADS = 2  # cameras decoded at once, one frame ahead of the caller (0 or 1: in the caller's thread)
+_GREY_FOURCC = cv2.VideoWriter_fourcc(*"Y800")  # FFmpeg's tag for 8-bit grey video (e.g. FFV1 gray)
 _MAX_FRAME_WARNINGS = 5  # per camera; later undecodable frames are counted, not each logged
 
 
@@ -50,6 +53,14 @@ def _to_grey(frame: np.ndarray) -> np.ndarray:
     if frame.shape[2] == 1:
         return frame[:, :, 0]
     return cv2.cvtColor(frame, cv2.COLOR_BGRA2GRAY if frame.shape[2] == 4 else cv2.COLOR_BGR2GRAY)
+
+
+def _open_video(path: Path) -> cv2.VideoCapture:
+    """A capture of ``path`` that hands out 8-bit grey videos as (H, W) frames without a BGR round trip."""
+    cap = cv2.VideoCapture(str(path))
+    if cap.isOpened() and int(cap.get(cv2.CAP_PROP_CODEC_PIXEL_FORMAT)) == _GREY_FOURCC:
+        cap.set(cv2.CAP_PROP_CONVERT_RGB, 0.0)
+    return cap
 
 
 class _Recording:
@@ -68,7 +79,7 @@ class _Recording:
                 raise MocapError(f"{self._files[0]}: cannot be read as an 8-bit PNG image; re-export the frames")
         else:
             self._files = []
-            cap = cv2.VideoCapture(str(path))
+            cap = _open_video(path)
             try:
                 if not cap.isOpened():
                     raise MocapError(f"{path}: not a video OpenCV can read; re-encode it (e.g. ffmpeg -c:v ffv1) "
@@ -113,7 +124,7 @@ class _Recording:
                                      f"from the calibration's {size[0]}x{size[1]}; all frames must have that size")
                 yield image
             return
-        cap = cv2.VideoCapture(str(self.path))
+        cap = _open_video(self.path)
         try:
             for _ in range(start):  # decode-and-drop: exact on every codec, unlike seeking
                 cap.grab()
@@ -157,15 +168,29 @@ class Take:
             raise MocapError(f"{self.path}: start frame {start} is negative")
         return start, max(start, stop)
 
-    def images(self, start: int = 0, stop: int | None = None) -> Iterator[tuple[int, list[np.ndarray | None]]]:
+    def images(self, start: int = 0, stop: int | None = None, threads: int = DECODE_THREADS
+               ) -> Iterator[tuple[int, list[np.ndarray | None]]]:
         """Yield ``(frame_index, images)``: one (H, W) uint8 grey image per camera in rig order, or None
-        where that camera's frame could not be decoded (a warning names the file and frame)."""
+        where that camera's frame could not be decoded (a warning names the file and frame).
+
+        With ``threads`` > 1 the cameras' next frames are decoded in that many threads while the caller
+        works on the current one (the decoders release the GIL); 0 or 1 decodes in the caller's thread.
+        """
         if self.kind != "images":
             raise MocapError(f"{self.path}: this take holds centroid files, not images")
         start, stop = self._range(start, stop)
         streams = [rec.frames(start, stop, cam.size) for rec, cam in zip(self._sources, self.rig, strict=True)]
-        for index, images in zip(range(start, stop), zip(*streams, strict=True), strict=True):
-            yield index, list(images)
+        if threads <= 1 or stop - start < 2:
+            for index, images in zip(range(start, stop), zip(*streams, strict=True), strict=True):
+                yield index, list(images)
+            return
+        with ThreadPoolExecutor(threads, thread_name_prefix="mocap-decode") as pool:
+            pending = [pool.submit(next, s) for s in streams]
+            for index in range(start, stop):
+                images = [f.result() for f in pending]  # each camera's stream is advanced by one task at a time
+                if index + 1 < stop:
+                    pending = [pool.submit(next, s) for s in streams]
+                yield index, images
 
     def centroids(self, start: int = 0, stop: int | None = None) -> Iterator[tuple[int, list[Detections]]]:
         """Yield ``(frame_index, detections)``: one :class:`Detections` per camera in rig order."""
