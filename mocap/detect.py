@@ -101,7 +101,7 @@ def background_level(image: np.ndarray) -> tuple[float, float]:
         (level, sigma), grey levels: the median and ``median - 15.87th percentile`` of every 4th pixel
         of every 4th row, interpolated within integer levels (sigma includes the 8-bit rounding).
     """
-    hist = np.bincount(image[::4, ::4].ravel(), minlength=256).astype(np.float64)
+    hist = cv2.calcHist([np.ascontiguousarray(image[::4, ::4])], [0], None, [256], [0, 256]).ravel().astype(np.float64)
     cum = np.cumsum(hist) / hist.sum()
     level = _quantile_from_histogram(cum, 0.5)
     return level, level - _quantile_from_histogram(cum, 0.15866)
@@ -233,15 +233,16 @@ def _fit_discs(values: np.ndarray, ox: np.ndarray, oy: np.ndarray, weight: np.nd
     jac = np.empty((n_par, len(seg)), np.float32)  # parameter-major: every product below runs along the pixels
     rows = jac[1:].reshape(-1, 5, len(seg))  # (K, 5, T) view: d model / d (cx, cy, A, r, s)
     jac[0] = weight
-    upper = np.triu_indices(n_par)
+    upper, symmetric = _normal_index(n_par)
     for step_no in range(iterations):
-        cx, cy, amp, r, s = disc.transpose(2, 1, 0)[:, :, seg]  # (K, T) each
+        per_pixel = np.ascontiguousarray(params.T).take(seg, axis=1)  # (1 + 5K, T)
+        cx, cy, amp, r, s = per_pixel[1:].reshape(-1, 5, len(seg)).transpose(1, 0, 2)  # (K, T) each
         dx, dy = ox - cx, oy - cy
         rho = np.sqrt(dx * dx + dy * dy)
         scale = _Z_RES / s
         index = (rho * scale + (_Z_ORIGIN - r * scale)).astype(np.intp)  # truncation rounds: origin has +0.5
         f = _EDGE.take(index, mode="clip")
-        resid = (values - params[seg, 0] - (amp * f).sum(axis=0)) * weight
+        resid = (values - per_pixel[0] - (amp * f).sum(axis=0)) * weight
         slope = _EDGE_SLOPE.take(index, mode="clip") * (amp / s) * weight  # -d model / d rho, weighted
         np.multiply(f, weight, out=rows[:, 2])
         rows[:, 3] = slope
@@ -249,9 +250,7 @@ def _fit_discs(values: np.ndarray, ox: np.ndarray, oy: np.ndarray, weight: np.nd
         slope /= np.maximum(rho, 1e-9)
         np.multiply(slope, dx, out=rows[:, 0])
         np.multiply(slope, dy, out=rows[:, 1])
-        jtj = np.empty((n, n_par, n_par))
-        jtj[:, upper[0], upper[1]] = jtj[:, upper[1], upper[0]] = np.add.reduceat(
-            jac[upper[0]] * jac[upper[1]], starts, axis=1).T
+        jtj = np.add.reduceat(jac[upper[0]] * jac[upper[1]], starts, axis=1).T[:, symmetric].astype(np.float64)
         grad = np.add.reduceat(jac * resid, starts, axis=1).T.astype(np.float64)[:, :, None]  # (N, n_par, 1)
         if step_no < iterations - 1:
             lhs = jtj.copy()
@@ -353,7 +352,7 @@ class _Blobs:
         starts, _ = _runs(b)
         x, y = pixels.x.astype(np.float64), pixels.y.astype(np.float64)
         wgt = np.maximum(pixels.grey - level, 1e-6)
-        self.area = np.diff(starts, append=len(b)).astype(np.float64)
+        self.area = np.diff(np.append(starts, len(b))).astype(np.float64)
         m0 = np.add.reduceat(wgt, starts)
         self.centroid = np.stack([np.add.reduceat(wgt * x, starts), np.add.reduceat(wgt * y, starts)], 1) / m0[:, None]
         dx, dy = x - self.centroid[b, 0], y - self.centroid[b, 1]
@@ -402,14 +401,26 @@ def _window(centre: np.ndarray, radius: np.ndarray, image: np.ndarray, owners: _
     seg = np.repeat(np.arange(len(count)), count)
     nearest = np.arange(len(seg)) - starts[seg]
     ox, oy = all_ox[nearest], all_oy[nearest]
-    xs, ys = origin[seg, 0] + ox, origin[seg, 1] + oy
+    x0, y0 = origin.T
+    xs, ys = x0.take(seg) + ox, y0.take(seg) + oy
     xc, yc = np.minimum(np.maximum(xs, 0), w - 1), np.minimum(np.maximum(ys, 0), h - 1)
     grey = image.ravel().take(yc * w + xc)
-    fx, fy = (centre - origin)[seg].T
-    usable = ((xs == xc) & (ys == yc) & ((grey <= t) | owners.owns(own[seg], xs, ys))
-              & ((ox - fx) ** 2 + (oy - fy) ** 2 <= radius[seg] ** 2) & (grey < _SATURATED))
+    fx, fy = (centre - origin).T
+    usable = ((xs == xc) & (ys == yc) & ((grey <= t) | owners.owns(own.take(seg), xs, ys))
+              & ((ox - fx.take(seg)) ** 2 + (oy - fy.take(seg)) ** 2 <= (radius * radius).take(seg))
+              & (grey < _SATURATED))
     return (origin, seg, starts, ox.astype(np.float32), oy.astype(np.float32),
             (grey - np.float32(level)).astype(np.float32), usable.astype(np.float32))
+
+
+@functools.cache
+def _normal_index(n_par: int) -> tuple[np.ndarray, np.ndarray]:
+    """Row and column (U,) of the upper triangle of an (n_par, n_par) matrix, and (n_par, n_par) the position
+    in that list of each entry (i, j) or (j, i)."""
+    upper = np.triu_indices(n_par)
+    symmetric = np.empty((n_par, n_par), np.intp)
+    symmetric[upper] = symmetric[upper[::-1]] = np.arange(len(upper[0]))
+    return upper, symmetric
 
 
 @functools.cache
