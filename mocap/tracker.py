@@ -465,8 +465,10 @@ class Tracker:
         near = np.linalg.norm(t.x3[:, None, :3] - t.x3[None, good, :3], axis=2) < self._cfg.neighbour_m
         cnt = near.sum(axis=1)
         rows = np.flatnonzero(play & (cnt >= self._cfg.neighbour_min))
-        if rows.size:
-            shift[rows] = np.nanmedian(np.where(near[rows, :, None], y[None], np.nan), axis=1)
+        if rows.size:  # per-row median of the near ones: NaN sorts last, so the middle of the first cnt
+            srt = np.sort(np.where(near[rows, :, None], y[None], np.nan), axis=1)
+            r, n = np.arange(rows.size), cnt[rows]
+            shift[rows] = 0.5 * (srt[r, (n - 1) // 2] + srt[r, n // 2])
         return shift
 
     def _search_regions(self, lock: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
