@@ -10,6 +10,8 @@ The filters are plain arrays owned by the caller: ``x`` (K, n), ``P`` (K, n, n).
 :func:`update` return new arrays; the update takes any measurement function through its predicted
 value ``hx`` (K, m) and Jacobian ``H`` (K, m, n) (or a shared (m, n)), i.e. it is a true EKF, and is
 identical, step for step, to ``filterpy.kalman.ExtendedKalmanFilter`` (Joseph-form covariance update).
+:func:`update_position` is the same update for the tracker's direct position measurement ``H = [I 0 0]``,
+with the products by ``H`` done as slices (the same numbers, about half the matrix products).
 
 :class:`RunningError` is the paper's search-region sizing: exponentially smoothed magnitudes of the
 position, velocity and acceleration prediction errors.
@@ -26,6 +28,7 @@ __all__ = [
     "ca_process_noise",
     "predict",
     "update",
+    "update_position",
     "position_jacobian",
     "init_state",
     "RunningError",
@@ -124,6 +127,32 @@ def update(x: np.ndarray, P: np.ndarray, z: np.ndarray, hx: np.ndarray, H: np.nd
     x_new = x + (gain @ y[..., None])[..., 0]
     I_KH = np.eye(x.shape[1]) - gain @ H
     P_new = I_KH @ P @ np.swapaxes(I_KH, -1, -2) + gain @ R @ np.swapaxes(gain, -1, -2)
+    return x_new, P_new, y, S
+
+
+def update_position(x: np.ndarray, P: np.ndarray, z: np.ndarray, R: np.ndarray
+                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`update` for a direct position measurement (``h(x) = p``, ``H`` = :func:`position_jacobian`).
+
+    With ``H = [I 0 0]``: ``P H^T`` is ``P[:, :, :d]``, ``(I - K H) P = P - K P[:d]`` and
+    ``M (I - K H)^T = M - M[:, :, :d] K^T``, so the Joseph form needs no n x n products.
+
+    Args:
+        x: (K, n) prior states, n = 3 d.  P: (K, n, n) prior covariances.
+        z: (K, d) measured positions.  R: (K, d, d) or (d, d) their covariances.
+
+    Returns:
+        ``x'`` (K, n), ``P'`` (K, n, n), innovation ``y`` (K, d) and its covariance ``S`` (K, d, d).
+    """
+    d = z.shape[-1]
+    PHt = P[:, :, :d]
+    S = P[:, :d, :d] + R
+    gain = PHt @ np.linalg.inv(S)  # (K, n, d)
+    gain_t = np.swapaxes(gain, -1, -2)
+    y = z - x[:, :d]
+    x_new = x + (gain @ y[..., None])[..., 0]
+    M = P - gain @ P[:, :d, :]
+    P_new = M - M[:, :, :d] @ gain_t + gain @ R @ gain_t
     return x_new, P_new, y, S
 
 

@@ -40,7 +40,7 @@ import numpy as np
 
 from mocap.camera import Rig
 from mocap.detections import Detections
-from mocap.ekf import RunningError, ca_process_noise, ca_transition, init_state, position_jacobian, predict, update
+from mocap.ekf import RunningError, ca_process_noise, ca_transition, init_state, predict, update_position
 from mocap.errors import MocapError
 from mocap.fusion import NewPoints, new_points, reidentify, repick, robust_triangulate
 from mocap.geometry import reprojection_jacobians
@@ -320,7 +320,6 @@ class Tracker:
         self._sizes = np.array([c.size for c in rig.cameras], dtype=float)
         self._F3, self._Q3 = ca_transition(dt, 3, cfg.accel_damping), ca_process_noise(dt, 3, cfg.jerk_std_3d)
         self._F2, self._Q2 = ca_transition(dt, 2, cfg.accel_damping), ca_process_noise(dt, 2, cfg.jerk_std_2d)
-        self._H3, self._H2 = position_jacobian(3), position_jacobian(2)
         self._running = RunningError(cfg.error_alpha, cfg.gate_scale)
         self._keep_lost = max(1, int(round(cfg.keep_lost_s * self._fps)))
         self._t = _Tracks.empty(C)
@@ -543,7 +542,7 @@ class Tracker:
         R = meas.cov[idx] + np.eye(3) * 1e-12
         consecutive = t.since[idx] == 1
         prior = t.x3[idx]
-        x_new, P_new, y, _ = update(prior, t.P3[idx], X, prior[:, :3], self._H3, R)
+        x_new, P_new, y, _ = update_position(prior, t.P3[idx], X, R)
         # Running prediction errors (paper 004), from consecutive frames only.
         v_meas = (X - t.last_X[idx]) / dt
         a_meas = (v_meas - t.last_v[idx]) / dt
@@ -565,7 +564,7 @@ class Tracker:
         Rz = fr.S[cc, asg[kk, cc]]
         locked = t.lock2[tk, cc]
         x2 = t.x2[tk, cc]
-        x2n, P2n, y2, _ = update(x2, t.P2[tk, cc], z, x2[:, :2], self._H2, Rz)
+        x2n, P2n, y2, _ = update_position(x2, t.P2[tk, cc], z, Rz)
         uvv = (z - t.last_uv[tk, cc]) / dt
         uva = (uvv - t.last_uvv[tk, cc]) / dt
         err2 = np.stack([np.linalg.norm(y2, axis=1), np.linalg.norm(uvv - x2[:, 2:4], axis=1),

@@ -15,6 +15,7 @@ from mocap.ekf import (
     position_jacobian,
     predict,
     update,
+    update_position,
 )
 from mocap.geometry import reprojection_jacobians
 
@@ -57,6 +58,39 @@ def test_linear_position_filters_match_filterpy(dims):
             np.testing.assert_allclose(P[k], f.P, rtol=1e-10, atol=1e-12)
             np.testing.assert_allclose(y[k], f.y, rtol=1e-10, atol=1e-10)
             np.testing.assert_allclose(S[k], f.S, rtol=1e-10, atol=1e-12)
+
+
+@pytest.mark.parametrize("dims", [2, 3])
+def test_position_update_equals_the_general_update_and_filterpy(dims):
+    """update_position (H = [I 0 0] as slices) gives the general update's numbers, and filterpy's, step by step."""
+    rng = np.random.default_rng(11)
+    K, n, dt = 5, 3 * dims, 1 / 50
+    F, Q, H = ca_transition(dt, dims, 0.5), ca_process_noise(dt, dims, 80.0), position_jacobian(dims)
+    R0 = np.stack([_random_spd(rng, dims, 1e-2) for _ in range(K)])
+    x, P = init_state(rng.normal(size=(K, dims)), R0, rng.normal(size=(K, dims)), velocity_std=3.0, accel_std=50.0)
+    xg, Pg = x.copy(), P.copy()
+    refs = []
+    for k in range(K):
+        f = ExtendedKalmanFilter(dim_x=n, dim_z=dims)
+        f.x, f.P, f.F, f.Q = x[k].copy(), P[k].copy(), F, Q
+        refs.append(f)
+    for _ in range(40):
+        x, P = predict(x, P, F, Q)
+        xg, Pg = predict(xg, Pg, F, Q)
+        z = x[:, :dims] + rng.normal(scale=0.2, size=(K, dims))
+        R = np.stack([_random_spd(rng, dims, 1e-2) for _ in range(K)])
+        x, P, y, S = update_position(x, P, z, R)
+        xg, Pg, yg, Sg = update(xg, Pg, z, xg[:, :dims], H, R)
+        np.testing.assert_allclose(x, xg, rtol=1e-12, atol=1e-12)
+        np.testing.assert_allclose(P, Pg, rtol=1e-10, atol=1e-14)
+        np.testing.assert_allclose(y, yg, rtol=1e-12, atol=1e-14)
+        np.testing.assert_allclose(S, Sg, rtol=1e-12, atol=1e-14)
+        for k, f in enumerate(refs):
+            f.predict()
+            f.update(z[k], lambda s: H, lambda s: s[:dims], R=R[k])
+            np.testing.assert_allclose(x[k], f.x, rtol=1e-10, atol=1e-10)
+            np.testing.assert_allclose(P[k], f.P, rtol=1e-10, atol=1e-12)
+    assert not np.allclose(P[:, :dims, :dims], R, rtol=0.1)  # the filters did weigh prior and measurement
 
 
 def test_world_filter_with_nonlinear_pair_measurement_matches_filterpy(rig):
