@@ -77,15 +77,47 @@ def _gauss_newton(P: np.ndarray, uv: np.ndarray, W: np.ndarray, X: np.ndarray, i
     return X, np.linalg.inv(H), proj, r, depth.T
 
 
+def _consensus(P: np.ndarray, uv: np.ndarray, Winv: np.ndarray, used: np.ndarray, X: np.ndarray,
+               limit: np.ndarray, iterations: int) -> np.ndarray:
+    """(C, K) the cameras of each point that agree with its best two-camera hypothesis.
+
+    Every pair of the point's cameras is triangulated on its own and scored by the truncated squared
+    errors of all its cameras, ``sum(min((err / limit)^2, 1))`` (MSAC); the best pair's inliers are
+    returned. Dropping the worst-fitting camera one at a time instead fails when a precise wrong
+    detection (a neighbour's, or a second marker on the same epipolar line) pulls the weighted point
+    towards itself: the right cameras then look like the outliers.
+
+    Args: ``uv`` (C, K, 2) zero where unused, ``Winv`` (C, K, 2, 2) inverse covariances, ``used`` (C, K),
+    ``X`` (K, 3) start, m, ``limit`` (C, K) pixels.
+    """
+    C, K = used.shape
+    best_cost = np.full(K, np.inf)
+    best = used.copy()
+    for i in range(C):
+        for j in range(i + 1, C):
+            rows = np.flatnonzero(used[i] & used[j])
+            if rows.size == 0:
+                continue
+            pair = np.zeros((C, rows.size), dtype=bool)
+            pair[[i, j]] = True
+            _, _, _, r, _ = _gauss_newton(P, uv[:, rows], Winv[:, rows] * pair[..., None, None], X[rows], iterations)
+            e2 = (np.hypot(r[..., 0], r[..., 1]) / limit[:, rows]) ** 2
+            cost = (np.minimum(e2, 1.0) * used[:, rows]).sum(axis=0)
+            better = cost < best_cost[rows]
+            best_cost[rows[better]] = cost[better]
+            best[:, rows[better]] = used[:, rows[better]] & (e2[:, better] < 1.0)
+    return best
+
+
 def robust_triangulate(P: np.ndarray, uv: np.ndarray, cov: np.ndarray, start: np.ndarray,
                        outlier_sigma: float, outlier_min_px: float, iterations: int = 3) -> Triangulated:
     """Covariance-weighted triangulation with per-camera outlier rejection.
 
     Starting from ``start`` (the tracks' predictions), Gauss-Newton over the cameras that hold a
-    detection; then, while some camera's reprojection error exceeds
-    ``max(outlier_sigma * sigma_c, outlier_min_px)`` and at least three cameras remain, the worst
-    camera of each such track is dropped and its point recomputed. A two-camera point whose
-    cameras disagree is dropped (NaN).
+    detection. Where some camera's reprojection error exceeds ``max(outlier_sigma * sigma_c,
+    outlier_min_px)`` and at least three cameras hold one, the point is recomputed from the cameras that
+    agree with its best camera pair (:func:`_consensus`); a camera still out of bounds after that is
+    dropped, worst first, while three remain. A two-camera point whose cameras disagree is dropped (NaN).
 
     Args:
         P: (C, 3, 4) ideal-pixel projection matrices.
@@ -104,13 +136,17 @@ def robust_triangulate(P: np.ndarray, uv: np.ndarray, cov: np.ndarray, start: np
     X, cov3, proj, r, depth = _gauss_newton(P, uvz, Winv * used[..., None, None], start, iterations)
     err = np.where(used, np.hypot(r[..., 0], r[..., 1]), 0.0)
     todo = np.arange(K)
-    for _ in range(C - 2):
+    for rnd in range(C - 1):
         ratio = np.where(used[:, todo], err[:, todo] / limit[:, todo], -1.0)
         drop = (ratio.max(axis=0) > 1.0) & (used[:, todo].sum(axis=0) >= 3)
         if not drop.any():
             break
         todo = todo[drop]
-        used[np.argmax(ratio[:, drop], axis=0), todo] = False
+        if rnd == 0:
+            used[:, todo] = _consensus(P, uvz[:, todo], Winv[:, todo], used[:, todo], X[todo], limit[:, todo],
+                                       iterations)
+        else:  # the consensus refit still leaves a camera out of bounds: drop the worst
+            used[np.argmax(ratio[:, drop], axis=0), todo] = False
         W = Winv[:, todo] * used[:, todo, None, None]
         X[todo], cov3[todo], proj[:, todo], r[:, todo], depth[:, todo] = _gauss_newton(
             P, uvz[:, todo], W, X[todo], iterations)
