@@ -123,21 +123,27 @@ def epipolar_consistency(pairs: CameraPairs, uv: np.ndarray, tol_px: float, sigm
         ``tested`` (K, C) bool: the camera had a partner with a point to test against.
     """
     K, C = uv.shape[:2]
-    supported = np.zeros((K, C), dtype=bool)
-    tested = np.zeros((K, C), dtype=bool)
     if len(pairs) == 0 or K == 0:
-        return supported, tested
+        return np.zeros((K, C), dtype=bool), np.zeros((K, C), dtype=bool)
     i, j = pairs.index[:, 0], pairs.index[:, 1]
-    e = epipolar_distance(pairs.F[:, None], uv[:, i].swapaxes(0, 1), uv[:, j].swapaxes(0, 1))  # (P, K)
+    # Homogeneous points (C, 3, K): every pair's epipolar lines in one (P, 3, 3) @ (P, 3, K) product.
+    h = np.empty((C, 3, K))
+    h[:, :2] = uv.transpose(1, 2, 0)
+    h[:, 2] = 1.0
+    h2 = h[j]
+    l2 = pairs.F @ h[i]  # lines in image j of the points in image i
+    l1 = np.swapaxes(pairs.F, 1, 2) @ h2  # lines in image i of the points in image j
+    alg = np.abs((l2 * h2).sum(axis=1))
+    e = np.maximum(alg / np.hypot(l2[:, 0], l2[:, 1]), alg / np.hypot(l1[:, 0], l1[:, 1]))  # (P, K)
     have = np.isfinite(e)
     tol = tol_px
     if sigma is not None:
         tol = np.maximum(tol_px, n_sigma * np.hypot(sigma[:, i], sigma[:, j]).T)
     good = have & (e < tol)
-    for side in (i, j):  # scatter pair results onto their cameras
-        np.logical_or.at(supported.T, side, good)
-        np.logical_or.at(tested.T, side, have)
-    return supported, tested
+    incidence = np.zeros((len(pairs), C), dtype=bool)  # pair -> its two cameras
+    incidence[np.arange(len(pairs)), i] = True
+    incidence[np.arange(len(pairs)), j] = True
+    return good.T @ incidence, have.T @ incidence
 
 
 def match_pairs(pairs: CameraPairs, D: np.ndarray, free: np.ndarray, tol_px: float,

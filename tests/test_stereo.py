@@ -106,6 +106,29 @@ def test_epipolar_consistency_flags_the_odd_camera(rig):
     assert not tested[1].any() and not supported[1].any()
 
 
+def test_epipolar_consistency_equals_a_loop_over_pairs(rig):
+    """The batched test gives, track by track, what epipolar_distance over each pair says (sigma tolerance too)."""
+    rng = np.random.default_rng(4)
+    pairs = camera_pairs(rig)
+    X = rng.uniform(-0.5, 0.5, size=(30, 3)) + [0.0, 0.0, 1.0]
+    uv = _ideal(rig, X).swapaxes(0, 1).copy()
+    uv += rng.normal(scale=1.5, size=uv.shape)  # some pairs within 2 px, some not
+    uv[rng.random(uv.shape[:2]) < 0.3] = np.nan
+    sigma = rng.uniform(0.05, 0.8, size=uv.shape[:2])
+    supported, tested = epipolar_consistency(pairs, uv, 2.0, sigma, 4.0)
+    want_s, want_t = np.zeros_like(supported), np.zeros_like(tested)
+    for k in range(len(X)):
+        for (a, b), F in zip(pairs.index, pairs.F, strict=True):
+            e = epipolar_distance(F, uv[k, a], uv[k, b])
+            if np.isfinite(e):
+                want_t[k, [a, b]] = True
+                if e < max(2.0, 4.0 * np.hypot(sigma[k, a], sigma[k, b])):
+                    want_s[k, [a, b]] = True
+    assert want_t.any() and want_s.any() and (want_t & ~want_s).any()
+    np.testing.assert_array_equal(supported, want_s)
+    np.testing.assert_array_equal(tested, want_t)
+
+
 def test_match_pairs_finds_the_true_correspondences_and_triangulates_them(rig):
     rng = np.random.default_rng(2)
     pairs = camera_pairs(rig)
