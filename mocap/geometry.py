@@ -133,8 +133,7 @@ def reprojection_jacobians(projections: np.ndarray, X: np.ndarray) -> tuple[np.n
         ``uv`` (C, N, 2) projected ideal pixels and ``J`` (C, N, 2, 3) pixels per metre.
     """
     P = np.asarray(projections, dtype=np.float64)
-    Xh = np.concatenate([X, np.ones((len(X), 1))], axis=1)
-    proj = np.einsum("cij,nj->cni", P, Xh)  # (C, N, 3)
+    proj = X @ P[:, :, :3].transpose(0, 2, 1) + P[:, None, :, 3]  # (C, N, 3); a matmul beats einsum here
     w = proj[..., 2:3]
     uv = proj[..., :2] / w
     J = (P[:, None, :2, :3] - uv[..., None] * P[:, None, 2:3, :3]) / w[..., None]
