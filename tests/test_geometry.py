@@ -11,6 +11,7 @@ from hypothesis.extra.numpy import arrays
 from mocap.geometry import (
     epipolar_distance_matrix,
     fundamental_from_cameras,
+    reprojection_jacobians,
     triangulate_dlt,
     triangulate_weighted,
 )
@@ -85,3 +86,20 @@ def test_weighted_triangulation_covariance_is_calibrated():
     dlt = triangulate_dlt(P, noisy)
     assert ((est - X) ** 2).sum(1).mean() < ((dlt - X) ** 2).sum(1).mean()
     assert np.all(rms > 0)
+
+
+def test_reprojection_jacobians_match_opencv_and_finite_differences():
+    """Ideal-pixel projections equal cv2.projectPoints without distortion; Jacobians equal central differences."""
+    rng = np.random.default_rng(8)
+    X = rng.uniform(-0.8, 0.8, size=(25, 3)) + [0.0, 0.0, 1.0]
+    P = RIG.projection_matrices()
+    uv, J = reprojection_jacobians(P, X)
+    for c, cam in enumerate(RIG):
+        ref, _ = cv2.projectPoints(X, cam.rotation, cam.translation, cam.matrix, None)
+        np.testing.assert_allclose(uv[c], ref[:, 0], rtol=0, atol=1e-9)
+    step = 1e-6
+    for axis in range(3):
+        d = np.zeros(3)
+        d[axis] = step
+        num = (reprojection_jacobians(P, X + d)[0] - reprojection_jacobians(P, X - d)[0]) / (2 * step)
+        np.testing.assert_allclose(J[..., axis], num, rtol=1e-6, atol=1e-3)
