@@ -219,9 +219,10 @@ def new_points(P: np.ndarray, pairs: CameraPairs, D: np.ndarray, cov: np.ndarray
     All-pairs epipolar matching gives candidate correspondences; each is triangulated and projected
     into every camera; a camera supports it when a free detection lies within ``support_px``.
     Candidates are accepted greedily (most supporting cameras, then smallest epipolar distance),
-    each detection used once; a point is ``strong`` when supported by ``min_views`` cameras, or by
-    every camera (>= 2) whose image it falls in when fewer than ``min_views`` do (cameras that saw
-    nothing at all this frame do not count). The accepted point is
+    each detection used once (a candidate keeps those of its detections no better one took, if two or
+    more); a point is ``strong`` when supported by ``min_views`` cameras, or by every camera (>= 2)
+    whose image it falls in when fewer than ``min_views`` do (cameras that saw nothing at all this
+    frame do not count). The accepted point is
     re-triangulated over its supporting detections with outlier rejection.
 
     Args:
@@ -268,10 +269,13 @@ def new_points(P: np.ndarray, pairs: CameraPairs, D: np.ndarray, cov: np.ndarray
     chosen = []
     for idx in order:  # greedy over the (few) candidates: each detection once
         cams = np.flatnonzero(support[:, idx])
-        dets = nearest[cams, idx]
-        if used[cams, dets].any():
+        taken = used[cams, nearest[cams, idx]]
+        # A detection claimed by a better candidate leaves this one's support, not the candidate itself:
+        # a marker hidden in one camera lands within support_px of its neighbour's blob there.
+        if (~taken).sum() < 2:
             continue
-        used[cams, dets] = True
+        support[cams[taken], idx] = False
+        used[cams[~taken], nearest[cams[~taken], idx]] = True
         chosen.append(idx)
     if not chosen:
         return empty
