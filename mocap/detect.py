@@ -136,8 +136,9 @@ def _roi_cells(rois: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
 class _Pixels:
     """Above-threshold pixels of every blob: blob id, x, y, grey level (sorted by blob)."""
 
-    def __init__(self, blob: np.ndarray, x: np.ndarray, y: np.ndarray, grey: np.ndarray) -> None:
-        order = np.argsort(blob, kind="stable")
+    def __init__(self, blob: np.ndarray, x: np.ndarray, y: np.ndarray, grey: np.ndarray, presorted: bool = False
+                 ) -> None:
+        order = slice(None) if presorted else np.argsort(blob, kind="stable")
         self.blob, self.x, self.y, self.grey = blob[order], x[order], y[order], grey[order]
 
 
@@ -406,9 +407,10 @@ def _window(centre: np.ndarray, radius: np.ndarray, image: np.ndarray, owners: _
     xc, yc = np.minimum(np.maximum(xs, 0), w - 1), np.minimum(np.maximum(ys, 0), h - 1)
     grey = image.ravel().take(yc * w + xc)
     fx, fy = (centre - origin).T
-    usable = ((xs == xc) & (ys == yc) & ((grey <= t) | owners.owns(own.take(seg), xs, ys))
-              & ((ox - fx.take(seg)) ** 2 + (oy - fy.take(seg)) ** 2 <= (radius * radius).take(seg))
-              & (grey < _SATURATED))
+    usable = ((xs == xc) & (ys == yc) & ((ox - fx.take(seg)) ** 2 + (oy - fy.take(seg)) ** 2
+                                          <= (radius * radius).take(seg)) & (grey < _SATURATED))
+    above = np.flatnonzero(grey > t)  # blob pixels: usable if they are this blob's
+    usable[above] &= owners.owns(own.take(seg.take(above)), xs.take(above), ys.take(above))
     return (origin, seg, starts, ox.astype(np.float32), oy.astype(np.float32),
             (grey - np.float32(level)).astype(np.float32), usable.astype(np.float32))
 
@@ -548,7 +550,8 @@ def detect(image: np.ndarray, *, threshold: float | None = None, min_area: int =
     is_candidate = np.zeros(len(stats.area), bool)
     is_candidate[candidates] = True
     sel = is_candidate[pixels.blob]
-    peaks = _peaks(image, _Pixels(pixels.blob[sel], pixels.x[sel], pixels.y[sel], pixels.grey[sel]), level, sigma)
+    peaks = _peaks(image, _Pixels(pixels.blob[sel], pixels.x[sel], pixels.y[sel], pixels.grey[sel], presorted=True),
+                   level, sigma)
     n_discs = np.minimum(np.maximum(np.bincount(peaks[0], minlength=len(stats.area))[ids], 1), MAX_DISCS)
     radius = stats.reach[ids] + SKIRT
     for k in np.unique(n_discs[fit]):
