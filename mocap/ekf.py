@@ -23,6 +23,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from mocap.geometry import inv2x2
+
 __all__ = [
     "ca_transition",
     "ca_process_noise",
@@ -147,7 +149,7 @@ def update_position(x: np.ndarray, P: np.ndarray, z: np.ndarray, R: np.ndarray
     d = z.shape[-1]
     PHt = P[:, :, :d]
     S = P[:, :d, :d] + R
-    gain = PHt @ np.linalg.inv(S)  # (K, n, d)
+    gain = PHt @ (inv2x2(S) if d == 2 else np.linalg.inv(S))  # (K, n, d)
     gain_t = np.swapaxes(gain, -1, -2)
     y = z - x[:, :d]
     x_new = x + (gain @ y[..., None])[..., 0]

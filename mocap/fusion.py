@@ -21,7 +21,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
-from mocap.geometry import reprojection_jacobians
+from mocap.geometry import inv2x2, reprojection_jacobians
 from mocap.pairs import CameraPairs
 from mocap.stereo import dist2, match_pairs, triangulate_matches
 
@@ -57,24 +57,35 @@ def _gauss_newton(P: np.ndarray, uv: np.ndarray, W: np.ndarray, X: np.ndarray, i
     steps or when no point moves more than ``tol_m``. Returns X, cov (K, 3, 3) (inverse information at
     the last linearisation), reprojection (C, K, 2) and residual vectors (C, K, 2) (both updated to
     first order by the last step) and depth (C, K).
+
+    Inside, the cameras' u and v rows are stacked per point, (K, 2, C) and (K, 2 C, 3) Jacobians, so that
+    ``J^T W J`` and ``J^T W r`` summed over cameras are one (3, 2C) x (2C, .) product per point.
     """
-    seen = W[..., 0, 0] > 0
-    few = seen.sum(axis=0) < 2
+    C, K = uv.shape[:2]
+    Wr = W.transpose(1, 2, 3, 0)[..., None]  # (K, 2, 2, C, 1)
+    few = (W[..., 0, 0] > 0).sum(axis=0) < 2
+    uvk = uv.transpose(1, 2, 0)  # (K, 2, C)
+    Pm = P[:, :, :3].transpose(1, 0, 2).reshape(3 * C, 3).T  # (3, 3C): u rows, v rows, w rows
+    pt = P[:, :, 3].T.reshape(3 * C)
+    P01, P2 = P[:, :2, :3].transpose(1, 0, 2), P[:, 2, :3]  # (2, C, 3), (C, 3)
     for _ in range(iterations):
-        proj, J = reprojection_jacobians(P, X)
-        r = uv - proj
-        JtW = np.swapaxes(J, -1, -2) @ W  # (C, K, 3, 2)
-        H = (JtW @ J).sum(axis=0)
+        h = X @ Pm + pt  # (K, 3C)
+        w = h[:, None, 2 * C:]  # (K, 1, C)
+        proj = h[:, :2 * C].reshape(K, 2, C) / w
+        J = (P01 - proj[..., None] * P2) / w[..., None]  # (K, 2, C, 3)
+        r = uvk - proj
+        WJt = (Wr[:, :, 0] * J[:, 0:1] + Wr[:, :, 1] * J[:, 1:2]).reshape(K, 2 * C, 3).transpose(0, 2, 1)
+        H = WJt @ J.reshape(K, 2 * C, 3)
         H[few] = np.eye(3)
-        dx = np.linalg.solve(H, (JtW @ r[..., None]).sum(axis=0))  # (K, 3, 1)
-        X = X + dx[..., 0]
-        step = (J @ dx[None])[..., 0]  # (C, K, 2)
+        dx = np.linalg.solve(H, WJt @ r.reshape(K, 2 * C, 1))[..., 0]
+        X = X + dx
+        step = (J * dx[:, None, None, :]).sum(axis=3)  # (K, 2, C)
         proj = proj + step
         r = r - step
         if np.abs(dx).max(initial=0.0) < tol_m:
             break
     depth = X @ P[:, 2, :3].T + P[:, 2, 3]  # (K, C)
-    return X, np.linalg.inv(H), proj, r, depth.T
+    return X, np.linalg.inv(H), proj.transpose(2, 0, 1), r.transpose(2, 0, 1), depth.T
 
 
 def _consensus(P: np.ndarray, uv: np.ndarray, Winv: np.ndarray, used: np.ndarray, X: np.ndarray,
@@ -132,7 +143,7 @@ def robust_triangulate(P: np.ndarray, uv: np.ndarray, cov: np.ndarray, start: np
     used = np.isfinite(uv[..., 0])  # (C, K)
     limit = np.maximum(outlier_sigma * np.sqrt(0.5 * (cov[..., 0, 0] + cov[..., 1, 1])), outlier_min_px)
     uvz = np.where(used[..., None], uv, 0.0)
-    Winv = np.linalg.inv(np.where(used[..., None, None], cov, np.eye(2)))
+    Winv = inv2x2(np.where(used[..., None, None], cov, np.eye(2)))
     X, cov3, proj, r, depth = _gauss_newton(P, uvz, Winv * used[..., None, None], start, iterations)
     err = np.where(used, np.hypot(r[..., 0], r[..., 1]), 0.0)
     todo = np.arange(K)

@@ -11,6 +11,7 @@ from hypothesis.extra.numpy import arrays
 from mocap.geometry import (
     epipolar_distance_matrix,
     fundamental_from_cameras,
+    inv2x2,
     reprojection_jacobians,
     triangulate_dlt,
     triangulate_weighted,
@@ -103,3 +104,12 @@ def test_reprojection_jacobians_match_opencv_and_finite_differences():
         d[axis] = step
         num = (reprojection_jacobians(P, X + d)[0] - reprojection_jacobians(P, X - d)[0]) / (2 * step)
         np.testing.assert_allclose(J[..., axis], num, rtol=1e-6, atol=1e-3)
+
+
+def test_inv2x2_equals_numpy_inverse():
+    rng = np.random.default_rng(9)
+    A = rng.normal(size=(7, 5, 2, 2))
+    S = A @ A.swapaxes(-1, -2) + 0.1 * np.eye(2)  # covariances, as the tracker passes them
+    np.testing.assert_allclose(inv2x2(S), np.linalg.inv(S), rtol=1e-12, atol=1e-12)
+    M = rng.normal(size=(9, 2, 2))  # and any invertible matrix
+    np.testing.assert_allclose(inv2x2(M) @ M, np.broadcast_to(np.eye(2), M.shape), atol=1e-10)
