@@ -102,21 +102,25 @@ def _consensus(P: np.ndarray, uv: np.ndarray, Winv: np.ndarray, used: np.ndarray
     ``X`` (K, 3) start, m, ``limit`` (C, K) pixels.
     """
     C, K = used.shape
-    best_cost = np.full(K, np.inf)
     best = used.copy()
-    for i in range(C):
-        for j in range(i + 1, C):
-            rows = np.flatnonzero(used[i] & used[j])
-            if rows.size == 0:
-                continue
-            pair = np.zeros((C, rows.size), dtype=bool)
-            pair[[i, j]] = True
-            _, _, _, r, _ = _gauss_newton(P, uv[:, rows], Winv[:, rows] * pair[..., None, None], X[rows], iterations)
-            e2 = (np.hypot(r[..., 0], r[..., 1]) / limit[:, rows]) ** 2
-            cost = (np.minimum(e2, 1.0) * used[:, rows]).sum(axis=0)
-            better = cost < best_cost[rows]
-            best_cost[rows[better]] = cost[better]
-            best[:, rows[better]] = used[:, rows[better]] & (e2[:, better] < 1.0)
+    i, j = np.triu_indices(C, 1)  # every camera pair, all solved in one batch of (pair, point) problems
+    q, rows = np.nonzero(used[i] & used[j])
+    if q.size == 0:
+        return best
+    L = q.size
+    pair = np.zeros((C, L), dtype=bool)
+    pair[i[q], np.arange(L)] = True
+    pair[j[q], np.arange(L)] = True
+    _, _, _, r, _ = _gauss_newton(P, uv[:, rows], Winv[:, rows] * pair[..., None, None], X[rows], iterations)
+    e2 = (np.hypot(r[..., 0], r[..., 1]) / limit[:, rows]) ** 2  # (C, L)
+    cost = (np.minimum(e2, 1.0) * used[:, rows]).sum(axis=0)
+    table = np.full((len(i), K), np.inf)  # (pairs, K) cost; the first pair of the lowest cost wins
+    table[q, rows] = np.where(np.isnan(cost), np.inf, cost)
+    win = np.argmin(table, axis=0)
+    combo = np.full((len(i), K), -1)
+    combo[q, rows] = np.arange(L)
+    done = np.flatnonzero(np.isfinite(table[win, np.arange(K)]))
+    best[:, done] = used[:, done] & (e2[:, combo[win[done], done]] < 1.0)
     return best
 
 

@@ -36,6 +36,31 @@ def test_robust_triangulation_rejects_a_dragged_camera_and_matches_the_clean_sol
     assert np.linalg.norm(tri.X - X, axis=1).max() < 1e-3
 
 
+def test_a_precise_wrong_camera_is_rejected_by_the_pair_consensus(rig):
+    """A wrong detection 100x more precise than the others pulls the weighted point onto itself, so that the
+    right cameras look like outliers; the best camera pair's consensus still finds and drops it, for many
+    points at once (each with its own wrong camera, some seen by four cameras only)."""
+    rng = np.random.default_rng(6)
+    P = rig.projection_matrices()
+    K = 12
+    X = rng.normal(scale=0.3, size=(K, 3)) + [0, 0, 1]
+    uv = _ideal(rig, X) + rng.normal(scale=0.05, size=(len(rig), K, 2))
+    cov = np.broadcast_to(np.eye(2) * 0.05**2, uv.shape[:2] + (2, 2)).copy()
+    wrong = np.arange(K) % len(rig)
+    uv[wrong, np.arange(K)] += rng.choice([-1.0, 1.0], size=(K, 2)) * [4.0, 3.0]
+    cov[wrong, np.arange(K)] /= 100.0
+    four = np.arange(K) >= K - 3
+    uv[(wrong[four] + 1) % len(rig), np.flatnonzero(four)] = np.nan
+    uv[(wrong[four] + 2) % len(rig), np.flatnonzero(four)] = np.nan
+    tri = robust_triangulate(P, uv, cov, X + rng.normal(scale=0.005, size=X.shape), 5.0, 0.3)
+    want = np.isfinite(uv[..., 0]).T
+    want[np.arange(K), wrong] = False
+    np.testing.assert_array_equal(tri.used, want)
+    clean = np.where(want.T[..., None], uv, np.nan)
+    ref, _, _ = triangulate_weighted(P, clean, cov)
+    np.testing.assert_allclose(tri.X, ref, atol=1e-9)
+
+
 def test_two_disagreeing_cameras_give_no_point(rig):
     P = rig.projection_matrices()
     X = np.array([[0.0, 0.1, 1.0]])
