@@ -35,6 +35,10 @@ from mocap.errors import MocapError
 __all__ = ["Camera", "Rig", "load_rig", "parse_rig", "save_rig", "rig_to_toml"]
 
 
+# OpenCV's iterative undistortion: up to 30 steps, until a step moves less than 1e-10 (normalised units).
+_UNDISTORT_CRITERIA = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 30, 1e-10)
+
+
 def _read_only(array: np.ndarray) -> np.ndarray:
     array.setflags(write=False)
     return array
@@ -151,20 +155,24 @@ class Camera:
             (N, 2) ideal pixel coordinates (same K, no distortion). NaN rows stay NaN.
         """
         uv = np.asarray(uv, dtype=np.float64).reshape(-1, 2)
-        out = np.full_like(uv, np.nan)
         ok = np.isfinite(uv).all(axis=1)
-        if not ok.any():
-            return out
-        src = uv[ok].reshape(-1, 1, 2)
+        if len(uv) and ok.all():  # the usual case: no copy in and out of a NaN-filled array
+            return self._undistort_finite(uv)
+        out = np.full_like(uv, np.nan)
+        if ok.any():
+            out[ok] = self._undistort_finite(uv[ok])
+        return out
+
+    def _undistort_finite(self, uv: np.ndarray) -> np.ndarray:
+        """(N, 2) finite distorted pixels -> (N, 2) ideal pixels."""
+        src = uv.reshape(-1, 1, 2)
         if self.fisheye:
             und = cv2.fisheye.undistortPoints(src, self.matrix, self.distortions[:4], P=self.matrix)
         elif not self.distortions.any():
-            und = src
+            und = src.copy()
         else:
-            crit = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 30, 1e-10)
-            und = cv2.undistortPoints(src, self.matrix, self.distortions, None, None, self.matrix, crit)
-        out[ok] = und.reshape(-1, 2)
-        return out
+            und = cv2.undistortPoints(src, self.matrix, self.distortions, None, None, self.matrix, _UNDISTORT_CRITERIA)
+        return und.reshape(-1, 2)
 
     def projection_jacobian(self, points: np.ndarray, step: float = 1e-6) -> np.ndarray:
         """Jacobian of :meth:`project` with respect to the world point.

@@ -45,6 +45,27 @@ def test_undistort_inverts_distortion_and_matches_opencv(rig):
         np.testing.assert_allclose(cam.ideal_to_distorted(ideal), uv, atol=1e-9)
 
 
+def test_undistort_keeps_nan_rows_and_never_aliases_its_input(rig):
+    X = _volume_points(20, seed=2)
+    for cam in rig:
+        uv = cam.project(X)
+        full = cam.undistort(uv)
+        holey = uv.copy()
+        holey[[3, 7]] = np.nan
+        got = cam.undistort(holey)
+        assert np.isnan(got[[3, 7]]).all()
+        keep = np.setdiff1d(np.arange(len(X)), [3, 7])
+        np.testing.assert_array_equal(got[keep], full[keep])
+        assert np.isnan(cam.undistort(np.full((2, 2), np.nan))).all()
+        assert cam.undistort(np.zeros((0, 2))).shape == (0, 2)
+    pinhole = Camera("p", rig[0].size, rig[0].matrix, np.zeros(5), rig[0].rotation, rig[0].translation)
+    uv = pinhole.project(X)
+    ideal = pinhole.undistort(uv)
+    np.testing.assert_array_equal(ideal, uv)
+    ideal[0] = -1.0
+    assert uv[0, 0] != -1.0  # a copy, not a view of the input
+
+
 def test_points_behind_camera_are_nan(rig):
     cam = rig[0]
     behind = cam.center + 2 * (cam.center - np.array([0.0, 0.0, 1.0]))
