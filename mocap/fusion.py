@@ -16,6 +16,7 @@ when fewer do (:func:`new_points`). Their identities are decided by :func:`reide
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import numpy as np
@@ -77,15 +78,25 @@ def _gauss_newton(P: np.ndarray, uv: np.ndarray, W: np.ndarray, X: np.ndarray, i
         WJt = (Wr[:, :, 0] * J[:, 0:1] + Wr[:, :, 1] * J[:, 1:2]).reshape(K, 2 * C, 3).transpose(0, 2, 1)
         H = WJt @ J.reshape(K, 2 * C, 3)
         H[few] = np.eye(3)
-        dx = np.linalg.solve(H, WJt @ r.reshape(K, 2 * C, 1))[..., 0]
+        cov = np.linalg.inv(H)  # the last one is the point's covariance
+        dx = (cov @ (WJt @ r.reshape(K, 2 * C, 1)))[..., 0]
         X = X + dx
-        step = (J * dx[:, None, None, :]).sum(axis=3)  # (K, 2, C)
+        step = (J.reshape(K, 2 * C, 3) @ dx[..., None]).reshape(K, 2, C)
         proj = proj + step
         r = r - step
         if np.abs(dx).max(initial=0.0) < tol_m:
             break
     depth = X @ P[:, 2, :3].T + P[:, 2, 3]  # (K, C)
-    return X, np.linalg.inv(H), proj.transpose(2, 0, 1), r.transpose(2, 0, 1), depth.T
+    return X, cov, proj.transpose(2, 0, 1), r.transpose(2, 0, 1), depth.T
+
+
+@functools.cache
+def _camera_pairs(C: int) -> tuple[np.ndarray, np.ndarray]:
+    """(C (C - 1) / 2,) first and second cameras of every pair i < j (np.triu_indices, cached: it is slow)."""
+    i, j = np.triu_indices(C, 1)
+    i.setflags(write=False)
+    j.setflags(write=False)
+    return i, j
 
 
 def _consensus(P: np.ndarray, uv: np.ndarray, Winv: np.ndarray, used: np.ndarray, X: np.ndarray,
@@ -103,7 +114,7 @@ def _consensus(P: np.ndarray, uv: np.ndarray, Winv: np.ndarray, used: np.ndarray
     """
     C, K = used.shape
     best = used.copy()
-    i, j = np.triu_indices(C, 1)  # every camera pair, all solved in one batch of (pair, point) problems
+    i, j = _camera_pairs(C)  # every camera pair, all solved in one batch of (pair, point) problems
     q, rows = np.nonzero(used[i] & used[j])
     if q.size == 0:
         return best
