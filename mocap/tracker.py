@@ -474,7 +474,7 @@ class Tracker:
         """Predicted ideal pixels (K, C, 2), search radii (K, C), pixels, and predicted depths (K, C), m."""
         t, cfg = self._t, self._cfg
         proj, _ = reprojection_jacobians(self._P, t.x3[:, :3])  # (C, K, 2)
-        depth = np.einsum("cj,kj->kc", self._P[:, 2, :3], t.x3[:, :3]) + self._P[:, 2, 3]
+        depth = t.x3[:, :3] @ self._P[:, 2, :3].T + self._P[:, 2, 3]
         r3 = np.minimum(self._running.radius(*t.e3.T, t.since, self._dt, cfg.gate_floor_m), cfg.reid_max_m)
         with np.errstate(divide="ignore", invalid="ignore"):
             r3px = r3[:, None] * self._focal[None, :] / depth
@@ -570,7 +570,8 @@ class Tracker:
         err2 = np.stack([np.linalg.norm(y2, axis=1), np.linalg.norm(uvv - x2[:, 2:4], axis=1),
                          np.linalg.norm(uva - x2[:, 4:6], axis=1)], axis=1)
         e2 = t.e2[tk, cc]
-        e2 = np.where(locked[:, None] & np.isfinite(err2), self._running.step(e2, np.nan_to_num(err2)), e2)
+        fin = np.isfinite(err2)
+        e2 = np.where(locked[:, None] & fin, self._running.step(e2, np.where(fin, err2, 0.0)), e2)
         nl = np.flatnonzero(~locked)
         if nl.size:  # (re)start image filters from the projected 3D state
             _, J = reprojection_jacobians(self._P, t.x3[tk[nl], :3])  # (C, n, 2, 3)
@@ -708,18 +709,18 @@ class Tracker:
         rows = np.flatnonzero(meas.out & (t.since == 0))
         X, asg = meas.X[rows], meas.asg[rows]
         used = asg >= 0
-        depth = np.einsum("cj,kj->kc", self._P[:, 2, :3], X) + self._P[:, 2, 3]
+        depth = X @ self._P[:, 2, :3].T + self._P[:, 2, 3]
         scale = np.where(used, depth / self._focal[None, :], 0.0).sum(axis=1) / np.maximum(used.sum(axis=1), 1)
         res = meas.rms_px[rows] * scale * 1000.0
         mask = (used.astype(np.uint32) << np.arange(C, dtype=np.uint32)).sum(axis=1).astype(np.uint32)
         self._records.append(frame=frame_index, uid=t.uid[rows], pos=X, res=res, mask=mask)
         conf = t.ident[rows] >= 0
         ids = t.ident[rows][conf]
-        assignments = [np.full(n, -1, dtype=np.intp) for n in fr.counts]
+        offsets = np.concatenate([[0], np.cumsum(fr.counts)])  # all cameras' detections in one flat array
+        flat = np.full(offsets[-1], -1, dtype=np.intp)
         kk, cc = np.nonzero(used[conf])
-        for c in range(C):
-            sel = cc == c
-            assignments[c][asg[conf][kk[sel], c]] = ids[kk[sel]]
+        flat[offsets[cc] + asg[conf][kk, cc]] = ids[kk]
+        assignments = np.split(flat, offsets[1:-1])
         return FrameResult(frame_index, ids, X[conf], res[conf], mask[conf], assignments)
 
 
