@@ -79,7 +79,7 @@ _Z_TABLE = np.arange(-8 * _Z_RES, 8 * _Z_RES + 1) / _Z_RES
 _EDGE = special.ndtr(-_Z_TABLE).astype(np.float32)
 _EDGE_SLOPE = (np.exp(-0.5 * _Z_TABLE**2) / math.sqrt(2.0 * math.pi)).astype(np.float32)
 _Z_ORIGIN = 8 * _Z_RES + 0.5  # table index of z = 0, + 0.5 so that truncation rounds
-_KERNEL = np.ones((CELL, CELL), np.uint8)
+_ROW_KERNEL = np.ones((1, CELL), np.uint8)
 _WINDOW_HALVES = 6 * 2 ** np.arange(12)  # sizes of the cached window templates, px
 
 
@@ -109,6 +109,15 @@ def background_level(image: np.ndarray) -> tuple[float, float]:
 
 
 # --------------------------------------------------------------------------- coarse search
+def _max_pool(image: np.ndarray) -> np.ndarray:
+    """(ceil(H / CELL), W) uint8: the maximum over each cell's rows; column ``CELL * j`` of it holds the maximum of
+    cell j (the rows' maxima ``CELL`` wide to the right). One pass over the frame, a quarter-size result."""
+    rows = [image[i::CELL] for i in range(CELL)]
+    rows = [r if len(r) == len(rows[0]) else np.vstack([r, rows[0][len(r):]]) for r in rows]  # H not a multiple
+    pooled = functools.reduce(cv2.max, rows)
+    return cv2.dilate(pooled, _ROW_KERNEL, anchor=(0, 0))
+
+
 def _groups(cells: np.ndarray, roi_cells: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
     """8-connected groups of candidate cells.
 
@@ -526,7 +535,7 @@ def detect(image: np.ndarray, *, threshold: float | None = None, min_area: int =
     t = max(0, math.floor(threshold if threshold is not None else level + max(K_SIGMA * sigma, MIN_CONTRAST)))
     if t >= _SATURATED or (rois is not None and len(rois) == 0):
         return Detections.empty()
-    cells = (cv2.dilate(image, _KERNEL, anchor=(0, 0))[::CELL, ::CELL] > t).astype(np.uint8)
+    cells = (_max_pool(image)[:, ::CELL] > t).astype(np.uint8)
     cell_labels, boxes = _groups(cells, None if rois is None else _roi_cells(rois, cells.shape))
     if len(boxes) == 0:
         return Detections.empty()

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 from scipy.spatial import cKDTree
 
-from mocap.detect import background_level, detect
+from mocap.detect import _max_pool, background_level, detect
 from mocap.synth.render import Sensor
 
 SHAPE = (480, 640)
@@ -91,6 +91,14 @@ def test_blob_areas_equal_opencv_labelling():
     ys, xs = np.rint(det.xy[:, 1]).astype(int), np.rint(det.xy[:, 0]).astype(int)
     near = labels[np.clip(ys, 0, SHAPE[0] - 1), np.clip(xs, 0, SHAPE[1] - 1)]
     assert (stats[near[near > 0], cv2.CC_STAT_AREA] == det.area[near > 0]).all()
+
+
+@pytest.mark.parametrize("shape", [(768, 1024), (61, 83), (5, 7), (1, 1)])
+def test_coarse_pass_equals_a_4x4_dilation(shape):
+    """The one-pass cell maximum equals OpenCV's 4x4 dilation sampled at every cell's corner."""
+    image = np.random.default_rng(shape[0]).integers(0, 256, shape, dtype=np.uint8)
+    expected = cv2.dilate(image, np.ones((4, 4), np.uint8), anchor=(0, 0))[::4, ::4]
+    np.testing.assert_array_equal(_max_pool(image)[:, ::4], expected)
 
 
 def test_noise_estimate():
