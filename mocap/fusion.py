@@ -65,11 +65,12 @@ def _gauss_newton(P: np.ndarray, uv: np.ndarray, W: np.ndarray, X: np.ndarray, i
     C, K = uv.shape[:2]
     Wr = W.transpose(1, 2, 3, 0)[..., None]  # (K, 2, 2, C, 1)
     few = (W[..., 0, 0] > 0).sum(axis=0) < 2
+    few = few if few.any() else None
     uvk = uv.transpose(1, 2, 0)  # (K, 2, C)
     Pm = P[:, :, :3].transpose(1, 0, 2).reshape(3 * C, 3).T  # (3, 3C): u rows, v rows, w rows
     pt = P[:, :, 3].T.reshape(3 * C)
     P01, P2 = P[:, :2, :3].transpose(1, 0, 2), P[:, 2, :3]  # (2, C, 3), (C, 3)
-    for _ in range(iterations):
+    for it in range(iterations):
         h = X @ Pm + pt  # (K, 3C)
         w = h[:, None, 2 * C:]  # (K, 1, C)
         proj = h[:, :2 * C].reshape(K, 2, C) / w
@@ -77,15 +78,16 @@ def _gauss_newton(P: np.ndarray, uv: np.ndarray, W: np.ndarray, X: np.ndarray, i
         r = uvk - proj
         WJt = (Wr[:, :, 0] * J[:, 0:1] + Wr[:, :, 1] * J[:, 1:2]).reshape(K, 2 * C, 3).transpose(0, 2, 1)
         H = WJt @ J.reshape(K, 2 * C, 3)
-        H[few] = np.eye(3)
+        if few is not None:
+            H[few] = np.eye(3)
         cov = np.linalg.inv(H)  # the last one is the point's covariance
         dx = (cov @ (WJt @ r.reshape(K, 2 * C, 1)))[..., 0]
         X = X + dx
-        step = (J.reshape(K, 2 * C, 3) @ dx[..., None]).reshape(K, 2, C)
-        proj = proj + step
-        r = r - step
-        if np.abs(dx).max(initial=0.0) < tol_m:
+        if it == iterations - 1 or np.abs(dx).max(initial=0.0) < tol_m:
             break
+    step = (J.reshape(K, 2 * C, 3) @ dx[..., None]).reshape(K, 2, C)  # first order, for the returned values
+    proj = proj + step
+    r = r - step
     depth = X @ P[:, 2, :3].T + P[:, 2, 3]  # (K, C)
     return X, cov, proj.transpose(2, 0, 1), r.transpose(2, 0, 1), depth.T
 
