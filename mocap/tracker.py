@@ -542,12 +542,12 @@ class Tracker:
         R = meas.cov[idx] + np.eye(3) * 1e-12
         consecutive = t.since[idx] == 1
         prior = t.x3[idx]
-        x_new, P_new, y, _ = update_position(prior, t.P3[idx], X, R)
+        x_new, P_new, _, _ = update_position(prior, t.P3[idx], X, R)
         # Running prediction errors (paper 004), from consecutive frames only.
         v_meas = (X - t.last_X[idx]) / dt
         a_meas = (v_meas - t.last_v[idx]) / dt
-        err = np.stack([np.linalg.norm(y, axis=1), np.linalg.norm(v_meas - prior[:, 3:6], axis=1),
-                        np.linalg.norm(a_meas - prior[:, 6:9], axis=1)], axis=1)
+        dev = np.stack([X, v_meas, a_meas], axis=1) - prior.reshape(-1, 3, 3)  # y, velocity, acceleration errors
+        err = np.sqrt((dev * dev).sum(axis=2))
         err = np.where(np.isfinite(err), err, t.e3[idx])
         t.e3[idx] = np.where(consecutive[:, None], self._running.step(t.e3[idx], err), t.e3[idx])
         t.x3[idx], t.P3[idx] = x_new, P_new
@@ -564,11 +564,11 @@ class Tracker:
         Rz = fr.S[cc, asg[kk, cc]]
         locked = t.lock2[tk, cc]
         x2 = t.x2[tk, cc]
-        x2n, P2n, y2, _ = update_position(x2, t.P2[tk, cc], z, Rz)
+        x2n, P2n, _, _ = update_position(x2, t.P2[tk, cc], z, Rz)
         uvv = (z - t.last_uv[tk, cc]) / dt
         uva = (uvv - t.last_uvv[tk, cc]) / dt
-        err2 = np.stack([np.linalg.norm(y2, axis=1), np.linalg.norm(uvv - x2[:, 2:4], axis=1),
-                         np.linalg.norm(uva - x2[:, 4:6], axis=1)], axis=1)
+        dev2 = np.stack([z, uvv, uva], axis=1) - x2.reshape(-1, 3, 2)
+        err2 = np.sqrt((dev2 * dev2).sum(axis=2))
         e2 = t.e2[tk, cc]
         fin = np.isfinite(err2)
         e2 = np.where(locked[:, None] & fin, self._running.step(e2, np.where(fin, err2, 0.0)), e2)
