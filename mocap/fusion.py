@@ -213,11 +213,10 @@ def repick(tri: Triangulated, D: np.ndarray, free: np.ndarray, limit_px: np.ndar
     ok = want[..., None] & free[:, None, :] & (d < limit)
     d = np.where(ok, d, np.inf)
     best = np.argmin(d, axis=2)  # (C, K)
-    dbest = np.take_along_axis(d, best[..., None], axis=2)[..., 0]
     # A detection wanted by several tracks goes to the nearest one.
     nearest_track = np.argmin(d, axis=1)  # (C, N)
-    won = np.take_along_axis(nearest_track, best, axis=1) == np.arange(K)[None, :]
-    take = np.isfinite(dbest) & won
+    won = nearest_track[np.arange(C)[:, None], best] == np.arange(K)[None, :]
+    take = np.isfinite(d.min(axis=2)) & won
     out.T[take] = best[take]
     return out
 
