@@ -214,8 +214,8 @@ def _label_blobs(image: np.ndarray, t: int, cell_labels: np.ndarray, boxes: np.n
 
 
 # --------------------------------------------------------------------------- blob model fit
-def _fit_discs(values: np.ndarray, ox: np.ndarray, oy: np.ndarray, weight: np.ndarray, seg: np.ndarray,
-               starts: np.ndarray, params: np.ndarray, iterations: int) -> tuple[np.ndarray, np.ndarray]:
+def _fit_discs(values: np.ndarray, ox: np.ndarray, oy: np.ndarray, seg: np.ndarray, starts: np.ndarray,
+               params: np.ndarray, iterations: int) -> tuple[np.ndarray, np.ndarray]:
     """Least-squares fit of blurred discs plus an offset, vectorised over blobs: a fixed number of
     lightly damped Gauss–Newton steps.
 
@@ -223,41 +223,46 @@ def _fit_discs(values: np.ndarray, ox: np.ndarray, oy: np.ndarray, weight: np.nd
     of std ``s`` (px); ``Phi`` and its slope come from lookup tables. All but the last step are damped
     (``DAMPING``); a centre moves at most ``MAX_STEP`` px per step. Pixel arithmetic is float32 (centres are
     relative to the window, so float32 resolves 1e-6 px); the normal equations are solved in float64.
-    The windows of all blobs lie one after another in flat (T,) pixel arrays (no padding).
+    The windows' pixels of all blobs lie one after another in flat (T,) arrays (no padding).
 
     Args:
         values: (T,) grey levels minus the frame's background level.
         ox, oy: (T,) pixel offsets from the window's centre pixel, px.
-        weight: (T,) 1 for pixels in the fit, 0 for the rest.
         seg: (T,) the blob (0..N-1) of each pixel, non-decreasing; starts: (N,) each blob's first pixel
             (every blob has one or more).
         params: (N, 1 + 5K) starting ``b, (cx, cy, A, r, s) * K``, centres relative to the window centre.
         iterations: Gauss–Newton steps.
 
     Returns:
-        params (N, 1 + 5K) and the unscaled covariance ``(J^T W J)^-1`` of the centres (N, 2K, 2K), from the
+        params (N, 1 + 5K) and the unscaled covariance ``(J^T J)^-1`` of the centres (N, 2K, 2K), from the
         Jacobian at the last step's start.
     """
     params = params.astype(np.float32)
     n, n_par = params.shape
     disc = params[:, 1:].reshape(n, -1, 5)  # (N, K, 5) view
+    n_discs = disc.shape[1]
     jac = np.empty((n_par, len(seg)), np.float32)  # parameter-major: every product below runs along the pixels
-    rows = jac[1:].reshape(-1, 5, len(seg))  # (K, 5, T) view: d model / d (cx, cy, A, r, s)
-    jac[0] = weight
+    rows = jac[1:].reshape(n_discs, 5, len(seg))  # (K, 5, T) view: d model / d (cx, cy, A, r, s)
+    jac[0] = 1.0
     upper, symmetric = _normal_index(n_par)
     for step_no in range(iterations):
-        per_pixel = np.ascontiguousarray(params.T).take(seg, axis=1)  # (1 + 5K, T)
-        cx, cy, amp, r, s = per_pixel[1:].reshape(-1, 5, len(seg)).transpose(1, 0, 2)  # (K, T) each
+        cx, cy, amp, r, s = disc.transpose(2, 1, 0)  # (K, N) each
+        inv_s = 1.0 / s
+        z_scale = _Z_RES * inv_s
+        per_blob = np.concatenate([params[:, :1].T, cx, cy, amp, z_scale, _Z_ORIGIN - r * z_scale, amp * inv_s, inv_s,
+                                   r * inv_s])  # (1 + 8K, N): what the pixels need, gathered in one go
+        per_pixel = per_blob.take(seg, axis=1)
+        cx, cy, amp, z_scale, z_origin, amp_s, inv_s, r_s = per_pixel[1:].reshape(8, n_discs, len(seg))
         dx, dy = ox - cx, oy - cy
         rho = np.sqrt(dx * dx + dy * dy)
-        scale = _Z_RES / s
-        index = (rho * scale + (_Z_ORIGIN - r * scale)).astype(np.intp)  # truncation rounds: origin has +0.5
+        index = (rho * z_scale + z_origin).astype(np.intp)  # truncation rounds: the origin has +0.5
         f = _EDGE.take(index, mode="clip")
-        resid = (values - per_pixel[0] - (amp * f).sum(axis=0)) * weight
-        slope = _EDGE_SLOPE.take(index, mode="clip") * (amp / s) * weight  # -d model / d rho, weighted
-        np.multiply(f, weight, out=rows[:, 2])
+        resid = values - per_pixel[0] - (amp * f).sum(axis=0)
+        slope = _EDGE_SLOPE.take(index, mode="clip")
+        slope *= amp_s  # -d model / d rho
+        rows[:, 2] = f
         rows[:, 3] = slope
-        np.multiply(slope, (rho - r) / s, out=rows[:, 4])
+        np.multiply(slope, rho * inv_s - r_s, out=rows[:, 4])
         slope /= np.maximum(rho, 1e-9)
         np.multiply(slope, dx, out=rows[:, 0])
         np.multiply(slope, dy, out=rows[:, 1])
@@ -271,13 +276,13 @@ def _fit_discs(values: np.ndarray, ox: np.ndarray, oy: np.ndarray, weight: np.nd
         else:  # the last step is undamped: its inverse is also the covariance
             try:
                 cov = np.linalg.inv(jtj)
-            except np.linalg.LinAlgError:  # a degenerate window somewhere (e.g. every pixel saturated)
+            except np.linalg.LinAlgError:  # a degenerate window somewhere
                 cov = np.linalg.pinv(jtj)
             step = np.matmul(cov, grad)[:, :, 0]
         params[:, 0] += step[:, 0]
         disc += np.minimum(np.maximum(step[:, 1:].reshape(disc.shape), -_STEP_BOUND), _STEP_BOUND)
         np.minimum(np.maximum(disc, _PARAM_LOW, out=disc), _PARAM_HIGH, out=disc)
-    pos = (1 + 5 * np.arange(disc.shape[1])[:, None] + np.arange(2)).ravel()
+    pos = (1 + 5 * np.arange(n_discs)[:, None] + np.arange(2)).ravel()
     return params.astype(np.float64), cov[:, pos[:, None], pos]
 
 
@@ -394,14 +399,14 @@ def _neighbour_median_area(xy: np.ndarray, area: np.ndarray, k: int = 5) -> np.n
 
 def _window(centre: np.ndarray, radius: np.ndarray, image: np.ndarray, owners: _Owners, own: np.ndarray, t: int,
             level: float) -> tuple[np.ndarray, ...]:
-    """Round fit windows: the pixels within ``radius`` (N,) px of each ``centre`` (N, 2), one window after another.
+    """Round fit windows: the usable pixels within ``radius`` (N,) px of each ``centre`` (N, 2), one window after
+    another.
 
     Returns:
-        origin (N, 2) int: each window's centre pixel; seg (T,) int: the window of each pixel; starts (N,):
-        each window's first pixel; ox, oy (T,) float32: offsets from the window's origin, px; values (T,)
-        float32: grey levels minus ``level``; weight (T,) float32: 1. Left out: pixels off the image, saturated
-        pixels (their true level is unknown) and other blobs' above-threshold pixels, except each window's
-        centre pixel, kept with weight 0 so that every window has a pixel.
+        origin (N, 2) int: each window's centre pixel; seg (T,) int: the window of each pixel, non-decreasing;
+        count (N,): pixels per window; ox, oy (T,) float32: offsets from the window's origin, px; values (T,)
+        float32: grey levels minus ``level``. Left out: pixels off the image, saturated pixels (their true
+        level is unknown) and other blobs' above-threshold pixels.
     """
     h, w = image.shape
     origin = np.rint(centre).astype(np.int64)
@@ -422,13 +427,10 @@ def _window(centre: np.ndarray, radius: np.ndarray, image: np.ndarray, owners: _
                                           <= (radius * radius).take(seg)) & (grey < _SATURATED))
     above = np.flatnonzero(grey > t)  # blob pixels: usable if they are this blob's
     usable[above] &= owners.owns(own.take(seg.take(above)), xs.take(above), ys.take(above))
-    kept = usable.copy()  # the fit gets only usable pixels, and each window's centre pixel (weight 0 if unusable)
-    kept[starts] = True
-    kept = np.flatnonzero(kept)
+    kept = np.flatnonzero(usable)
     seg = seg.take(kept)
-    count = np.bincount(seg, minlength=len(count))
-    return (origin, seg, np.cumsum(count) - count, ox.take(kept).astype(np.float32), oy.take(kept).astype(np.float32),
-            (grey.take(kept) - np.float32(level)).astype(np.float32), usable.take(kept).astype(np.float32))
+    return (origin, seg, np.bincount(seg, minlength=len(count)), ox.take(kept).astype(np.float32),
+            oy.take(kept).astype(np.float32), (grey.take(kept) - np.float32(level)).astype(np.float32))
 
 
 @functools.cache
@@ -483,16 +485,19 @@ def _measure(image: np.ndarray, owners: _Owners, blobs: np.ndarray, k: int, radi
     centroid.
 
     Returns:
-        centres (N, k, 2) px and their covariances (N, k, 2, 2) px^2. A fit that fails (not finite, or a
-        centre that wandered more than max(1.5 px, its radius) from its start) falls back to the start:
+        centres (N, k, 2) px and their covariances (N, k, 2, 2) px^2. A fit that fails (no usable pixel, not
+        finite, or a centre that wandered more than max(1.5 px, its radius) from its start) falls back to the start:
         the weighted centroid (k = 1) or the peaks (k > 1), with the centroid's noise covariance.
     """
     n = len(blobs)
-    origin, seg, starts, ox, oy, values, weight = _window(stats.centroid[blobs], radius, image, owners, blobs, t,
-                                                          level)
+    origin, seg, count, ox, oy, values = _window(stats.centroid[blobs], radius, image, owners, blobs, t, level)
     start = _disc_starts(blobs, k, origin, peaks, stats, level)
-    params, pcov = _fit_discs(values, ox, oy, weight, seg, starts, start,
-                              FIT_ITERATIONS if k == 1 else SPLIT_ITERATIONS)
+    params, pcov = start.copy(), np.full((n, 2 * k, 2 * k), np.nan)  # no usable pixel (NaN): the fallback
+    fitted = count > 0
+    count = count[fitted]
+    params[fitted], pcov[fitted] = _fit_discs(values, ox, oy, (np.cumsum(fitted) - 1).take(seg),
+                                              np.cumsum(count) - count, start[fitted],
+                                              FIT_ITERATIONS if k == 1 else SPLIT_ITERATIONS)
     disc = params[:, 1:].reshape(n, k, 5)
     offset = disc[:, :, :2] - start[:, 1:].reshape(n, k, 5)[:, :, :2]
     pos = 2 * np.arange(k)[:, None] + np.arange(2)  # (k, 2) covariance rows of each centre
