@@ -19,6 +19,7 @@ __all__ = [
     "triangulate_dlt",
     "triangulate_weighted",
     "reprojection_jacobians",
+    "project_ideal",
     "inv2x2",
 ]
 
@@ -130,6 +131,17 @@ def inv2x2(S: np.ndarray) -> np.ndarray:
     return np.stack([d, -b, -c, a], axis=-1).reshape(S.shape) / (a * d - b * c)[..., None, None]
 
 
+def project_ideal(projections: np.ndarray, X: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Ideal pixels ``uv`` (C, N, 2) of world points ``X`` (N, 3) in every camera, and their depths (C, N), m.
+
+    The depth is the third homogeneous coordinate ``P2 . Xh`` (metres for ``K [R | t]`` matrices).
+    """
+    P = np.asarray(projections, dtype=np.float64)
+    proj = X @ P[:, :, :3].transpose(0, 2, 1) + P[:, None, :, 3]  # (C, N, 3); a matmul beats einsum here
+    w = proj[..., 2]
+    return proj[..., :2] / w[..., None], w
+
+
 def reprojection_jacobians(projections: np.ndarray, X: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Ideal-pixel projections and their Jacobians for every camera and point.
 
@@ -143,10 +155,8 @@ def reprojection_jacobians(projections: np.ndarray, X: np.ndarray) -> tuple[np.n
         ``uv`` (C, N, 2) projected ideal pixels and ``J`` (C, N, 2, 3) pixels per metre.
     """
     P = np.asarray(projections, dtype=np.float64)
-    proj = X @ P[:, :, :3].transpose(0, 2, 1) + P[:, None, :, 3]  # (C, N, 3); a matmul beats einsum here
-    w = proj[..., 2:3]
-    uv = proj[..., :2] / w
-    J = (P[:, None, :2, :3] - uv[..., None] * P[:, None, 2:3, :3]) / w[..., None]
+    uv, w = project_ideal(P, X)
+    J = (P[:, None, :2, :3] - uv[..., None] * P[:, None, 2:3, :3]) / w[..., None, None]
     return uv, J
 
 

@@ -12,6 +12,7 @@ from mocap.geometry import (
     epipolar_distance_matrix,
     fundamental_from_cameras,
     inv2x2,
+    project_ideal,
     reprojection_jacobians,
     triangulate_dlt,
     triangulate_weighted,
@@ -90,14 +91,18 @@ def test_weighted_triangulation_covariance_is_calibrated():
 
 
 def test_reprojection_jacobians_match_opencv_and_finite_differences():
-    """Ideal-pixel projections equal cv2.projectPoints without distortion; Jacobians equal central differences."""
+    """Ideal-pixel projections equal cv2.projectPoints without distortion, depths the camera-frame z; Jacobians
+    equal central differences."""
     rng = np.random.default_rng(8)
     X = rng.uniform(-0.8, 0.8, size=(25, 3)) + [0.0, 0.0, 1.0]
     P = RIG.projection_matrices()
     uv, J = reprojection_jacobians(P, X)
+    uv2, depth = project_ideal(P, X)
+    np.testing.assert_array_equal(uv2, uv)
     for c, cam in enumerate(RIG):
         ref, _ = cv2.projectPoints(X, cam.rotation, cam.translation, cam.matrix, None)
         np.testing.assert_allclose(uv[c], ref[:, 0], rtol=0, atol=1e-9)
+        np.testing.assert_allclose(depth[c], cam.world_to_camera(X)[:, 2], rtol=1e-12)
     step = 1e-6
     for axis in range(3):
         d = np.zeros(3)
