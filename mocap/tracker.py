@@ -43,7 +43,7 @@ from mocap.detections import Detections
 from mocap.ekf import RunningError, ca_process_noise, ca_transition, init_state, predict, update_position
 from mocap.errors import MocapError
 from mocap.fusion import NewPoints, new_points, reidentify, repick, robust_triangulate
-from mocap.geometry import reprojection_jacobians
+from mocap.geometry import project_ideal, reprojection_jacobians
 from mocap.pairs import camera_pairs
 from mocap.stereo import assign, dist2, epipolar_consistency, gate
 from mocap.trajectories import Trajectories
@@ -461,7 +461,8 @@ class Tracker:
         if not good.any():
             return shift
         y = meas.X[good] - t.x3[good, :3]
-        near = np.linalg.norm(t.x3[:, None, :3] - t.x3[None, good, :3], axis=2) < self._cfg.neighbour_m
+        gap = t.x3[:, None, :3] - t.x3[None, good, :3]
+        near = np.sqrt((gap * gap).sum(axis=2)) < self._cfg.neighbour_m  # (np.linalg.norm's sums, less overhead)
         cnt = near.sum(axis=1)
         rows = np.flatnonzero(play & (cnt >= self._cfg.neighbour_min))
         if rows.size:  # per-row median of the near ones: NaN sorts last, so the middle of the first cnt
@@ -473,8 +474,8 @@ class Tracker:
     def _search_regions(self, lock: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Predicted ideal pixels (K, C, 2), search radii (K, C), pixels, and predicted depths (K, C), m."""
         t, cfg = self._t, self._cfg
-        proj, _ = reprojection_jacobians(self._P, t.x3[:, :3])  # (C, K, 2)
-        depth = t.x3[:, :3] @ self._P[:, 2, :3].T + self._P[:, 2, 3]
+        proj, depth = project_ideal(self._P, t.x3[:, :3])  # (C, K, 2), (C, K)
+        depth = depth.T
         r3 = np.minimum(self._running.radius(*t.e3.T, t.since, self._dt, cfg.gate_floor_m), cfg.reid_max_m)
         with np.errstate(divide="ignore", invalid="ignore"):
             r3px = r3[:, None] * self._focal[None, :] / depth
