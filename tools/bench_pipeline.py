@@ -1,20 +1,21 @@
 """End-to-end speed and memory of `mocap reconstruct` (issue 3 (c), (d); issue 4's MCAP overhead).
 
-(c) speed: a take is rendered first (not timed); then, in the same run, in interleaved rounds (best kept):
+(c) speed: a take is rendered first (not timed); then, in the same run, in interleaved rounds:
     * baseline: merely decoding every camera's lossless video (the take reader, nothing else: the same
       reader, with the same decoding threads, that ``reconstruct`` uses);
     * end to end: ``mocap.reconstruct`` on the same videos (decode + detect + track);
     * end to end with live MCAP logging.
-    Printed as frames/s and as ratios to the baseline (target: end to end >= 0.8 of decode speed;
-    MCAP logging slows reconstruct by < 10 %), and the process CPU time per frame (all threads) with
-    its ratio: on a machine shared with other jobs the wall-clock ratio depends on their load, the
-    CPU ratio much less.
+    Printed as frames/s and ms/frame (best round), the speed ratio to the baseline (median over rounds of
+    the ratio within a round, so that both runs of a ratio saw about the same load; target: end to end
+    >= 0.8 of decode speed; MCAP logging slows reconstruct by < 10 %), and the process CPU time per frame
+    (all threads, best round) with its ratio: on a machine shared with other jobs the wall-clock figures
+    follow the other jobs' load, the CPU figures much less.
 (d) memory: peak resident memory of the tracker fed a 1-minute and a 10-minute 120 Hz stream of 2D
     centroids (six cameras, the marching body's 40 markers, projected with noise; the motion is
     played forwards then backwards so any duration is continuous). Each run is a fresh process.
     The output arrays must grow with the take; everything else must not.
 
-Usage: python tools/bench_pipeline.py [--frames 240] [--rounds 2] [--minutes 1 10] [--skip-speed] [--skip-memory]
+Usage: python tools/bench_pipeline.py [--frames 240] [--rounds 3] [--minutes 1 10] [--skip-speed] [--skip-memory]
 """
 
 from __future__ import annotations
@@ -44,7 +45,7 @@ def bench_speed(frames: int, rounds: int) -> None:
         opened = open_take(take)
         w, h = opened.rig[0].size
         print(f"(c) {frames} frames x {len(opened.rig)} cameras, {w}x{h} FFV1, 40 markers, default realism; "
-              f"take reader decoding in {DECODE_THREADS} threads; best of {rounds} interleaved rounds")
+              f"take reader decoding in {DECODE_THREADS} threads; {rounds} interleaved rounds")
 
         def decode_only() -> None:
             for _ in open_take(take).images():
@@ -54,22 +55,22 @@ def bench_speed(frames: int, rounds: int) -> None:
                 "reconstruct": lambda: reconstruct(take, ReconstructOptions(progress=False)),
                 "reconstruct + MCAP log": lambda: reconstruct(take, ReconstructOptions(progress=False),
                                                               mcap=Path(tmp) / "run.mcap")}
-        wall: dict[str, float] = {}
-        cpu: dict[str, float] = {}
-        for _round in range(rounds):
+        wall = {name: np.zeros(rounds) for name in runs}
+        cpu = {name: np.zeros(rounds) for name in runs}
+        for r in range(rounds):
             for name, run in runs.items():
                 t0, c0 = time.perf_counter(), time.process_time()
                 run()
-                wall[name] = min(wall.get(name, np.inf), time.perf_counter() - t0)
-                cpu[name] = min(cpu.get(name, np.inf), time.process_time() - c0)
-        base, base_cpu = wall["decode only (baseline)"], cpu["decode only (baseline)"]
+                wall[name][r], cpu[name][r] = time.perf_counter() - t0, time.process_time() - c0
+        base, base_cpu = wall["decode only (baseline)"], cpu["decode only (baseline)"].min()
         print(f"    {'':26} {'frames/s':>9} {'ms/frame':>9} {'speed vs decode':>16} {'CPU ms/frame':>13} "
               f"{'CPU ratio':>10}")
         for name in runs:
-            dt = wall[name]
-            print(f"    {name:26} {frames / dt:9.1f} {1000 * dt / frames:9.2f} {base / dt:16.2f} "
-                  f"{1000 * cpu[name] / frames:13.2f} {base_cpu / cpu[name]:10.2f}")
-        overhead = wall["reconstruct + MCAP log"] / wall["reconstruct"] - 1
+            dt = wall[name].min()
+            print(f"    {name:26} {frames / dt:9.1f} {1000 * dt / frames:9.2f} {np.median(base / wall[name]):16.2f} "
+                  f"{1000 * cpu[name].min() / frames:13.2f} {base_cpu / cpu[name].min():10.2f}")
+        print("    speed vs decode per round: " + ", ".join(f"{v:.2f}" for v in base / wall["reconstruct"]))
+        overhead = np.median(wall["reconstruct + MCAP log"] / wall["reconstruct"]) - 1
         print(f"    MCAP logging overhead on reconstruct: {100 * overhead:+.1f} %")
 
 
@@ -121,7 +122,7 @@ def bench_memory(durations: list[float]) -> None:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--frames", type=int, default=240, help="frames of the rendered take for (c)")
-    ap.add_argument("--rounds", type=int, default=2, help="interleaved timing rounds for (c); the best is kept")
+    ap.add_argument("--rounds", type=int, default=3, help="interleaved timing rounds for (c)")
     ap.add_argument("--minutes", type=float, nargs="+", default=[1.0, 10.0], help="stream lengths for (d)")
     ap.add_argument("--skip-speed", action="store_true")
     ap.add_argument("--skip-memory", action="store_true")
