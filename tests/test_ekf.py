@@ -32,20 +32,26 @@ def test_process_noise_is_filterpys_discrete_white_noise():
         np.testing.assert_allclose(Q, ref, rtol=1e-12, atol=0)
 
 
+def _filterpy_filters(x: np.ndarray, P: np.ndarray, F: np.ndarray, Q: np.ndarray, dims: int) -> list:
+    """One filterpy ExtendedKalmanFilter per row of the batched state x (K, n), P (K, n, n)."""
+    refs = []
+    for xk, Pk in zip(x, P, strict=True):
+        f = ExtendedKalmanFilter(dim_x=x.shape[1], dim_z=dims)
+        f.x, f.P, f.F, f.Q = xk.copy(), Pk.copy(), F, Q
+        refs.append(f)
+    return refs
+
+
 @pytest.mark.parametrize("dims", [2, 3])
 def test_linear_position_filters_match_filterpy(dims):
     """The 2D image filter and the 3D world filter, K of them batched, equal K filterpy EKFs."""
     rng = np.random.default_rng(3)
-    K, n, dt = 4, 3 * dims, 1 / 120
+    K, dt = 4, 1 / 120
     F, Q, H = ca_transition(dt, dims), ca_process_noise(dt, dims, 200.0), position_jacobian(dims)
     pos = rng.normal(size=(K, dims))
     R0 = np.stack([_random_spd(rng, dims, 1e-3) for _ in range(K)])
     x, P = init_state(pos, R0, rng.normal(size=(K, dims)), velocity_std=2.0, accel_std=30.0)
-    refs = []
-    for k in range(K):
-        f = ExtendedKalmanFilter(dim_x=n, dim_z=dims)
-        f.x, f.P, f.F, f.Q = x[k].copy(), P[k].copy(), F, Q
-        refs.append(f)
+    refs = _filterpy_filters(x, P, F, Q, dims)
     for _ in range(30):
         x, P = predict(x, P, F, Q)
         z = rng.normal(size=(K, dims))
@@ -64,16 +70,12 @@ def test_linear_position_filters_match_filterpy(dims):
 def test_position_update_equals_the_general_update_and_filterpy(dims):
     """update_position (H = [I 0 0] as slices) gives the general update's numbers, and filterpy's, step by step."""
     rng = np.random.default_rng(11)
-    K, n, dt = 5, 3 * dims, 1 / 50
+    K, dt = 5, 1 / 50
     F, Q, H = ca_transition(dt, dims, 0.5), ca_process_noise(dt, dims, 80.0), position_jacobian(dims)
     R0 = np.stack([_random_spd(rng, dims, 1e-2) for _ in range(K)])
     x, P = init_state(rng.normal(size=(K, dims)), R0, rng.normal(size=(K, dims)), velocity_std=3.0, accel_std=50.0)
     xg, Pg = x.copy(), P.copy()
-    refs = []
-    for k in range(K):
-        f = ExtendedKalmanFilter(dim_x=n, dim_z=dims)
-        f.x, f.P, f.F, f.Q = x[k].copy(), P[k].copy(), F, Q
-        refs.append(f)
+    refs = _filterpy_filters(x, P, F, Q, dims)
     for _ in range(40):
         x, P = predict(x, P, F, Q)
         xg, Pg = predict(xg, Pg, F, Q)
