@@ -83,7 +83,9 @@ class TrackerConfig:
         support_px: a free detection this close to a new point's reprojection supports it, pixels.
         new_min_views: cameras that must support a new marker (fewer when fewer cameras frame it).
         weak_motion_m: a track started from a weak new point (fewer supporting cameras than ``new_min_views``
-            where more frame it) is confirmed only once it has moved this far, m.
+            where more frame it) is confirmed only once it has moved this far, m, or while the confirmed tracks
+            around it (``neighbour_m``, at least ``neighbour_min``) move less than that over ``confirm_frames``
+            too (a still subject); confirmed that way and left behind when they move, it is withdrawn.
         min_separation_m: a new point closer than this to a measured track is that track's, not new.
         clutter_px: a free detection this close to a free one of the recent frames is not new (see
             ``_known_clutter``).
@@ -157,7 +159,7 @@ class FrameResult:
 
     Attributes:
         frame_index: the frame.
-        ids: (K,) identity index (column of the output; label ``M{id+1:03d}``).
+        ids: (K,) identity index (label ``M{id+1:03d}``, as in the output of :meth:`Tracker.finish`).
         positions: (K, 3) m.
         residuals_mm: (K,) RMS reprojection error at the marker's depth, mm.
         camera_masks: (K,) uint32, bit c set when camera c was used.
@@ -400,9 +402,10 @@ class Tracker:
             pos[rows, cols] = rec["pos"][ok]
             res[rows, cols] = rec["res"][ok]
             mask[rows, cols] = rec["mask"][ok]
-        labels = [f"M{i + 1:03d}" for i in range(M)]
-        self._result = Trajectories(labels, self._fps, pos, res, mask, self._rig.names, first,
-                                    {"tracker": "mocap.tracker", "identities": M})
+        seen = np.flatnonzero(np.isfinite(pos[:, :, 0]).any(axis=0))  # identities withdrawn as reflections: none
+        labels = [f"M{i + 1:03d}" for i in seen]  # the identities' live names (FrameResult, MCAP log)
+        self._result = Trajectories(labels, self._fps, pos[:, seen], res[:, seen], mask[:, seen], self._rig.names,
+                                    first, {"tracker": "mocap.tracker", "identities": len(seen)})
         return self._result
 
     # ------------------------------------------------------------------ stages
@@ -685,11 +688,15 @@ class Tracker:
         t, cfg = self._t, self._cfg
         t.lock2[t.since > 0] = False
         tentative = t.ident < 0
-        # A track born from a weak point must also have moved: fixed reflections that happen to match
-        # across two cameras make a static point.
-        moved = np.linalg.norm(t.last_X - t.origin, axis=1) > cfg.weak_motion_m
-        confirm = np.flatnonzero(tentative & (t.since == 0) & (t.hits >= cfg.confirm_frames) & (~t.weak | moved))
-        retire = np.zeros(len(t), dtype=bool)
+        # A track born from a weak point must have moved, or stand still with its neighbours: fixed
+        # reflections that happen to match across two cameras make a static point wherever they are.
+        t.weak &= np.linalg.norm(t.last_X - t.origin, axis=1) <= cfg.weak_motion_m
+        idle, busy = self._neighbour_motion(t.weak & (t.since == 0))
+        confirm = np.flatnonzero(tentative & (t.since == 0) & (t.hits >= cfg.confirm_frames) & (~t.weak | idle))
+        # A static point confirmed that way is a reflection once its neighbours move and it does not:
+        # it is retired and its output withdrawn.
+        retire = busy & (t.ident >= 0)
+        self._uid_ident[t.uid[retire]] = -1
         for k in confirm:  # rare: once per new identity
             owner = np.flatnonzero((t.ident == t.cand[k]) & (t.since >= 1)) if t.cand[k] >= 0 else []
             if len(owner):
@@ -704,6 +711,28 @@ class Tracker:
         if retire.any():
             t.keep(~retire)
             meas.keep(~retire)
+
+    def _neighbour_motion(self, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(K,) bool twice, for the tracks in ``rows`` (K,) bool: ``idle``, the confirmed tracks measured within
+        ``neighbour_m`` (at least ``neighbour_min``) move less than ``weak_motion_m`` over ``confirm_frames``
+        (median speed); ``busy``, they move more than twice that while the track itself moves less than half."""
+        t, cfg = self._t, self._cfg
+        idle, busy = np.zeros(len(t), dtype=bool), np.zeros(len(t), dtype=bool)
+        ref = (t.ident >= 0) & (t.since == 0) & ~t.weak
+        if not rows.any() or ref.sum() < cfg.neighbour_min:
+            return idle, busy
+        k = np.flatnonzero(rows)
+        gap = t.x3[k, None, :3] - t.x3[None, ref, :3]
+        near = (gap * gap).sum(axis=2) < cfg.neighbour_m**2  # (k, R)
+        enough = near.sum(axis=1) >= cfg.neighbour_min
+        k, near = k[enough], near[enough]
+        if k.size == 0:
+            return idle, busy
+        step = np.linalg.norm(t.x3[:, 3:6], axis=1) * cfg.confirm_frames * self._dt  # (K,) m over the window
+        typical = np.nanmedian(np.where(near, step[ref][None], np.nan), axis=1)
+        idle[k] = typical < cfg.weak_motion_m
+        busy[k] = (typical > 2 * cfg.weak_motion_m) & (step[k] < 0.5 * cfg.weak_motion_m)
+        return idle, busy
 
     def _record(self, frame_index: int, fr: _Frame, meas: _Measurements) -> FrameResult:
         t, C = self._t, self._C
