@@ -155,21 +155,26 @@ class Camera:
             (N, 2) ideal pixel coordinates (same K, no distortion). NaN rows stay NaN.
         """
         uv = np.asarray(uv, dtype=np.float64).reshape(-1, 2)
-        ok = np.isfinite(uv).all(axis=1)
-        if len(uv) and ok.all():  # the usual case: no copy in and out of a NaN-filled array
+        if np.isfinite(uv).all():  # the usual case: no copy in and out of a NaN-filled array
             return self._undistort_finite(uv)
+        ok = np.isfinite(uv).all(axis=1)
         out = np.full_like(uv, np.nan)
         if ok.any():
             out[ok] = self._undistort_finite(uv[ok])
         return out
 
+    @functools.cached_property
+    def _distorted(self) -> bool:
+        """The lens model is not the identity (some distortion coefficient is non-zero)."""
+        return bool(self.distortions.any())
+
     def _undistort_finite(self, uv: np.ndarray) -> np.ndarray:
         """(N, 2) finite distorted pixels -> (N, 2) ideal pixels."""
+        if len(uv) == 0 or not (self.fisheye or self._distorted):
+            return uv.copy()
         src = uv.reshape(-1, 1, 2)
         if self.fisheye:
             und = cv2.fisheye.undistortPoints(src, self.matrix, self.distortions[:4], P=self.matrix)
-        elif not self.distortions.any():
-            und = src.copy()
         else:
             und = cv2.undistortPoints(src, self.matrix, self.distortions, None, None, self.matrix, _UNDISTORT_CRITERIA)
         return und.reshape(-1, 2)
