@@ -139,8 +139,8 @@ def update_position(x: np.ndarray, P: np.ndarray, z: np.ndarray, R: np.ndarray
                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """:func:`update` for a direct position measurement (``h(x) = p``, ``H`` = :func:`position_jacobian`).
 
-    With ``H = [I 0 0]``: ``P H^T`` is ``P[:, :, :d]``, ``(I - K H) P = P - K P[:d]`` and
-    ``M (I - K H)^T = M - M[:, :, :d] K^T``, so the Joseph form needs no n x n products.
+    With ``H = [I 0 0]``: ``P H^T`` is ``P[:, :, :d]`` and ``M = (I - K H) P = P - K P[:d]``, so the Joseph
+    form ``M (I - K H)^T + K R K^T`` is ``M + (K R - M[:, :, :d]) K^T``: no n x n products.
 
     Args:
         x: (K, n) prior states, n = 3 d.  P: (K, n, n) prior covariances.
@@ -157,7 +157,7 @@ def update_position(x: np.ndarray, P: np.ndarray, z: np.ndarray, R: np.ndarray
     y = z - x[:, :d]
     x_new = x + (gain @ y[..., None])[..., 0]
     M = P - gain @ P[:, :d, :]
-    P_new = M - M[:, :, :d] @ gain_t + gain @ R @ gain_t
+    P_new = M + (gain @ R - M[:, :, :d]) @ gain_t
     return x_new, P_new, y, S
 
 
