@@ -11,6 +11,7 @@ Nothing is tied to six cameras.
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import numpy as np
@@ -41,6 +42,20 @@ class CameraPairs:
 
     def __len__(self) -> int:
         return len(self.index)
+
+    @functools.cached_property
+    def F_t(self) -> np.ndarray:
+        """(P, 3, 3) the transposed fundamental matrices (image j -> image i), contiguous."""
+        return np.ascontiguousarray(np.swapaxes(self.F, 1, 2))
+
+    def incidence(self, cameras: int) -> np.ndarray:
+        """(P, cameras) bool: row p is True at pair p's two cameras (built once per camera count)."""
+        cache = self.__dict__.setdefault("_incidence", {})
+        if cameras not in cache:
+            out = np.zeros((len(self.index), cameras), dtype=bool)
+            out[np.arange(len(self.index))[:, None], self.index] = True
+            cache[cameras] = out
+        return cache[cameras]
 
 
 def volume_of_interest(rig: Rig) -> tuple[np.ndarray, float]:

@@ -54,6 +54,10 @@ def dist2(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 def assign(q: np.ndarray, eligible: np.ndarray | None = None) -> np.ndarray:
     """One-to-one assignment of detections to tracks in every camera.
 
+    Unambiguous gates (a track's only candidate, and that detection's only track) are taken directly; the
+    contested rows of all cameras are solved together by one ``linear_sum_assignment`` (pairs across
+    cameras are forbidden, so its optimum is each camera's own).
+
     Args:
         q: (K, C, N) normalised costs from :func:`gate` (entries >= 1 are out of the gate).
         eligible: (C, N) bool, detections still available (default: all).
@@ -75,14 +79,18 @@ def assign(q: np.ndarray, eligible: np.ndarray | None = None) -> np.ndarray:
     cam = np.arange(C)[None, :]
     simple = (per_row == 1) & (per_col[cam, first] == 1)
     out[simple] = first[simple]
-    hard = (per_row > 1) | ((per_row == 1) & ~simple)
-    for c in np.flatnonzero(hard.any(axis=0)):
-        rows = np.flatnonzero(hard[:, c])
-        cols = np.flatnonzero(inside[rows, c].any(axis=0))
-        sub = np.where(inside[np.ix_(rows, [c], cols)][:, 0], q[np.ix_(rows, [c], cols)][:, 0], _FORBIDDEN)
+    kk, cc = np.nonzero((per_row > 0) & ~simple)
+    if kk.size:  # the rest: one optimal assignment over all cameras' contested rows (no gate spans two cameras)
+        rows_in = inside[kk, cc]  # (R, N)
+        wanted = np.zeros((C, N), dtype=bool)
+        r, n = np.nonzero(rows_in)
+        wanted[cc[r], n] = True
+        wc, wn = np.nonzero(wanted)  # the contested detections (L,)
+        ok = rows_in[:, wn] & (cc[:, None] == wc[None, :])
+        sub = np.where(ok, q[kk, cc][:, wn], _FORBIDDEN)
         r, k = linear_sum_assignment(sub)
-        ok = sub[r, k] < _FORBIDDEN
-        out[rows[r[ok]], c] = cols[k[ok]]
+        ok = ok[r, k]
+        out[kk[r[ok]], cc[r[ok]]] = wn[k[ok]]
     return out
 
 
@@ -132,17 +140,15 @@ def epipolar_consistency(pairs: CameraPairs, uv: np.ndarray, tol_px: float, sigm
     h[:, 2] = 1.0
     h2 = h[j]
     l2 = pairs.F @ h[i]  # lines in image j of the points in image i
-    l1 = np.swapaxes(pairs.F, 1, 2) @ h2  # lines in image i of the points in image j
-    alg = np.abs((l2 * h2).sum(axis=1))
-    e = np.maximum(alg / np.hypot(l2[:, 0], l2[:, 1]), alg / np.hypot(l1[:, 0], l1[:, 1]))  # (P, K)
-    have = np.isfinite(e)
+    l1 = pairs.F_t @ h2  # lines in image i of the points in image j
+    # max(alg / |l2|, alg / |l1|) as alg / min(|l2|, |l1|): the same number
+    e = np.abs((l2 * h2).sum(axis=1)) / np.minimum(np.hypot(l2[:, 0], l2[:, 1]), np.hypot(l1[:, 0], l1[:, 1]))
+    have = np.isfinite(e)  # (P, K)
     tol = tol_px
     if sigma is not None:
         tol = np.maximum(tol_px, n_sigma * np.hypot(sigma[:, i], sigma[:, j]).T)
-    good = have & (e < tol)
-    incidence = np.zeros((len(pairs), C), dtype=bool)  # pair -> its two cameras
-    incidence[np.arange(len(pairs)), i] = True
-    incidence[np.arange(len(pairs)), j] = True
+    good = e < tol  # False where NaN
+    incidence = pairs.incidence(C)
     return good.T @ incidence, have.T @ incidence
 
 
