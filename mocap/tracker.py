@@ -39,6 +39,7 @@ from dataclasses import dataclass, field, fields
 import numpy as np
 
 from mocap.camera import Rig
+from mocap.detect import MIN_SHAPE_AREA
 from mocap.detections import Detections
 from mocap.ekf import RunningError, ca_process_noise, ca_transition, init_state, predict, update_position
 from mocap.errors import MocapError
@@ -78,7 +79,10 @@ class TrackerConfig:
             ``n_sigma`` x the two centroid stds combined, if larger).
         n_sigma: pixel tolerances (epipolar_px, repick_px, support_px) widen to this many centroid stds.
         outlier_sigma: a camera is rejected from a point beyond this many centroid stds ...
-        outlier_min_px: ... and beyond this many pixels.
+        outlier_min_px: ... and beyond this many pixels, or ``outlier_rms_factor`` x the take's typical
+            reprojection RMS if larger (calibration error shows there; until measured, 4 x this floor).
+        outlier_rms_factor: see ``outlier_min_px``; the typical RMS is a running average (``error_alpha``) of
+            each frame's median RMS over its points with three or more clean cameras.
         repick_px: a free detection this close to a point's reprojection joins the point, pixels.
         support_px: a free detection this close to a new point's reprojection supports it, pixels.
         new_min_views: cameras that must support a new marker (fewer when fewer cameras frame it).
@@ -94,8 +98,10 @@ class TrackerConfig:
         marker_mm: marker diameter, mm: two markers predicted closer than their image diameter plus
             ``merge_px`` may share one merged blob in that image.
         merge_px: margin of that test, pixels.
+        round_merged: a blob (of at least ``mocap.detect.MIN_SHAPE_AREA`` pixels) whose roundness is below this
+            times cos(field angle), the roundness of a sphere's image there, is treated as merged.
         merged_variance_scale: centroid variance multiplier of blobs flagged as merged (by the detector,
-            or by two tracks predicted that close). A point is output only when two cameras
+            by ``round_merged``, or by two tracks predicted that close). A point is output only when two cameras
             without such blobs support it, or it lies within ``suspect_m`` (clipped to ``gate_scale`` x the
             running position error) of its prediction; otherwise it only updates its filter.
         suspect_m: (low, high) bounds of that distance, m (high grows to ``n_sigma`` x the point's noise).
@@ -123,7 +129,8 @@ class TrackerConfig:
     epipolar_px: float = 2.0
     n_sigma: float = 4.0
     outlier_sigma: float = 6.0
-    outlier_min_px: float = 0.6
+    outlier_min_px: float = 0.15
+    outlier_rms_factor: float = 4.0
     repick_px: float = 1.5
     support_px: float = 2.0
     new_min_views: int = 3
@@ -133,6 +140,7 @@ class TrackerConfig:
     clutter_frames: int = 30
     marker_mm: float = 14.0
     merge_px: float = 1.5
+    round_merged: float = 0.8
     merged_variance_scale: float = 100.0
     suspect_m: tuple[float, float] = (0.001, 0.002)
     neighbour_m: float = 0.2
@@ -319,6 +327,8 @@ class Tracker:
         self._P = rig.projection_matrices()
         self._pairs = camera_pairs(rig)
         self._focal = np.array([0.5 * (c.matrix[0, 0] + c.matrix[1, 1]) for c in rig.cameras])
+        self._focal_xy = np.array([[c.matrix[0, 0], c.matrix[1, 1]] for c in rig.cameras])
+        self._centre = np.array([[c.matrix[0, 2], c.matrix[1, 2]] for c in rig.cameras])
         self._sizes = np.array([c.size for c in rig.cameras], dtype=float)
         self._F3, self._Q3 = ca_transition(dt, 3, cfg.accel_damping), ca_process_noise(dt, 3, cfg.jerk_std_3d)
         self._F2, self._Q2 = ca_transition(dt, 2, cfg.accel_damping), ca_process_noise(dt, 2, cfg.jerk_std_2d)
@@ -333,6 +343,8 @@ class Tracker:
         self._clutter: deque[np.ndarray] = deque(maxlen=max(cfg.clutter_frames, 1))  # recent free detections
         self._first: int | None = None
         self._last = -1
+        self._rms_px = cfg.outlier_min_px  # typical reprojection RMS of the take's points, px (running)
+        self._outlier_px = 4.0 * cfg.outlier_min_px  # camera rejection floor until that is measured, px
 
     # ------------------------------------------------------------------ public API
     def step(self, frame_index: int, detections: list[Detections]) -> FrameResult:
@@ -359,6 +371,7 @@ class Tracker:
                 self._associate(fr, play, t.lock2 & ~moved[:, None], meas)
                 t.x3[moved, :3] -= shift[moved]
             self._update(fr, meas, np.flatnonzero(meas.ok))
+            self._follow_residual_level(fr, meas)
         self._new_markers(fr, fr.valid & ~_taken(meas.asg, fr.valid.shape), meas)
         self._lifecycle(meas)
         return self._record(frame_index, fr, meas)
@@ -415,13 +428,19 @@ class Tracker:
         D = np.full((C, N, 2), np.nan)
         S = np.broadcast_to(np.eye(2), (C, N, 2, 2)).copy()
         merged = np.zeros((C, N), dtype=bool)
+        round_ = np.ones((C, N))
         for c, (cam, det) in enumerate(zip(self._rig.cameras, detections, strict=True)):
             n = counts[c]
             if n:
                 D[c, :n] = cam.undistort(det.xy)
                 S[c, :n] = det.cov
                 merged[c, :n] = det.merged
+                round_[c, :n] = np.where(det.area >= MIN_SHAPE_AREA, det.roundness, 1.0)
         valid = np.isfinite(D).all(axis=2)
+        # A sphere's image is an ellipse of axis ratio cos(field angle); a blob much flatter than that is two
+        # markers merged without a saddle, or one partly hidden: its centroid is off by up to a radius.
+        ray = (D - self._centre[:, None, :]) / self._focal_xy[:, None, :]
+        merged |= round_ < self._cfg.round_merged / np.sqrt(1.0 + (ray * ray).sum(axis=2))
         S[merged] *= self._cfg.merged_variance_scale
         return _Frame(D, S, valid, merged, counts)
 
@@ -510,7 +529,7 @@ class Tracker:
         suspect = crowded & ~_gather(fr.merged, asg)  # merged blobs are down-weighted already
         inflate = np.where(suspect, cfg.merged_variance_scale, 1.0)[..., None, None]
         tri = robust_triangulate(self._P, uv.swapaxes(0, 1), (_gather(fr.S, asg) * inflate).swapaxes(0, 1),
-                                 self._t.x3[:, :3], cfg.outlier_sigma, cfg.outlier_min_px)
+                                 self._t.x3[:, :3], cfg.outlier_sigma, self._outlier_px)
         asg[~tri.used] = -1
         free = fr.valid & ~fr.merged & ~_taken(asg, fr.valid.shape)
         extra = repick(tri, fr.D, free, np.maximum(cfg.repick_px, cfg.n_sigma * sigma))
@@ -521,7 +540,7 @@ class Tracker:
             inflate = np.where(crowded[more], cfg.merged_variance_scale, 1.0)[..., None, None]
             t2 = robust_triangulate(self._P, _gather(fr.D, sub).swapaxes(0, 1),
                                     (_gather(fr.S, sub) * inflate).swapaxes(0, 1), tri.X[more],
-                                    cfg.outlier_sigma, cfg.outlier_min_px)
+                                    cfg.outlier_sigma, self._outlier_px)
             tri.X[more], tri.cov[more], tri.rms_px[more], tri.used[more] = t2.X, t2.cov, t2.rms_px, t2.used
             asg[~tri.used] = -1
         meas.ok = np.isfinite(tri.X).all(axis=1)
@@ -536,6 +555,17 @@ class Tracker:
                                                                       high)
         meas.out = meas.ok & ((clean.sum(axis=1) >= 2) | agree)
         meas.X, meas.cov, meas.rms_px = tri.X, tri.cov, tri.rms_px
+
+    def _follow_residual_level(self, fr: _Frame, meas: _Measurements) -> None:
+        """Running median of the reprojection RMS (px) of this frame's points with three or more clean cameras,
+        and the camera rejection floor that follows it (``outlier_rms_factor``)."""
+        cfg = self._cfg
+        clean = (meas.asg >= 0) & ~_gather(fr.merged, meas.asg)
+        rms = meas.rms_px[meas.ok & (clean.sum(axis=1) >= 3)]
+        if rms.size < 3:
+            return
+        self._rms_px += cfg.error_alpha * (float(np.median(rms)) - self._rms_px)
+        self._outlier_px = max(cfg.outlier_min_px, cfg.outlier_rms_factor * self._rms_px)
 
     def _update(self, fr: _Frame, meas: _Measurements, idx: np.ndarray) -> None:
         """Kalman and running-error updates of tracks ``idx`` with their measurements (3D and image filters)."""
@@ -609,7 +639,7 @@ class Tracker:
         if not fresh.any() or free.sum() < 2 or len(self._pairs) == 0:
             return
         pts = new_points(self._P, self._pairs, fr.D, fr.S, free, self._sizes, cfg.epipolar_px, cfg.support_px,
-                         cfg.new_min_views, cfg.outlier_sigma, cfg.outlier_min_px, fresh, cfg.n_sigma)
+                         cfg.new_min_views, cfg.outlier_sigma, self._outlier_px, fresh, cfg.n_sigma)
         measured = t.since == 0
         if len(pts.X) and measured.any():  # duplicates of markers measured this frame
             d = np.linalg.norm(pts.X[:, None] - t.x3[None, measured, :3], axis=2)
