@@ -59,25 +59,28 @@ def _gauss_newton(P: np.ndarray, uv: np.ndarray, W: np.ndarray, X: np.ndarray, i
     the last linearisation), reprojection (C, K, 2) and residual vectors (C, K, 2) (both updated to
     first order by the last step) and depth (C, K).
 
-    Inside, the cameras' u and v rows are stacked per point, (K, 2, C) and (K, 2 C, 3) Jacobians, so that
-    ``J^T W J`` and ``J^T W r`` summed over cameras are one (3, 2C) x (2C, .) product per point.
+    Inside, the cameras' u and v rows are stacked per point, (K, 2, C) projections and (K, 3, 2 C) transposed
+    Jacobians with the cameras innermost, so that ``J^T W J`` and ``J^T W r`` summed over cameras are one
+    (3, 2C) x (2C, .) product per point.
     """
     C, K = uv.shape[:2]
-    Wr = W.transpose(1, 2, 3, 0)[..., None]  # (K, 2, 2, C, 1)
+    Wk = W.transpose(1, 2, 3, 0).copy()  # (K, 2, 2, C)
+    W0, W1 = Wk[:, None, :, 0], Wk[:, None, :, 1]  # (K, 1, 2, C): the columns of each camera's weight
     few = (W[..., 0, 0] > 0).sum(axis=0) < 2
     few = few if few.any() else None
     uvk = uv.transpose(1, 2, 0)  # (K, 2, C)
     Pm = P[:, :, :3].transpose(1, 0, 2).reshape(3 * C, 3).T  # (3, 3C): u rows, v rows, w rows
     pt = P[:, :, 3].T.reshape(3 * C)
-    P01, P2 = P[:, :2, :3].transpose(1, 0, 2), P[:, 2, :3]  # (2, C, 3), (C, 3)
+    P01 = P[:, :2, :3].transpose(2, 1, 0).copy()  # (3, 2, C)
+    P2 = P[:, 2, :3].T[:, None, :].copy()  # (3, 1, C)
     for it in range(iterations):
         h = X @ Pm + pt  # (K, 3C)
         w = h[:, None, 2 * C:]  # (K, 1, C)
         proj = h[:, :2 * C].reshape(K, 2, C) / w
-        J = (P01 - proj[..., None] * P2) / w[..., None]  # (K, 2, C, 3)
+        Jt = (P01 - proj[:, None] * P2) / w[:, None]  # (K, 3, 2, C): J^T
         r = uvk - proj
-        WJt = (Wr[:, :, 0] * J[:, 0:1] + Wr[:, :, 1] * J[:, 1:2]).reshape(K, 2 * C, 3).transpose(0, 2, 1)
-        H = WJt @ J.reshape(K, 2 * C, 3)
+        WJt = (W0 * Jt[:, :, 0:1] + W1 * Jt[:, :, 1:2]).reshape(K, 3, 2 * C)  # (W J)^T
+        H = WJt @ Jt.reshape(K, 3, 2 * C).transpose(0, 2, 1)
         if few is not None:
             H[few] = np.eye(3)
         cov = np.linalg.inv(H)  # the last one is the point's covariance
@@ -85,7 +88,7 @@ def _gauss_newton(P: np.ndarray, uv: np.ndarray, W: np.ndarray, X: np.ndarray, i
         X = X + dx
         if it == iterations - 1 or np.abs(dx).max(initial=0.0) < tol_m:
             break
-    step = (J.reshape(K, 2 * C, 3) @ dx[..., None]).reshape(K, 2, C)  # first order, for the returned values
+    step = (dx[:, None, :] @ Jt.reshape(K, 3, 2 * C)).reshape(K, 2, C)  # first order, for the returned values
     proj = proj + step
     r = r - step
     depth = X @ P[:, 2, :3].T + P[:, 2, 3]  # (K, C)
@@ -209,14 +212,15 @@ def repick(tri: Triangulated, D: np.ndarray, free: np.ndarray, limit_px: np.ndar
         return out
     want = ~tri.used.T & np.isfinite(tri.X[:, 0])[None, :]  # (C, K)
     d = np.sqrt(dist2(tri.proj[:, :, None, :], D[:, None, :, :]))  # (C, K, N)
-    limit = np.broadcast_to(np.asarray(limit_px, dtype=float), free.shape)[:, None, :]
+    limit = np.asarray(limit_px, dtype=float)
+    limit = limit[:, None, :] if limit.ndim else limit
     ok = want[..., None] & free[:, None, :] & (d < limit)
     d = np.where(ok, d, np.inf)
     best = np.argmin(d, axis=2)  # (C, K)
     # A detection wanted by several tracks goes to the nearest one.
     nearest_track = np.argmin(d, axis=1)  # (C, N)
     won = nearest_track[np.arange(C)[:, None], best] == np.arange(K)[None, :]
-    take = np.isfinite(d.min(axis=2)) & won
+    take = ok.any(axis=2) & won  # (d is finite exactly where ok)
     out.T[take] = best[take]
     return out
 
