@@ -210,9 +210,8 @@ class _Records:
                 self._fill = 0
             take = min(k - done, self.CHUNK - self._fill)
             chunk = self._chunks[-1]
-            for name, value in values.items():
-                full = np.broadcast_to(value, (k,) + chunk[name].shape[1:])
-                chunk[name][self._fill : self._fill + take] = full[done : done + take]
+            for name, value in values.items():  # a scalar fills the rows, an array gives one per row
+                chunk[name][self._fill : self._fill + take] = value[done : done + take] if np.ndim(value) else value
             self._fill += take
             done += take
 
@@ -426,16 +425,18 @@ class Tracker:
         counts = [len(d) for d in detections]
         N, C = max(counts, default=0), self._C
         D = np.full((C, N, 2), np.nan)
-        S = np.broadcast_to(np.eye(2), (C, N, 2, 2)).copy()
+        S = np.empty((C, N, 2, 2))
+        S[:] = np.eye(2)
         merged = np.zeros((C, N), dtype=bool)
         round_ = np.ones((C, N))
-        for c, (cam, det) in enumerate(zip(self._rig.cameras, detections, strict=True)):
-            n = counts[c]
-            if n:
-                D[c, :n] = cam.undistort(det.xy)
-                S[c, :n] = det.cov
-                merged[c, :n] = det.merged
-                round_[c, :n] = np.where(det.area >= MIN_SHAPE_AREA, det.roundness, 1.0)
+        if N:  # all cameras' rows at once: the (C, N) slots in use, camera-major like the concatenations
+            fill = np.arange(N) < np.array(counts)[:, None]
+            cams = self._rig.cameras
+            D[fill] = np.concatenate([cam.undistort(det.xy) for cam, det in zip(cams, detections, strict=True)])
+            S[fill] = np.concatenate([det.cov for det in detections])
+            merged[fill] = np.concatenate([det.merged for det in detections])
+            area = np.concatenate([det.area for det in detections])
+            round_[fill] = np.where(area >= MIN_SHAPE_AREA, np.concatenate([det.roundness for det in detections]), 1.0)
         valid = np.isfinite(D).all(axis=2)
         # A sphere's image is an ellipse of axis ratio cos(field angle); a blob much flatter than that is two
         # markers merged without a saddle, or one partly hidden: its centroid is off by up to a radius.
@@ -501,7 +502,7 @@ class Tracker:
         r3 = np.minimum(self._running.radius(*t.e3.T, t.since, self._dt, cfg.gate_floor_m), cfg.reid_max_m)
         with np.errstate(divide="ignore", invalid="ignore"):
             r3px = r3[:, None] * self._focal[None, :] / depth
-        r2 = self._running.radius(*np.moveaxis(t.e2, 2, 0), 1, self._dt, cfg.gate_floor_px)
+        r2 = self._running.radius(t.e2[..., 0], t.e2[..., 1], t.e2[..., 2], 1, self._dt, cfg.gate_floor_px)
         pred = np.where(lock[..., None], t.x2[..., :2], proj.swapaxes(0, 1))
         radius = np.clip(np.where(lock, r2, r3px), cfg.gate_floor_px, cfg.gate_max_px)
         pred[depth <= 0] = np.nan
@@ -511,8 +512,8 @@ class Tracker:
         """(K, C) bool: another track in play is predicted within a marker's image diameter + ``merge_px``."""
         p = np.where(play[:, None, None], pred, np.nan).swapaxes(0, 1)  # (C, K, 2)
         d2 = dist2(p[:, :, None, :], p[:, None, :, :])
-        K = len(play)
-        d2[:, np.arange(K), np.arange(K)] = np.inf
+        diag = np.arange(len(play))
+        d2[:, diag, diag] = np.inf
         with np.errstate(invalid="ignore", divide="ignore"):
             reach = self._focal[None, :] * self._cfg.marker_mm / 1000.0 / depth + self._cfg.merge_px  # (K, C)
             return (d2 < (reach * reach).T[:, :, None]).any(axis=2).T
@@ -580,10 +581,11 @@ class Tracker:
         # Running prediction errors (paper 004), from consecutive frames only.
         v_meas = (X - t.last_X[idx]) / dt
         a_meas = (v_meas - t.last_v[idx]) / dt
-        dev = np.stack([X, v_meas, a_meas], axis=1) - prior.reshape(-1, 3, 3)  # y, velocity, acceleration errors
+        dev = (np.concatenate([X, v_meas, a_meas], axis=1) - prior).reshape(-1, 3, 3)  # y, velocity, accel errors
         err = np.sqrt((dev * dev).sum(axis=2))
-        err = np.where(np.isfinite(err), err, t.e3[idx])
-        t.e3[idx] = np.where(consecutive[:, None], self._running.step(t.e3[idx], err), t.e3[idx])
+        e3 = t.e3[idx]
+        err = np.where(np.isfinite(err), err, e3)
+        t.e3[idx] = np.where(consecutive[:, None], self._running.step(e3, err), e3)
         t.x3[idx], t.P3[idx] = x_new, P_new
         t.last_v[idx] = np.where(consecutive[:, None], v_meas, np.nan)
         t.last_X[idx] = X
@@ -592,16 +594,18 @@ class Tracker:
         t.since[idx] = 0
         # Image filters of the cameras used.
         asg = meas.asg[idx]
-        kk, cc = np.nonzero(asg >= 0)
+        seen = asg >= 0
+        kk, cc = np.nonzero(seen)
         tk = idx[kk]
-        z = fr.D[cc, asg[kk, cc]]
-        Rz = fr.S[cc, asg[kk, cc]]
+        det = asg[kk, cc]
+        z = fr.D[cc, det]
+        Rz = fr.S[cc, det]
         locked = t.lock2[tk, cc]
         x2 = t.x2[tk, cc]
         x2n, P2n, _, _ = update_position(x2, t.P2[tk, cc], z, Rz)
         uvv = (z - t.last_uv[tk, cc]) / dt
         uva = (uvv - t.last_uvv[tk, cc]) / dt
-        dev2 = np.stack([z, uvv, uva], axis=1) - x2.reshape(-1, 3, 2)
+        dev2 = (np.concatenate([z, uvv, uva], axis=1) - x2).reshape(-1, 3, 2)
         err2 = np.sqrt((dev2 * dev2).sum(axis=2))
         e2 = t.e2[tk, cc]
         fin = np.isfinite(err2)
@@ -615,7 +619,7 @@ class Tracker:
         t.x2[tk, cc], t.P2[tk, cc], t.e2[tk, cc] = x2n, P2n, e2
         t.last_uvv[tk, cc] = np.where(locked[:, None], uvv, 0.0)
         t.last_uv[tk, cc] = z
-        t.lock2[idx] = asg >= 0
+        t.lock2[idx] = seen
 
     def _e2_from_3d(self, tracks: np.ndarray, cams: np.ndarray) -> np.ndarray:
         """(n, 3) image running errors seeded from the tracks' 3D ones, scaled by f / depth."""
@@ -776,11 +780,12 @@ class Tracker:
         self._records.append(frame=frame_index, uid=t.uid[rows], pos=X, res=res, mask=mask)
         conf = t.ident[rows] >= 0
         ids = t.ident[rows][conf]
-        offsets = np.concatenate([[0], np.cumsum(fr.counts)])  # all cameras' detections in one flat array
+        offsets = np.cumsum([0, *fr.counts])  # all cameras' detections in one flat array
         flat = np.full(offsets[-1], -1, dtype=np.intp)
         kk, cc = np.nonzero(used[conf])
         flat[offsets[cc] + asg[conf][kk, cc]] = ids[kk]
-        assignments = np.split(flat, offsets[1:-1])
+        bounds = offsets.tolist()
+        assignments = [flat[a:b] for a, b in zip(bounds[:-1], bounds[1:], strict=True)]
         return FrameResult(frame_index, ids, X[conf], res[conf], mask[conf], assignments)
 
 
