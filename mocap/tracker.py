@@ -638,7 +638,7 @@ class Tracker:
         t, cfg = self._t, self._cfg
         if len(self._clutter) == self._clutter.maxlen:
             self._clutter.clear()
-        fresh = free & ~self._known_clutter(fr.D)
+        fresh = free & ~self._known_clutter(fr.D, free)
         self._clutter.append(np.where(free[..., None], fr.D, np.nan)[:, free.any(axis=0)])
         if not fresh.any() or free.sum() < 2 or len(self._pairs) == 0:
             return
@@ -671,19 +671,21 @@ class Tracker:
             cand = np.where(match >= 0, t.ident[lost[np.maximum(match, 0)]], -1)
         self._start(fr, pts.subset(rest), cand, meas)
 
-    def _known_clutter(self, D: np.ndarray) -> np.ndarray:
-        """(C, N) bool: detections within ``clutter_px`` of a free detection of the recent frames.
+    def _known_clutter(self, D: np.ndarray, which: np.ndarray) -> np.ndarray:
+        """(C, N) bool: the detections ``which`` (C, N) within ``clutter_px`` of a free detection of the recent frames.
 
         Free detections that stay put (fixed or flickering reflections, a marker seen by one camera)
         were already examined for new markers; they are only paired with fresh detections again.
+        Only the detections asked about are compared (the free ones: a few per frame, not all N).
         """
-        if not self._clutter or D.shape[1] == 0:
-            return np.zeros(D.shape[:2], dtype=bool)
+        out = np.zeros(D.shape[:2], dtype=bool)
+        if not self._clutter or not which.any():
+            return out
         old = np.concatenate(self._clutter, axis=1)  # (C, M, 2), NaN where not free
-        if old.shape[1] == 0:
-            return np.zeros(D.shape[:2], dtype=bool)
+        cc, nn = np.nonzero(which)
         with np.errstate(invalid="ignore"):
-            return (dist2(D[:, :, None, :], old[:, None, :, :]) < self._cfg.clutter_px**2).any(axis=2)
+            out[cc, nn] = (dist2(D[cc, nn][:, None, :], old[cc]) < self._cfg.clutter_px**2).any(axis=1)
+        return out
 
     def _start(self, fr: _Frame, pts: NewPoints, cand: np.ndarray, meas: _Measurements) -> None:
         """Append tentative tracks at new points ``pts`` (and their measurements to ``meas``)."""
