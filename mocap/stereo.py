@@ -180,9 +180,15 @@ def match_pairs(pairs: CameraPairs, D: np.ndarray, free: np.ndarray, tol_px: flo
     cam, det = np.nonzero(free)
     index = np.full((free.shape[0], M), -1, dtype=np.intp)
     index[cam, slot[cam, det]] = det
-    pts = np.where((index >= 0)[..., None], D[np.arange(free.shape[0])[:, None], np.maximum(index, 0)], np.nan)
+    h = np.ones((free.shape[0], M, 3))  # homogeneous slots, NaN where empty
+    h[..., :2] = np.where((index >= 0)[..., None], D[np.arange(free.shape[0])[:, None], np.maximum(index, 0)], np.nan)
     i, j = pairs.index[:, 0], pairs.index[:, 1]
-    e = epipolar_distance(pairs.F[:, None, None], pts[i][:, :, None, :], pts[j][:, None, :, :])  # (P, M, M)
+    hj = h[j]
+    # epipolar_distance of every slot pair: lines per slot (P, M, 3), then all |l2 . x_j| in one (M, 3) x (3, M)
+    l2 = h[i] @ pairs.F_t  # lines in image j of the points of image i
+    l1 = hj @ pairs.F  # lines in image i of the points of image j
+    alg = np.abs(l2 @ hj.transpose(0, 2, 1))  # (P, M, M)
+    e = alg / np.minimum(np.hypot(l2[..., 0], l2[..., 1])[:, :, None], np.hypot(l1[..., 0], l1[..., 1])[:, None, :])
     rows = np.arange(free.shape[0])[:, None]
     tol = tol_px
     if sigma is not None:
