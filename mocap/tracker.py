@@ -510,13 +510,13 @@ class Tracker:
 
     def _crowded(self, pred: np.ndarray, play: np.ndarray, depth: np.ndarray) -> np.ndarray:
         """(K, C) bool: another track in play is predicted within a marker's image diameter + ``merge_px``."""
-        p = np.where(play[:, None, None], pred, np.nan).swapaxes(0, 1)  # (C, K, 2)
+        p = np.ascontiguousarray(np.where(play[:, None, None], pred, np.nan).swapaxes(0, 1))  # (C, K, 2)
         d2 = dist2(p[:, :, None, :], p[:, None, :, :])
         diag = np.arange(len(play))
         d2[:, diag, diag] = np.inf
         with np.errstate(invalid="ignore", divide="ignore"):
-            reach = self._focal[None, :] * self._cfg.marker_mm / 1000.0 / depth + self._cfg.merge_px  # (K, C)
-            return (d2 < (reach * reach).T[:, :, None]).any(axis=2).T
+            reach = self._focal[:, None] * self._cfg.marker_mm / 1000.0 / depth.T + self._cfg.merge_px  # (C, K)
+            return (d2 < (reach * reach)[:, :, None]).any(axis=2).T
 
     def _measure(self, fr: _Frame, crowded: np.ndarray, meas: _Measurements) -> None:
         """Epipolar pruning, robust fusion and re-pick of the assigned detections ``meas.asg``; fills ``meas``."""
