@@ -23,7 +23,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from mocap.geometry import inv2x2
+from mocap.geometry import inv2x2, inv3x3
 
 __all__ = [
     "ca_transition",
@@ -152,7 +152,7 @@ def update_position(x: np.ndarray, P: np.ndarray, z: np.ndarray, R: np.ndarray
     d = z.shape[-1]
     PHt = P[:, :, :d]
     S = P[:, :d, :d] + R
-    gain = PHt @ (inv2x2(S) if d == 2 else np.linalg.inv(S))  # (K, n, d)
+    gain = PHt @ (inv2x2(S) if d == 2 else inv3x3(S) if d == 3 else np.linalg.inv(S))  # (K, n, d)
     gain_t = np.swapaxes(gain, -1, -2)
     y = z - x[:, :d]
     x_new = x + (gain @ y[..., None])[..., 0]
