@@ -22,7 +22,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
-from mocap.geometry import inv2x2, reprojection_jacobians
+from mocap.geometry import inv2x2, inv3x3, reprojection_jacobians
 from mocap.pairs import CameraPairs
 from mocap.stereo import dist2, match_pairs, triangulate_matches
 
@@ -83,7 +83,7 @@ def _gauss_newton(P: np.ndarray, uv: np.ndarray, W: np.ndarray, X: np.ndarray, i
         H = WJt @ Jt.reshape(K, 3, 2 * C).transpose(0, 2, 1)
         if few is not None:
             H[few] = np.eye(3)
-        cov = np.linalg.inv(H)  # the last one is the point's covariance
+        cov = inv3x3(H)  # the last one is the point's covariance
         dx = (cov @ (WJt @ r.reshape(K, 2 * C, 1)))[..., 0]
         X = X + dx
         if it == iterations - 1 or np.abs(dx).max(initial=0.0) < tol_m:
