@@ -8,8 +8,9 @@ the same frames on one core (BLAS threads pinned to 1); the figures are frames p
 ``finish``, and the accuracy / identity scores of both outputs from ``mocap.evaluate``.
 
 ``--stages`` adds one more (untimed-for-the-table) tracker run with a timer around each stage method of
-``Tracker`` and prints milliseconds per frame per stage (inclusive: a stage called from another
-counts in both), to see where the time goes.
+``Tracker`` and around the main functions it calls (EKF, gating, assignment, epipolar pruning, fusion)
+and prints microseconds per frame and per call (inclusive: a stage called from another counts in both;
+each timer adds ~1 us per call), to see where the time goes.
 
 Usage:
     python tools/bench_tracking.py [--frames 1200] [--markers 40] [--cameras 6] [--motion body|FILE.c3d]
@@ -24,6 +25,7 @@ for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ.setdefault(_var, "1")
 
 import argparse  # noqa: E402
+import sys  # noqa: E402
 import time  # noqa: E402
 
 import numpy as np  # noqa: E402
@@ -57,11 +59,18 @@ def _time(make, rig, fps, frames) -> tuple[float, object]:
 
 # Tracker methods timed by --stages (names missing from the current Tracker are skipped).
 _STAGES = ("_prepare", "_predict", "_associate", "_search_regions", "_crowded", "_measure", "_neighbour_shift",
-           "_update", "_new_markers", "_lifecycle", "_record", "finish")
+           "_update", "_new_markers", "_known_clutter", "_lifecycle", "_record", "finish")
+# Module functions timed by --stages, patched where they are looked up while the tracker runs.
+_FUNCTIONS = {
+    "mocap.tracker": ("predict", "update_position", "gate", "assign", "epipolar_consistency", "robust_triangulate",
+                      "repick", "new_points", "reidentify"),
+    "mocap.fusion": ("_gauss_newton", "_consensus", "match_pairs", "triangulate_matches"),
+}
 
 
 def _stage_times(rig, fps, frames) -> dict[str, tuple[float, int]]:
-    """Per stage (seconds, calls) over one run: each stage method of a Tracker wrapped in a timer."""
+    """Per stage (seconds, calls) over one run: each stage method of a Tracker and each function of
+    ``_FUNCTIONS`` wrapped in a timer (the functions are restored afterwards)."""
     tracker = Tracker(rig, fps)
     totals: dict[str, list] = {}
 
@@ -79,11 +88,22 @@ def _stage_times(rig, fps, frames) -> dict[str, tuple[float, int]]:
     for name in _STAGES:
         if hasattr(tracker, name):
             setattr(tracker, name, timed(name, getattr(tracker, name)))
-    t0 = time.perf_counter()
-    for k, dets in enumerate(frames):
-        tracker.step(k, dets)
-    tracker.finish()
-    totals["(all)"] = [time.perf_counter() - t0, len(frames)]
+    patched = []
+    for module_name, names in _FUNCTIONS.items():
+        module = sys.modules[module_name]
+        for name in names:
+            if hasattr(module, name):
+                patched.append((module, name, getattr(module, name)))
+                setattr(module, name, timed(f"{module_name.split('.')[-1]}.{name}", getattr(module, name)))
+    try:
+        t0 = time.perf_counter()
+        for k, dets in enumerate(frames):
+            tracker.step(k, dets)
+        tracker.finish()
+        totals["(all)"] = [time.perf_counter() - t0, len(frames)]
+    finally:
+        for module, name, function in patched:
+            setattr(module, name, function)
     return {name: (sec, calls) for name, (sec, calls) in totals.items()}
 
 
@@ -117,11 +137,12 @@ def main() -> None:
               f"{r.idf1:6.4f}")
     if args.stages:
         stages = _stage_times(rig, truth.fps, frames)
-        print(f"tracker stages (inclusive, one run with timers; {len(frames)} frames):")
-        print(f"{'stage':18s} {'ms/frame':>9s} {'calls':>7s} {'share':>6s}")
+        print(f"tracker stages and functions (inclusive, one run with timers; {len(frames)} frames):")
+        print(f"{'stage':30s} {'us/frame':>9s} {'calls/frame':>11s} {'us/call':>8s} {'share':>6s}")
         total = stages["(all)"][0]
         for name, (sec, calls) in sorted(stages.items(), key=lambda kv: -kv[1][0]):
-            print(f"{name:18s} {1000 * sec / len(frames):9.3f} {calls:7d} {100 * sec / total:5.1f}%")
+            print(f"{name:30s} {1e6 * sec / len(frames):9.1f} {calls / len(frames):11.2f} {1e6 * sec / calls:8.1f} "
+                  f"{100 * sec / total:5.1f}%")
 
 
 if __name__ == "__main__":
