@@ -251,9 +251,10 @@ def new_points(P: np.ndarray, pairs: CameraPairs, D: np.ndarray, cov: np.ndarray
     into every camera; a camera supports it when a free detection lies within ``support_px``.
     Candidates are accepted greedily (most supporting cameras, then smallest epipolar distance),
     each detection used once (a candidate keeps those of its detections no better one took, if two or
-    more); a point is ``strong`` when supported by ``min_views`` cameras, or by every camera (>= 2)
-    whose image it falls in when fewer than ``min_views`` do (cameras that saw nothing at all this
-    frame do not count). The accepted point is
+    more); a point is ``strong`` when supported by ``min_views`` cameras, or by every camera whose image
+    it falls in when fewer than ``min_views`` do (cameras that saw nothing at all this frame do not
+    count), but never by two alone when the rig has three or more: two fixed reflections that happen
+    to match make a point only those two cameras frame just as well. The accepted point is
     re-triangulated over its supporting detections with outlier rejection.
 
     Args:
@@ -294,7 +295,7 @@ def new_points(P: np.ndarray, pairs: CameraPairs, D: np.ndarray, cov: np.ndarray
         nearest[cams, rows] = n
         support[cams, rows] = True
     views = support.sum(axis=0)
-    need = np.maximum(np.minimum(min_views, framed.sum(axis=0)), 2)
+    need = np.maximum(np.minimum(min_views, framed.sum(axis=0)), min(3, C))  # two views: never strong, if 3+ exist
     order = np.lexsort((dist, -views))
     used = np.zeros_like(free)
     chosen = []

@@ -204,6 +204,17 @@ def test_marker_free_take_gives_empty_output(rig):
     assert tracker.finish().n_markers == 0
 
 
+def test_many_flickering_reflections_make_no_markers():
+    """40 fixed reflections per camera, most of them flickering: pairs of them match by chance, some at points
+    only those two cameras frame (outside the volume). A point seen by two cameras alone is never taken as
+    certain when the rig has more: it must move, or stand still next to markers that stand still too."""
+    take = body_take(frames=150, fps=120.0, markers=40, seed=2, settings=SynthSettings(seed=2, ghosts=40,
+                                                                                        ghost_blink=0.8))
+    report = evaluate(_run(Tracker(take.rig, take.truth.fps), take)[0], take.truth)
+    assert report.ghosts == 0 and report.output_tracks == 40
+    assert report.completeness > 0.99 and report.switches == 0
+
+
 def test_predicted_rois_cover_the_next_detections(body):
     tracker = Tracker(body.rig, body.truth.fps)
     for k, dets in enumerate(body.frames[:60]):
