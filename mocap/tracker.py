@@ -477,13 +477,18 @@ class Tracker:
     def _neighbour_shift(self, meas: _Measurements, play: np.ndarray) -> np.ndarray:
         """(K, 3) m: per track the median prediction error of the measured tracks within ``neighbour_m`` of it
         (itself included; zero with fewer than ``neighbour_min``). In a fast swing a whole segment is
-        mispredicted alike, and a track's own error is wrong when it took a neighbour's detections."""
+        mispredicted alike, and a track's own error is wrong when it took a neighbour's detections.
+        All zero when no shift can exceed ``gate_floor_m`` (the only ones the caller acts on): a median lies
+        within its values' range, so no shift is longer than the per-axis largest errors' norm."""
         t = self._t
         good = meas.ok & play & (t.since == 1)
         shift = np.zeros((len(t), 3))
         if not good.any():
             return shift
         y = meas.X[good] - t.x3[good, :3]
+        top = np.abs(y).max(axis=0)
+        if np.sqrt(top @ top) < self._cfg.gate_floor_m * (1.0 - 1e-9):  # (margin for the caller's rounding)
+            return shift
         gap = t.x3[:, None, :3] - t.x3[None, good, :3]
         near = np.sqrt((gap * gap).sum(axis=2)) < self._cfg.neighbour_m  # (np.linalg.norm's sums, less overhead)
         cnt = near.sum(axis=1)
