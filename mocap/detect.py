@@ -48,7 +48,7 @@ import numpy as np
 from scipy import special
 from scipy.spatial import cKDTree
 
-from mocap.detections import Detections
+from mocap.detections import Detections, floored_covariance
 
 __all__ = ["background_level", "detect", "K_SIGMA", "MIN_CONTRAST"]
 
@@ -583,4 +583,4 @@ def detect(image: np.ndarray, *, threshold: float | None = None, min_area: int =
         part.append(np.repeat(group, k))
     part = np.concatenate(part)
     return Detections(np.concatenate(xy), stats.area[ids][part] / n_discs[part], roundness[part],
-                      np.concatenate(cov), flagged[part] | (n_discs[part] > 1))
+                      floored_covariance(np.concatenate(cov)), flagged[part] | (n_discs[part] > 1))

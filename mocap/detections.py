@@ -6,7 +6,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["Detections"]
+__all__ = ["Detections", "MIN_CENTROID_STD_PX", "floored_covariance"]
+
+MIN_CENTROID_STD_PX = 0.002  # no centroid is trusted to better than this, px (model and quantisation limits)
 
 
 @dataclass(eq=False)
@@ -57,3 +59,20 @@ class Detections:
         """The blobs selected by a boolean mask or an index array."""
         return Detections(self.xy[index], self.area[index], self.roundness[index], self.cov[index],
                           self.merged[index])
+
+
+def floored_covariance(cov: np.ndarray, std_px: float = MIN_CENTROID_STD_PX) -> np.ndarray:
+    """(N, 2, 2) centroid covariances, px^2, with the smallest eigenvalue raised to at least ``std_px`` squared;
+    non-finite ones become the default (:attr:`Detections.DEFAULT_SIGMA_PX`).
+
+    A fit can claim any precision (a saturated or merged blob, a centroid file with zeros); the weights
+    (inverse covariances) built from it must stay finite and well conditioned.
+    """
+    cov = np.asarray(cov, dtype=np.float64)
+    a, d = cov[:, 0, 0], cov[:, 1, 1]
+    b = 0.5 * (cov[:, 0, 1] + cov[:, 1, 0])
+    smallest = 0.5 * (a + d) - np.sqrt((0.5 * (a - d)) ** 2 + b * b)
+    out = cov + np.maximum(std_px * std_px - smallest, 0.0)[:, None, None] * np.eye(2)
+    bad = ~np.isfinite(out).all(axis=(1, 2))
+    out[bad] = np.eye(2) * Detections.DEFAULT_SIGMA_PX**2
+    return out

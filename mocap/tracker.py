@@ -40,7 +40,7 @@ import numpy as np
 
 from mocap.camera import Rig
 from mocap.detect import MIN_SHAPE_AREA
-from mocap.detections import Detections
+from mocap.detections import Detections, floored_covariance
 from mocap.ekf import RunningError, ca_process_noise, ca_transition, init_state, predict, update_position
 from mocap.errors import MocapError
 from mocap.fusion import NewPoints, new_points, reidentify, repick, robust_triangulate
@@ -433,7 +433,7 @@ class Tracker:
             fill = np.arange(N) < np.array(counts)[:, None]
             cams = self._rig.cameras
             D[fill] = np.concatenate([cam.undistort(det.xy) for cam, det in zip(cams, detections, strict=True)])
-            S[fill] = np.concatenate([det.cov for det in detections])
+            S[fill] = floored_covariance(np.concatenate([det.cov for det in detections]))
             merged[fill] = np.concatenate([det.merged for det in detections])
             area = np.concatenate([det.area for det in detections])
             round_[fill] = np.where(area >= MIN_SHAPE_AREA, np.concatenate([det.roundness for det in detections]), 1.0)

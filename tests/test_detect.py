@@ -8,6 +8,7 @@ import pytest
 from scipy.spatial import cKDTree
 
 from mocap.detect import _max_pool, background_level, detect
+from mocap.detections import MIN_CENTROID_STD_PX, Detections, floored_covariance
 from mocap.synth.render import Sensor
 
 SHAPE = (480, 640)
@@ -207,3 +208,19 @@ def test_blobs_touching_the_image_border(shape):
     sensor.draw(image, [[0.4, h / 2]], [3.0], [200.0], rng)
     det = detect(image)
     assert len(det) == 1 and np.hypot(det.xy[0, 0] - 0.4, det.xy[0, 1] - h / 2) < 0.1
+
+
+def test_covariance_floor_keeps_weights_finite():
+    """A fit can claim absurd precision (a saturated merged blob gave 1e-14 px^2, rank one); the floor raises the
+    smallest eigenvalue to MIN_CENTROID_STD_PX^2, leaves sane covariances alone, replaces non-finite ones."""
+    cov = np.array([[[2.4e-14, -5.3e-17], [-5.3e-17, 1.2e-19]],  # the real case
+                    [[4e-4, 1e-4], [1e-4, 3e-4]],  # ordinary: untouched
+                    [[np.nan, 0.0], [0.0, 1.0]],
+                    [[0.0, 0.0], [0.0, 0.0]]])
+    out = floored_covariance(cov)
+    low = np.linalg.eigvalsh(out)[:, 0]
+    assert np.allclose(low[[0, 3]], MIN_CENTROID_STD_PX**2, rtol=1e-9)
+    assert np.array_equal(out[1], cov[1])
+    assert np.allclose(out[2], np.eye(2) * Detections.DEFAULT_SIGMA_PX**2)
+    assert np.allclose(floored_covariance(out), out, rtol=0, atol=1e-15)
+    assert np.isfinite(np.linalg.inv(out)).all()

@@ -215,6 +215,23 @@ def test_many_flickering_reflections_make_no_markers():
     assert report.completeness > 0.99 and report.switches == 0
 
 
+def test_degenerate_centroid_covariances_do_not_break_the_triangulation(body):
+    """Centroids claiming a rank-one covariance of 1e-14 px^2 (a saturated merged blob did) or zeros (a centroid
+    file) are tracked like the others: the tracker floors every covariance."""
+    frames = [list(dets) for dets in body.frames]
+    for k, dets in enumerate(frames):
+        for c in (1, 4):
+            d = dets[c]
+            cov = d.cov.copy()
+            cov[::2] = [[2.4e-14, -5.3e-17], [-5.3e-17, 1.2e-19]]
+            cov[1::2] = 0.0
+            dets[c] = Detections(d.xy, d.area, d.roundness, cov, d.merged)
+    take = dataclasses.replace(body, frames=frames)
+    report = evaluate(_run(Tracker(take.rig, take.truth.fps), take)[0], take.truth)
+    assert report.completeness > 0.99 and report.switches == 0 and report.ghosts == 0
+    assert report.rmse_mm < 0.1
+
+
 def test_predicted_rois_cover_the_next_detections(body):
     tracker = Tracker(body.rig, body.truth.fps)
     for k, dets in enumerate(body.frames[:60]):
