@@ -219,7 +219,7 @@ def test_degenerate_centroid_covariances_do_not_break_the_triangulation(body):
     """Centroids claiming a rank-one covariance of 1e-14 px^2 (a saturated merged blob did) or zeros (a centroid
     file) are tracked like the others: the tracker floors every covariance."""
     frames = [list(dets) for dets in body.frames]
-    for k, dets in enumerate(frames):
+    for dets in frames:
         for c in (1, 4):
             d = dets[c]
             cov = d.cov.copy()
