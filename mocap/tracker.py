@@ -665,10 +665,13 @@ class Tracker:
             meas.put(rows, _Measurements(np.ones(got.size, dtype=bool), clean.sum(axis=1) >= 2, pts.X[got],
                                          pts.cov[got], pts.rms_px[got], pts.det[got]))
             self._update(fr, meas, rows)
-        rest = np.flatnonzero(match < 0)
+        # 2) Tracks start only from points two clean cameras support: two blobs of merged markers (or a merged
+        #    blob and a reflection) match across cameras at a point between the markers, which then moves.
+        clean = (pts.det >= 0) & ~_gather(fr.merged, pts.det)
+        rest = np.flatnonzero((match < 0) & (clean.sum(axis=1) >= 2))
         if rest.size == 0:
             return
-        # 2) Identities not measured this frame: a tentative track inherits one if confirmed (_lifecycle).
+        # Identities not measured this frame: a tentative track inherits one if confirmed (_lifecycle).
         lost = np.flatnonzero((t.ident >= 0) & (t.since >= 1))
         cand = np.full(rest.size, -1, dtype=np.intp)
         if lost.size:

@@ -232,6 +232,28 @@ def test_degenerate_centroid_covariances_do_not_break_the_triangulation(body):
     assert report.rmse_mm < 0.1
 
 
+def test_merged_blobs_alone_start_no_marker(rig):
+    """Blobs of two merged markers in two cameras match at a point between the markers, which moves with them.
+    A marker is started only from a point two clean (not merged) blobs support; one clean marker is tracked."""
+    t = np.arange(120) / 100.0
+    ghost = np.stack([0.3 * np.cos(2 * t), 0.3 * np.sin(2 * t), np.full_like(t, 1.0)], axis=1)  # 6 mm/frame
+    marker = ghost + [0.0, 0.0, 0.3]
+    tracker = Tracker(rig, 100.0)
+    for k in range(len(t)):
+        dets = []
+        for c, cam in enumerate(rig):
+            xy = cam.project(marker[k : k + 1])
+            merged = [False]
+            if c in (0, 2):
+                xy = np.vstack([xy, cam.project(ghost[k : k + 1])])
+                merged = [False, True]
+            dets.append(Detections(xy, merged=np.array(merged)))
+        tracker.step(k, dets)
+    traj = tracker.finish()
+    assert traj.n_markers == 1
+    assert np.nanmax(np.linalg.norm(traj.positions[:, 0] - marker, axis=1)) < 1e-3
+
+
 def test_predicted_rois_cover_the_next_detections(body):
     tracker = Tracker(body.rig, body.truth.fps)
     for k, dets in enumerate(body.frames[:60]):
