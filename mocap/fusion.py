@@ -51,7 +51,7 @@ class Triangulated:
 
 
 def _gauss_newton(P: np.ndarray, uv: np.ndarray, W: np.ndarray, X: np.ndarray, iterations: int,
-                  tol_m: float = 1e-7) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+                  tol_m: float = 1e-6) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Weighted Gauss-Newton refinement of K points from a start ``X`` (K, 3).
 
     ``uv`` (C, K, 2) is zero where unseen and ``W`` (C, K, 2, 2) zero there. Stops after ``iterations``
