@@ -43,9 +43,18 @@ class FitReport:
     blobs: np.ndarray
     tolerance_px: float
 
-    def poor_cameras(self, rig: Rig, minimum: float = 0.5) -> list[str]:
-        """Names of cameras whose blobs mostly have no epipolar partner."""
-        return [name for name, s in zip(rig.names, self.support, strict=True) if np.isfinite(s) and s < minimum]
+    def poor_cameras(self, rig: Rig, floor: float = 0.1, relative: float = 0.5) -> list[str]:
+        """Names of cameras whose support is below ``floor`` or below ``relative`` x the median camera's.
+
+        A correct calibration's support is the share of blobs seen by three cameras or more: ~0.9 with six
+        cameras, ~0.4 with four (measured); a camera at fault falls far below the others (a swapped pair:
+        0.01-0.3 where the rest keep 0.7-0.9), and a wrong file takes every camera to chance (< 0.1).
+        """
+        s = self.support
+        if not np.isfinite(s).any():
+            return []
+        limit = max(floor, relative * float(np.nanmedian(s)))
+        return [name for name, v in zip(rig.names, s, strict=True) if np.isfinite(v) and v < limit]
 
 
 def check_calibration_fit(rig: Rig, frames: list[list[Detections]], tolerance_px: float = 3.0) -> FitReport:
