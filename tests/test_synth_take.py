@@ -13,8 +13,11 @@ from mocap.camera import load_rig
 from mocap.cli import main
 from mocap.errors import MocapError
 from mocap.synth import SynthSettings, marching_motion, motion_from_c3d, render_take, ring_rig, simulate
+from mocap.synth.simulate import plan_take
+from mocap.synth.wand import centroid_frames
 from mocap.truth import Truth, load_truth
 from tests.conftest import require_shared_data
+from tests.helpers_engine import scripted_motion
 
 FRAMES = 16
 
@@ -244,3 +247,20 @@ def test_committed_sample_take_matches_its_truth():
     assert truth.n_frames == 24 and truth.settings["noise"] == 0
     errors = centroid_errors(sample, truth)
     assert len(errors) > 300 and np.median(errors) < 0.05
+
+
+def test_centroid_stand_in_merges_each_group_of_touching_discs_into_one_flagged_blob():
+    """The detector stand-in of the centroid-level tests: two pairs of markers, each pair touching in the images,
+    the pairs far apart, plus a lone marker: three blobs per camera, the two pair blobs flagged merged and each
+    at its own pair's mean (not one blob at the mean of all four)."""
+    pos = np.array([[0.0, 0.0, 1.0], [0.004, 0.0, 1.0], [0.5, 0.3, 1.2], [0.5, 0.304, 1.2], [-0.4, 0.2, 0.8]])
+    rig = ring_rig(seed=1)
+    plan = plan_take(rig, scripted_motion(np.repeat(pos[None], 2, axis=0), 100.0),
+                     SynthSettings(seed=1, ghosts=0, dropout_rate=0.0))
+    for c, det in enumerate(centroid_frames(plan, seed=1)[0]):
+        uv = plan.truth.uv[0, c]
+        assert len(det) == 3 and det.merged.sum() == 2
+        for pair in ((0, 1), (2, 3)):
+            centre = uv[list(pair)].mean(axis=0)
+            assert np.linalg.norm(det.xy[det.merged] - centre, axis=1).min() < 0.5
+        assert np.linalg.norm(det.xy[~det.merged][0] - uv[4]) < 0.5

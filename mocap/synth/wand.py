@@ -9,8 +9,9 @@ calibration sees what the detector would deliver.
 
 Centroid level (:func:`centroid_frames`): each visible marker's blob centroid is its true
 position plus Gaussian noise of its Cramér-Rao std ``truth.sigma_px``; two markers whose discs
-touch in an image come out as ONE blob at their mean (as a detector merges them); the ghosts
-that are on in a frame are extra blobs.
+touch in an image come out as one blob at their mean, flagged ``merged`` (as the detector reports
+blobs it cannot split; each group of touching discs is one blob); the ghosts that are on in a frame
+are extra blobs.
 """
 
 from __future__ import annotations
@@ -22,6 +23,8 @@ from pathlib import Path
 
 import numpy as np
 import tomli_w
+from scipy.sparse import csr_matrix
+from scipy.sparse.csgraph import connected_components
 
 from mocap.atomic import atomic_write_bytes
 from mocap.camera import Rig, load_rig, save_rig
@@ -116,20 +119,30 @@ def centroid_frames(plan: TakePlan, seed: int = 0, extra_noise_px: float = 0.0) 
             xy = truth.uv[f, c, vis] + noise[f, c, vis]
             sigma = std[f, c, vis]
             r = plan.radius_px[f, c, vis]
-            # Discs that touch merge into one blob at their mean.
+            # Discs that touch merge: each group of touching discs is one blob at their mean, flagged merged.
             gap = np.linalg.norm(xy[:, None] - xy[None], axis=2) - (r[:, None] + r[None] + 1.0)
             np.fill_diagonal(gap, np.inf)
-            merged = (gap < 0).any(axis=1)
-            blobs = [xy[~merged]]
-            sig = [sigma[~merged]]
+            touch = gap < 0
+            merged = touch.any(axis=1)
+            blobs, sig, flag = [xy[~merged]], [sigma[~merged]], [np.zeros(int((~merged).sum()), dtype=bool)]
             if merged.any():
-                blobs.append(xy[merged].mean(axis=0, keepdims=True))
-                sig.append(np.array([sigma[merged].max()]))
+                n_groups, group = connected_components(csr_matrix(touch), directed=False)
+                group = group[merged]
+                count = np.bincount(group, minlength=n_groups)
+                used = np.flatnonzero(count)
+                mean = np.stack([np.bincount(group, xy[merged, k], n_groups) for k in (0, 1)], axis=1) / np.maximum(
+                    count, 1)[:, None]
+                blobs.append(mean[used])
+                sig.append(np.maximum.reduceat(sigma[merged][np.argsort(group, kind="stable")],
+                                               np.concatenate([[0], np.cumsum(count[used])[:-1]])))
+                flag.append(np.ones(used.size, dtype=bool))
             on = plan.ghost_on[f, c]
             blobs.append(plan.ghost_uv[c, on])
             sig.append(np.full(int(on.sum()), 0.1))
+            flag.append(np.zeros(int(on.sum()), dtype=bool))
             s = np.concatenate(sig)
-            row.append(Detections(np.concatenate(blobs), cov=s[:, None, None] ** 2 * np.eye(2)))
+            row.append(Detections(np.concatenate(blobs), cov=s[:, None, None] ** 2 * np.eye(2),
+                                  merged=np.concatenate(flag)))
         frames.append(row)
     return frames
 
