@@ -116,7 +116,7 @@ def test_frame_messages_carry_the_logged_values(tmp_path, rig, take):
             ids = np.flatnonzero(traj.valid[f_idx]) if f_idx >= 0 else None
             if channel.topic == "/markers":
                 assert [d.type for d in msg.deletions] == [1]  # delete all, then this frame's spheres
-                assert [e.id.strip() for e in msg.entities] == [f"M{i:03d}" for i in ids]
+                assert [e.id.strip() for e in msg.entities] == [f"M{i + 1:03d}" for i in ids]
                 for e, i in zip(msg.entities, ids, strict=True):
                     p = e.spheres[0].pose.position
                     np.testing.assert_array_equal([p.x, p.y, p.z], traj.positions[f_idx, i])
@@ -129,7 +129,7 @@ def test_frame_messages_carry_the_logged_values(tmp_path, rig, take):
                 points = np.array([[p.x, p.y] for p in msg.points[0].points]).reshape(-1, 2)
                 np.testing.assert_array_equal(points, dets[f_idx][c].xy)
                 seen = ids[(traj.camera_masks[f_idx, ids] >> c) & 1 == 1]
-                assert [t.text.strip() for t in msg.texts] == [f"M{i:03d}" for i in seen]
+                assert [t.text.strip() for t in msg.texts] == [f"M{i + 1:03d}" for i in seen]
                 uv = rig[c].project(traj.positions[f_idx, seen]).reshape(-1, 2)
                 text_xy = np.array([[t.position.x, t.position.y] for t in msg.texts]).reshape(-1, 2)
                 np.testing.assert_allclose(text_xy - uv, np.tile([8.0, -8.0], (len(seen), 1)), atol=1e-9)
@@ -178,7 +178,7 @@ def test_centroids_come_back_bit_exact_and_trajectories_exact(tmp_path, rig, tak
     np.testing.assert_array_equal(back.positions, traj.positions)
     np.testing.assert_array_equal(back.residuals, traj.residuals)
     np.testing.assert_array_equal(back.camera_masks, traj.camera_masks)
-    assert back.first_frame == FIRST and back.labels == [f"M{i:03d}" for i in range(MARKERS)]
+    assert back.first_frame == FIRST and back.labels == [f"M{i + 1:03d}" for i in range(MARKERS)]
 
 
 def test_a_failed_run_never_replaces_an_existing_log(tmp_path, rig, take):

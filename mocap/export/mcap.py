@@ -72,8 +72,9 @@ _PALETTE = identity_colors(np.arange(256))
 
 
 def default_label(identity: int) -> str:
-    """Label of a marker identity when the caller gives none."""
-    return f"M{identity:03d}"
+    """Label of a marker identity when the caller gives none: ``M001`` for identity 0, as the tracker names it
+    (:meth:`mocap.tracker.Tracker.finish`), so the live log and an unrepaired C3D agree."""
+    return f"M{identity + 1:03d}"
 
 
 def _frame_time_ns(frame_index: int, fps: float) -> int:
