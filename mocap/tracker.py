@@ -98,6 +98,8 @@ class TrackerConfig:
         marker_mm: marker diameter, mm: two markers predicted closer than their image diameter plus
             ``merge_px`` may share one merged blob in that image.
         merge_px: margin of that test, pixels.
+        hidden_frames: ... counting only markers that camera saw within this many frames (one hidden from it for
+            longer, behind the body, merges with nothing there).
         round_merged: a blob (of at least ``mocap.detect.MIN_SHAPE_AREA`` pixels) whose roundness is below this
             times cos(field angle), the roundness of a sphere's image there, is treated as merged.
         merged_variance_scale: centroid variance multiplier of blobs flagged as merged (by the detector,
@@ -140,6 +142,7 @@ class TrackerConfig:
     clutter_frames: int = 30
     marker_mm: float = 14.0
     merge_px: float = 1.5
+    hidden_frames: int = 10
     round_merged: float = 0.8
     merged_variance_scale: float = 100.0
     suspect_m: tuple[float, float] = (0.001, 0.002)
@@ -253,6 +256,7 @@ class _Tracks(_Rows):
     x2: np.ndarray  # (K, C, 6) image CA states, ideal px
     P2: np.ndarray  # (K, C, 6, 6)
     lock2: np.ndarray  # (K, C) image filter found the marker in the previous frame
+    unseen2: np.ndarray  # (K, C) frames since the marker was last measured in that camera
     e2: np.ndarray  # (K, C, 3) running image errors: px, px/s, px/s^2
     last_uv: np.ndarray  # (K, C, 2) last measured image position, px
     last_uvv: np.ndarray  # (K, C, 2) last measured image velocity, px/s
@@ -265,8 +269,8 @@ class _Tracks(_Rows):
         i = np.zeros(0, dtype=np.intp)
         return cls(i, i, i, i, i, np.zeros((0, 9)), np.zeros((0, 9, 9)), np.zeros((0, 3)), np.zeros((0, 3)),
                    np.zeros((0, 3)), np.zeros((0, C, 6)), np.zeros((0, C, 6, 6)), np.zeros((0, C), dtype=bool),
-                   np.zeros((0, C, 3)), np.zeros((0, C, 2)), np.zeros((0, C, 2)), np.zeros(0, dtype=bool),
-                   np.zeros((0, 3)), np.zeros(0))
+                   np.zeros((0, C), dtype=np.intp), np.zeros((0, C, 3)), np.zeros((0, C, 2)), np.zeros((0, C, 2)),
+                   np.zeros(0, dtype=bool), np.zeros((0, 3)), np.zeros(0))
 
     def __len__(self) -> int:
         return len(self.uid)
@@ -356,6 +360,7 @@ class Tracker:
         t, C = self._t, self._C
         fr = self._prepare(detections)
         t.since += 1
+        t.unseen2 += 1
         self._predict()
         K = len(t)
         meas = _Measurements.empty(K, C)
@@ -514,9 +519,11 @@ class Tracker:
         return pred, radius, depth
 
     def _crowded(self, pred: np.ndarray, play: np.ndarray, depth: np.ndarray) -> np.ndarray:
-        """(K, C) bool: another track in play is predicted within a marker's image diameter + ``merge_px``."""
+        """(K, C) bool: another track in play, seen by that camera within ``hidden_frames``, is predicted within a
+        marker's image diameter + ``merge_px`` (a marker hidden from a camera merges with nothing in its image)."""
         p = np.ascontiguousarray(np.where(play[:, None, None], pred, np.nan).swapaxes(0, 1))  # (C, K, 2)
-        d2 = dist2(p[:, :, None, :], p[:, None, :, :])
+        seen = np.where((self._t.unseen2.T <= self._cfg.hidden_frames)[:, :, None], p, np.nan)  # (C, K, 2)
+        d2 = dist2(p[:, :, None, :], seen[:, None, :, :])
         diag = np.arange(len(play))
         d2[:, diag, diag] = np.inf
         with np.errstate(invalid="ignore", divide="ignore"):
@@ -625,6 +632,7 @@ class Tracker:
         t.last_uvv[tk, cc] = np.where(locked[:, None], uvv, 0.0)
         t.last_uv[tk, cc] = z
         t.lock2[idx] = seen
+        t.unseen2[tk, cc] = 0
 
     def _e2_from_3d(self, tracks: np.ndarray, cams: np.ndarray) -> np.ndarray:
         """(n, 3) image running errors seeded from the tracks' 3D ones, scaled by f / depth."""
@@ -718,8 +726,8 @@ class Tracker:
         last_uv[k, c] = z
         i = np.zeros(n, dtype=np.intp)
         new = _Tracks(uid, i - 1, cand, i + 1, i.copy(), x3, P3, e3, pts.X.copy(), np.full((n, 3), np.nan), x2, P2,
-                      used, np.zeros((n, C, 3)), last_uv, np.zeros((n, C, 2)), ~pts.strong, pts.X.copy(),
-                      _point_std(pts.cov))
+                      used, np.zeros((n, C), dtype=np.intp), np.zeros((n, C, 3)), last_uv,
+                      np.zeros((n, C, 2)), ~pts.strong, pts.X.copy(), _point_std(pts.cov))
         base = len(self._t)
         self._t.extend(new)
         self._t.e2[base + k, c] = self._e2_from_3d(base + k, c)
