@@ -14,10 +14,15 @@ see and undo:
 * **Fragments and swaps through gaps.** An identity is lost and the marker comes back as a new one,
   or two identities exchange markers across a missing frame. :func:`relink_tracklets` cuts every
   identity into tracklets (at gaps and at acceleration spikes) and re-links them in time order:
-  tracklets starting together are assigned (Hungarian) to identities that ended shortly before,
-  by how well the constant-velocity extrapolations of both agree across the gap; the tracker's
-  own link is preferred, kept across any gap, and is the fallback when nothing else fits, so
-  re-linking never splits an identity the tracker kept.
+  tracklets starting together are assigned (Hungarian) to identities that ended before. Where
+  both ends have markers rigidly attached to them (the same segment: distances steady over a few
+  frames) that are seen at both ends, and those distances agree (``shape_gate_m``), the cost is how
+  much they changed, over any gap up to ``shape_max_s``: distances within a segment do not depend on
+  how it moved meanwhile, and they tell apart markers a few centimetres apart that come back in turn.
+  Otherwise the cost is how well the constant-velocity extrapolations of both ends agree across a
+  short gap. The tracker's own link is preferred and kept across any gap unless the distances clearly
+  disagree (``shape_refuse_m``: a new marker next to a hidden one took its identity); it is the
+  fallback when nothing else fits.
 
 Both passes only move whole samples between identity columns (positions, residuals and camera
 masks together); they never change a position.
@@ -52,6 +57,14 @@ class RelabelConfig:
             of its disagreement, and is kept across any gap (the tracker re-identified it).
         split_acc_m: a track is cut where its acceleration exceeds this on two consecutive samples,
             m/frame^2 (a jump to another marker), and the pieces are re-linked.
+        shape_window: samples at each tracklet end over which the distances to its neighbours are taken.
+        shape_radius_m: neighbours within this distance ...
+        shape_steady_m: ... whose distance varies less than this over the window count as attached.
+        shape_min: attached neighbours seen at both ends needed to compare distances.
+        shape_gate_m: a link is made on distances when their weighted mean change is below this, m ...
+        shape_refuse_m: ... and refused, the tracker's own link included, above this (between the two, the
+            extrapolation rules decide).
+        shape_max_s: longest gap, seconds, a link by distances may span.
     """
 
     swap_ratio: float = 0.25
@@ -61,6 +74,13 @@ class RelabelConfig:
     stitch_acc_m: float = 0.01
     own_link_weight: float = 0.5
     split_acc_m: float = 0.06
+    shape_window: int = 6
+    shape_radius_m: float = 0.25
+    shape_steady_m: float = 0.004
+    shape_min: int = 2
+    shape_gate_m: float = 0.008
+    shape_refuse_m: float = 0.024
+    shape_max_s: float = 10.0
 
 
 @dataclass
@@ -140,6 +160,34 @@ def _end_state(P: np.ndarray, run: np.ndarray, at_start: bool) -> tuple[int, np.
     return int(frame), pos, pos - P[run[-2][0], run[-2][1]]
 
 
+def _attached(P: np.ndarray, samples: np.ndarray, cfg: RelabelConfig) -> tuple[np.ndarray, np.ndarray]:
+    """Columns of the markers rigidly attached to a marker over ``samples`` (n, 2) (frame, column), and their
+    median distances, m: columns seen in every sample, within ``shape_radius_m``, whose distance varies less
+    than ``shape_steady_m`` (none with fewer than three samples)."""
+    if len(samples) < 3:
+        return np.zeros(0, dtype=np.intp), np.zeros(0)
+    frames, cols = samples[:, 0], samples[:, 1]
+    d = np.linalg.norm(P[frames] - P[frames, cols][:, None, :], axis=2)  # (n, M)
+    d[:, np.unique(cols)] = np.nan
+    seen = np.isfinite(d).all(axis=0)
+    d = d[:, seen]
+    keep = (np.median(d, axis=0) < cfg.shape_radius_m) & (d.max(axis=0) - d.min(axis=0) < cfg.shape_steady_m)
+    return np.flatnonzero(seen)[keep], np.median(d[:, keep], axis=0)
+
+
+def _distance_change(a: tuple[np.ndarray, np.ndarray], b: tuple[np.ndarray, np.ndarray], exclude: tuple[int, int],
+                     minimum: int) -> float:
+    """How much the distances (m) to the attached markers two tracklet ends share changed: their mean change
+    weighted by 1 / distance^2 (the nearest are the most likely on the same segment); NaN with too few."""
+    common, ia, ib = np.intersect1d(a[0], b[0], return_indices=True)
+    use = ~np.isin(common, exclude)
+    if use.sum() < minimum:
+        return np.nan
+    da, db = a[1][ia[use]], b[1][ib[use]]
+    w = 1.0 / (0.5 * (da + db)) ** 2
+    return float((w * np.abs(da - db)).sum() / w.sum())
+
+
 def relink_tracklets(traj: Trajectories, config: RelabelConfig | None = None) -> int:
     """Re-link identities globally, in place; returns the number of identities saved.
 
@@ -155,8 +203,10 @@ def relink_tracklets(traj: Trajectories, config: RelabelConfig | None = None) ->
     if not runs:
         return 0
     runs.sort(key=lambda r: int(r[0, 0]))
+    shape_max = max(int(round(cfg.shape_max_s * traj.fps)), cfg.max_gap)
     chains: list[list[np.ndarray]] = []
     ends: list[tuple[int, np.ndarray, np.ndarray]] = []  # per chain: last frame, position, velocity
+    attached: list[tuple[np.ndarray, np.ndarray]] = []  # per chain: markers attached to its end, distances
     i = 0
     while i < len(runs):
         start = int(runs[i][0, 0])
@@ -166,16 +216,28 @@ def relink_tracklets(traj: Trajectories, config: RelabelConfig | None = None) ->
             i += 1
         columns = {int(run[0, 1]) for run in group}
         open_chains = [c for c, (e, _, _) in enumerate(ends)
-                       if 0 < start - e and (start - e <= cfg.max_gap or int(chains[c][-1][0, 1]) in columns)]
+                       if 0 < start - e and (start - e <= cfg.max_gap or int(chains[c][-1][0, 1]) in columns
+                                             or (start - e <= shape_max and len(attached[c][0]) >= cfg.shape_min))]
         assigned: dict[int, int] = {}
+        refused: set[tuple[int, int]] = set()  # (group index, chain): the distances disagree
         if open_chains:
             cost = np.full((len(group), len(open_chains)), np.inf)
             for g, run in enumerate(group):
                 _, p0, v0 = _end_state(P, run, at_start=True)
+                here = _attached(P, run[: cfg.shape_window], cfg)
                 for j, c in enumerate(open_chains):
                     e, pe, ve = ends[c]
                     gap = start - e
-                    same = int(chains[c][-1][0, 1]) == int(run[0, 1])  # the tracker's own link
+                    own_col = int(chains[c][-1][0, 1])
+                    same = own_col == int(run[0, 1])  # the tracker's own link
+                    change = _distance_change(attached[c], here, (own_col, int(run[0, 1])), cfg.shape_min)
+                    if np.isfinite(change):
+                        if change < cfg.shape_gate_m and gap <= shape_max:
+                            cost[g, j] = (cfg.own_link_weight if same else 1.0) * change
+                            continue
+                        if change > cfg.shape_refuse_m:
+                            refused.add((g, c))
+                            continue
                     miss = 0.5 * (np.linalg.norm(pe + ve * gap - p0) + np.linalg.norm(p0 - v0 * gap - pe))
                     speed = 0.5 * (np.linalg.norm(ve) + np.linalg.norm(v0))
                     gate = cfg.stitch_gate_m + speed * 0.5 * gap + cfg.stitch_acc_m * gap * gap
@@ -192,17 +254,20 @@ def relink_tracklets(traj: Trajectories, config: RelabelConfig | None = None) ->
         taken = set(assigned.values())
         for g, run in enumerate(group):
             c = assigned.get(g)
-            if c is None:  # nothing fits: keep the tracker's own link if that identity is free
-                own = [c for c in open_chains if int(chains[c][-1][0, 1]) == int(run[0, 1]) and c not in taken]
+            if c is None:  # nothing fits: keep the tracker's own link if that identity is free and not refused
+                own = [c for c in open_chains if int(chains[c][-1][0, 1]) == int(run[0, 1]) and c not in taken
+                       and (g, c) not in refused]
                 c = own[0] if own else None
                 if c is not None:
                     taken.add(c)
             if c is None:
                 chains.append([run])
                 ends.append(_end_state(P, run, at_start=False))
+                attached.append(_attached(P, run[-cfg.shape_window :], cfg))
             else:
                 chains[c].append(run)
                 ends[c] = _end_state(P, run, at_start=False)
+                attached[c] = _attached(P, np.concatenate(chains[c][-cfg.shape_window :])[-cfg.shape_window :], cfg)
     before = traj.n_markers
     F = traj.n_frames
     positions = np.full((F, len(chains), 3), np.nan)

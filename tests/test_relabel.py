@@ -70,3 +70,42 @@ def test_tracker_link_across_a_long_gap_is_kept():
     traj = _traj(gappy)
     assert relink_tracklets(traj, RelabelConfig(max_gap=12)) == 0
     np.testing.assert_array_equal(traj.positions, gappy)
+
+
+def _segment(n_frames: int = 160) -> np.ndarray:
+    """(F, 5, 3): five markers of one rigid segment (30-90 mm apart) that translates and turns ~1 rad/s."""
+    t = np.arange(n_frames) / 50.0
+    local = np.array([[0.0, 0.0, 0.0], [0.06, 0.0, 0.0], [0.0, 0.05, 0.0], [0.03, 0.03, 0.04], [-0.04, 0.05, 0.02]])
+    a = 1.0 * t
+    R = np.zeros((n_frames, 3, 3))
+    R[:, 0, 0], R[:, 0, 1], R[:, 1, 0], R[:, 1, 1], R[:, 2, 2] = np.cos(a), -np.sin(a), np.sin(a), np.cos(a), 1.0
+    centre = np.stack([0.3 * t, 0.1 * np.sin(2 * t), 1.0 + 0.05 * t], axis=1)
+    return centre[:, None, :] + np.einsum("fij,mj->fmi", R, local)
+
+
+def test_marker_back_after_a_long_gap_is_relinked_by_its_segment():
+    """A marker of a rigid segment is hidden for 40 frames (beyond max_gap) and comes back as a new identity:
+    the distances to its neighbours, unchanged by the segment's motion, link it to its old identity."""
+    P = _segment()
+    broken = np.concatenate([P, np.full((P.shape[0], 1, 3), np.nan)], axis=1)
+    broken[60:, 5] = P[60:, 0]
+    broken[20:, 0] = np.nan
+    traj = _traj(broken)
+    assert relink_tracklets(traj) == 1
+    assert traj.n_markers == 5 and _same_identities(traj, P)
+
+
+def test_new_marker_does_not_keep_a_hidden_neighbours_identity():
+    """The tracker gave a new marker (never seen before, 64 mm from a marker that just vanished, within the
+    extrapolation gate) that marker's identity; its distances to the segment's markers disagree by 34 mm, so it
+    becomes an identity of its own."""
+    P = _segment()
+    newcomer = P[:, 0] + np.array([0.0, -0.05, -0.04])
+    truth = np.concatenate([P, newcomer[:, None]], axis=1)
+    seen = P.copy()
+    seen[80:, 0] = newcomer[80:]  # marker 0 vanishes at frame 78; from 80 its column follows the newcomer
+    seen[78:80, 0] = np.nan
+    traj = _traj(seen)
+    relink_tracklets(traj)
+    assert traj.n_markers == 6
+    assert _same_identities(traj, truth)
