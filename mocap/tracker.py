@@ -574,7 +574,7 @@ class Tracker:
         and the camera rejection floor that follows it (``outlier_rms_factor``)."""
         cfg = self._cfg
         clean = (meas.asg >= 0) & ~_gather(fr.merged, meas.asg)
-        rms = meas.rms_px[meas.ok & (clean.sum(axis=1) >= 3)]
+        rms = meas.rms_px[meas.ok & (clean.sum(axis=1) >= 3) & np.isfinite(meas.rms_px)]
         if rms.size < 3:
             return
         self._rms_px += cfg.error_alpha * (float(np.median(rms)) - self._rms_px)
