@@ -470,14 +470,13 @@ class Tracker:
         that give the search centres (elsewhere the projected 3D prediction)."""
         t = self._t
         pred, radius, depth = self._search_regions(lock)
-        crowded = self._crowded(pred, play, depth)
         q = gate(pred, radius, fr.D)
         conf = np.flatnonzero(play & (t.ident >= 0))
         tent = np.flatnonzero(play & (t.ident < 0))
         meas.asg[conf] = assign(q[conf], fr.valid)
         if tent.size:
             meas.asg[tent] = assign(q[tent], fr.valid & ~_taken(meas.asg, fr.valid.shape))
-        self._measure(fr, crowded, meas)
+        self._measure(fr, self._crowded(pred, play, depth, meas.asg), meas)
 
     def _neighbour_shift(self, meas: _Measurements, play: np.ndarray) -> np.ndarray:
         """(K, 3) m: per track the median prediction error of the measured tracks within ``neighbour_m`` of it
@@ -518,17 +517,20 @@ class Tracker:
         pred[depth <= 0] = np.nan
         return pred, radius, depth
 
-    def _crowded(self, pred: np.ndarray, play: np.ndarray, depth: np.ndarray) -> np.ndarray:
+    def _crowded(self, pred: np.ndarray, play: np.ndarray, depth: np.ndarray, asg: np.ndarray) -> np.ndarray:
         """(K, C) bool: another track in play, seen by that camera within ``hidden_frames``, is predicted within a
-        marker's image diameter + ``merge_px`` (a marker hidden from a camera merges with nothing in its image)."""
+        marker's image diameter + ``merge_px`` (a marker hidden from a camera merges with nothing in its image),
+        and did not take a blob of its own there this frame (``asg`` (K, C)): two blobs are not one merged."""
         p = np.ascontiguousarray(np.where(play[:, None, None], pred, np.nan).swapaxes(0, 1))  # (C, K, 2)
         seen = np.where((self._t.unseen2.T <= self._cfg.hidden_frames)[:, :, None], p, np.nan)  # (C, K, 2)
         d2 = dist2(p[:, :, None, :], seen[:, None, :, :])
         diag = np.arange(len(play))
         d2[:, diag, diag] = np.inf
+        a = asg.T  # (C, K)
+        apart = (a[:, None, :] >= 0) & (a[:, :, None] >= 0) & (a[:, None, :] != a[:, :, None])  # (C, K, K)
         with np.errstate(invalid="ignore", divide="ignore"):
             reach = self._focal[:, None] * self._cfg.marker_mm / 1000.0 / depth.T + self._cfg.merge_px  # (C, K)
-            return (d2 < (reach * reach)[:, :, None]).any(axis=2).T
+            return ((d2 < (reach * reach)[:, :, None]) & ~apart).any(axis=2).T
 
     def _measure(self, fr: _Frame, crowded: np.ndarray, meas: _Measurements) -> None:
         """Epipolar pruning, robust fusion and re-pick of the assigned detections ``meas.asg``; fills ``meas``."""
