@@ -35,26 +35,32 @@ class FitReport:
         support: (C,) fraction of the camera's blobs that belong to a three-camera-consistent
             point (epipolar partner in a second camera, reprojection onto a blob in a third, both
             within the tolerance); NaN for a camera with no blobs.
+        chance: (C,) the same fraction with every image's blobs mirrored through its centre: what
+            chance alone explains under this calibration.
         blobs: (C,) number of blobs examined per camera.
         tolerance_px: the epipolar distance tolerance used, pixels.
     """
 
     support: np.ndarray
+    chance: np.ndarray
     blobs: np.ndarray
     tolerance_px: float
 
-    def poor_cameras(self, rig: Rig, floor: float = 0.1, relative: float = 0.5) -> list[str]:
-        """Names of cameras whose support is below ``floor`` or below ``relative`` x the median camera's.
+    def poor_cameras(self, rig: Rig, relative: float = 0.5, over_chance: float = 3.0, margin: float = 0.02
+                     ) -> list[str]:
+        """Names of cameras whose support is below ``relative`` x the median camera's, or not clearly above
+        chance (``over_chance`` x chance + ``margin``).
 
         A correct calibration's support is the share of blobs seen by three cameras or more: ~0.9 with six
-        cameras, ~0.4 with four (measured); a camera at fault falls far below the others (a swapped pair:
-        0.01-0.3 where the rest keep 0.7-0.9), and a wrong file takes every camera to chance (< 0.1).
+        cameras, ~0.4 with four, ~0.05 with three (measured; chance 0-0.09); a camera at fault falls far
+        below the others (a swapped pair: 0.01-0.3 where the rest keep 0.7-0.9), and a wrong file takes
+        every camera to chance.
         """
         s = self.support
         if not np.isfinite(s).any():
             return []
-        limit = max(floor, relative * float(np.nanmedian(s)))
-        return [name for name, v in zip(rig.names, s, strict=True) if np.isfinite(v) and v < limit]
+        limit = np.maximum(relative * float(np.nanmedian(s)), over_chance * np.nan_to_num(self.chance) + margin)
+        return [name for name, v, lim in zip(rig.names, s, limit, strict=True) if np.isfinite(v) and v < lim]
 
 
 def check_calibration_fit(rig: Rig, frames: list[list[Detections]], tolerance_px: float = 3.0) -> FitReport:
@@ -68,13 +74,23 @@ def check_calibration_fit(rig: Rig, frames: list[list[Detections]], tolerance_px
     Returns:
         A :class:`FitReport`.
     """
+    support, total = _support(rig, [[d.xy for d in dets] for dets in frames], tolerance_px)
+    sizes = np.array([cam.size for cam in rig], dtype=float) - 1.0
+    mirrored = [[sizes[c] - d.xy for c, d in enumerate(dets)] for dets in frames]
+    chance, _ = _support(rig, mirrored, tolerance_px)
+    return FitReport(support, chance, total.astype(int), tolerance_px)
+
+
+def _support(rig: Rig, frames: list[list[np.ndarray]], tolerance_px: float) -> tuple[np.ndarray, np.ndarray]:
+    """(C,) fraction of each camera's blobs (``frames[f][c]`` (N, 2) distorted px) with three-view support
+    (NaN without blobs), and (C,) the number of blobs."""
     C = len(rig)
     P = rig.projection_matrices()
     fundamentals = {(i, j): fundamental_from_cameras(rig[i], rig[j]) for i in range(C) for j in range(i + 1, C)}
     supported = np.zeros(C)
     total = np.zeros(C)
     for dets in frames:
-        ideal = [rig[c].undistort(d.xy) for c, d in enumerate(dets)]
+        ideal = [rig[c].undistort(xy) for c, xy in enumerate(dets)]
         explained = [np.zeros(len(p), dtype=bool) for p in ideal]
         for (i, j), F in fundamentals.items():
             if len(ideal[i]) == 0 or len(ideal[j]) == 0:
@@ -96,5 +112,4 @@ def check_calibration_fit(rig: Rig, frames: list[list[Detections]], tolerance_px
             supported[c] += explained[c].sum()
             total[c] += len(explained[c])
     with np.errstate(invalid="ignore", divide="ignore"):
-        support = np.where(total > 0, supported / total, np.nan)
-    return FitReport(support, total.astype(int), tolerance_px)
+        return np.where(total > 0, supported / total, np.nan), total

@@ -62,3 +62,24 @@ def test_sparse_rig_is_judged_against_its_own_level():
                                                                       strict=True)]
     assert report.support.min() > 3 * check_calibration_fit(Rig(swapped), frames).support.max()
     assert len(check_calibration_fit(Rig(swapped), frames).poor_cameras(rig)) >= 2
+
+
+def test_three_cameras_are_judged_against_chance():
+    """Three cameras, each marker seen by two of them most of the time: only a few percent of the blobs can
+    have three-camera support even with the right calibration, but chance (the blobs mirrored) gives none;
+    another session's calibration (other poses, same names) is named on every camera."""
+    rig = ring_rig(3)
+    rng = np.random.default_rng(4)
+    frames = []
+    for _ in range(10):
+        X = rng.uniform([-0.8, -0.8, 0.1], [0.8, 0.8, 1.9], size=(40, 3))
+        hidden = rng.integers(0, 3, 40)  # each marker hidden from one camera ...
+        hidden[rng.random(40) < 0.05] = -1  # ... but a few are seen by all three
+        frames.append([Detections(cam.project(X[hidden != c]) + rng.normal(0, 0.1, ((hidden != c).sum(), 2)))
+                       for c, cam in enumerate(rig)])
+    report = check_calibration_fit(rig, frames)
+    assert (report.support < 0.1).all() and report.poor_cameras(rig) == []  # a fixed 10 % limit: all named
+    assert (report.chance < report.support / 3).all()
+    other = Rig([c.with_pose(o.rotation, o.translation) for c, o in zip(rig.cameras, ring_rig(3, radius=5.0).cameras,
+                                                                          strict=True)])
+    assert sorted(check_calibration_fit(other, frames).poor_cameras(rig)) == ["cam1", "cam2", "cam3"]
