@@ -572,8 +572,8 @@ class Tracker:
         meas.X, meas.cov, meas.rms_px = tri.X, tri.cov, tri.rms_px
 
     def _follow_residual_level(self, fr: _Frame, meas: _Measurements) -> None:
-        """Running median of the reprojection RMS (px) of this frame's points with three or more clean cameras,
-        and the camera rejection floor that follows it (``outlier_rms_factor``)."""
+        """Running average (``error_alpha``) of each frame's median reprojection RMS (px) over its points with
+        three or more clean cameras, and the camera rejection floor that follows it (``outlier_rms_factor``)."""
         cfg = self._cfg
         clean = (meas.asg >= 0) & ~_gather(fr.merged, meas.asg)
         rms = meas.rms_px[meas.ok & (clean.sum(axis=1) >= 3) & np.isfinite(meas.rms_px)]
