@@ -526,11 +526,14 @@ class Tracker:
         d2 = dist2(p[:, :, None, :], seen[:, None, :, :])
         diag = np.arange(len(play))
         d2[:, diag, diag] = np.inf
-        a = asg.T  # (C, K)
-        apart = (a[:, None, :] >= 0) & (a[:, :, None] >= 0) & (a[:, None, :] != a[:, :, None])  # (C, K, K)
         with np.errstate(invalid="ignore", divide="ignore"):
             reach = self._focal[:, None] * self._cfg.marker_mm / 1000.0 / depth.T + self._cfg.merge_px  # (C, K)
-            return ((d2 < (reach * reach)[:, :, None]) & ~apart).any(axis=2).T
+            c, k, j = np.nonzero(d2 < (reach * reach)[:, :, None])  # the few close pairs
+        own, other = asg[k, c], asg[j, c]
+        merge = (own < 0) | (other < 0) | (own == other)
+        crowded = np.zeros(asg.shape, dtype=bool)
+        crowded[k[merge], c[merge]] = True
+        return crowded
 
     def _measure(self, fr: _Frame, crowded: np.ndarray, meas: _Measurements) -> None:
         """Epipolar pruning, robust fusion and re-pick of the assigned detections ``meas.asg``; fills ``meas``."""
