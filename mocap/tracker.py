@@ -476,7 +476,20 @@ class Tracker:
         meas.asg[conf] = assign(q[conf], fr.valid)
         if tent.size:
             meas.asg[tent] = assign(q[tent], fr.valid & ~_taken(meas.asg, fr.valid.shape))
-        self._measure(fr, self._crowded(pred, play, depth, meas.asg), meas)
+        crowded = self._crowded(pred, play, depth, meas.asg)
+        self._measure(fr, crowded, meas)
+        # A confirmed track's claim that its pruning or fusion dropped may have been a tentative track's blob:
+        # tentative tracks left with fewer than two cameras try again with the detections now free.
+        short = tent[(meas.asg[tent] >= 0).sum(axis=1) < 2]
+        if short.size:
+            again = assign(q[short], fr.valid & ~_taken(meas.asg, fr.valid.shape))
+            rows = short[(again >= 0).sum(axis=1) >= 2]
+            if rows.size:
+                retry = _Measurements.empty(len(t), self._C)
+                retry.asg[rows] = again[(again >= 0).sum(axis=1) >= 2]
+                self._measure(fr, crowded, retry)
+                retry.keep(np.isin(np.arange(len(t)), rows))
+                meas.put(rows, retry)
 
     def _neighbour_shift(self, meas: _Measurements, play: np.ndarray) -> np.ndarray:
         """(K, 3) m: per track the median prediction error of the measured tracks within ``neighbour_m`` of it
