@@ -261,13 +261,13 @@ def relink_tracklets(traj: Trajectories, config: RelabelConfig | None = None) ->
                 if c is not None:
                     taken.add(c)
             if c is None:
-                chains.append([run])
-                ends.append(_end_state(P, run, at_start=False))
-                attached.append(_attached(P, run[-cfg.shape_window :], cfg))
-            else:
-                chains[c].append(run)
-                ends[c] = _end_state(P, run, at_start=False)
-                attached[c] = _attached(P, np.concatenate(chains[c][-cfg.shape_window :])[-cfg.shape_window :], cfg)
+                c = len(chains)
+                chains.append([])
+                ends.append(None)
+                attached.append(None)
+            chains[c].append(run)
+            ends[c] = _end_state(P, run, at_start=False)
+            attached[c] = _attached(P, np.concatenate(chains[c][-cfg.shape_window :])[-cfg.shape_window :], cfg)
     before = traj.n_markers
     F = traj.n_frames
     positions = np.full((F, len(chains), 3), np.nan)

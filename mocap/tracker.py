@@ -483,10 +483,11 @@ class Tracker:
         short = tent[(meas.asg[tent] >= 0).sum(axis=1) < 2]
         if short.size:
             again = assign(q[short], fr.valid & ~_taken(meas.asg, fr.valid.shape))
-            rows = short[(again >= 0).sum(axis=1) >= 2]
+            enough = (again >= 0).sum(axis=1) >= 2
+            rows = short[enough]
             if rows.size:
                 retry = _Measurements.empty(len(t), self._C)
-                retry.asg[rows] = again[(again >= 0).sum(axis=1) >= 2]
+                retry.asg[rows] = again[enough]
                 self._measure(fr, crowded, retry)
                 retry.keep(np.isin(np.arange(len(t)), rows))
                 meas.put(rows, retry)
@@ -591,8 +592,7 @@ class Tracker:
         """Running average (``error_alpha``) of each frame's median reprojection RMS (px) over its points with
         three or more clean cameras, and the camera rejection floor that follows it (``outlier_rms_factor``)."""
         cfg = self._cfg
-        clean = (meas.asg >= 0) & ~_gather(fr.merged, meas.asg)
-        rms = meas.rms_px[meas.ok & (clean.sum(axis=1) >= 3) & np.isfinite(meas.rms_px)]
+        rms = meas.rms_px[meas.ok & (_clean_views(fr.merged, meas.asg) >= 3) & np.isfinite(meas.rms_px)]
         if rms.size < 3:
             return
         self._rms_px += cfg.error_alpha * (float(np.median(rms)) - self._rms_px)
@@ -685,16 +685,15 @@ class Tracker:
         missing = np.flatnonzero((t.since >= 1) & self._in_play())
         match = reidentify(pts.X, t.x3[missing, :3], self._radius3(missing))
         got = np.flatnonzero(match >= 0)
+        clean = _clean_views(fr.merged, pts.det) >= 2
         if got.size:
             rows = missing[match[got]]
-            clean = (pts.det[got] >= 0) & ~_gather(fr.merged, pts.det[got])
-            meas.put(rows, _Measurements(np.ones(got.size, dtype=bool), clean.sum(axis=1) >= 2, pts.X[got],
+            meas.put(rows, _Measurements(np.ones(got.size, dtype=bool), clean[got], pts.X[got],
                                          pts.cov[got], pts.rms_px[got], pts.det[got]))
             self._update(fr, meas, rows)
         # 2) Tracks start only from points two clean cameras support: two blobs of merged markers (or a merged
         #    blob and a reflection) match across cameras at a point between the markers, which then moves.
-        clean = (pts.det >= 0) & ~_gather(fr.merged, pts.det)
-        rest = np.flatnonzero((match < 0) & (clean.sum(axis=1) >= 2))
+        rest = np.flatnonzero((match < 0) & clean)
         if rest.size == 0:
             return
         # Identities not measured this frame: a tentative track inherits one if confirmed (_lifecycle).
@@ -749,9 +748,8 @@ class Tracker:
         base = len(self._t)
         self._t.extend(new)
         self._t.e2[base + k, c] = self._e2_from_3d(base + k, c)
-        clean = used & ~_gather(fr.merged, pts.det)
-        meas.extend(_Measurements(np.ones(n, dtype=bool), clean.sum(axis=1) >= 2, pts.X, pts.cov, pts.rms_px,
-                                  pts.det))
+        out = _clean_views(fr.merged, pts.det) >= 2  # (all: _new_markers starts only such points)
+        meas.extend(_Measurements(np.ones(n, dtype=bool), out, pts.X, pts.cov, pts.rms_px, pts.det))
 
     def _lifecycle(self, meas: _Measurements) -> None:
         """Confirm tentative tracks, drop failed tentative ones and retired identities."""
@@ -837,6 +835,11 @@ def _gather(values: np.ndarray, asg: np.ndarray) -> np.ndarray:
     if values.ndim == 3:
         return np.where((asg >= 0)[..., None], got, np.nan)
     return got
+
+
+def _clean_views(merged: np.ndarray, det: np.ndarray) -> np.ndarray:
+    """(K,) cameras whose detection ``det`` (K, C), -1: none, is not flagged in ``merged`` (C, N)."""
+    return ((det >= 0) & ~_gather(merged, det)).sum(axis=1)
 
 
 def _point_std(cov: np.ndarray) -> np.ndarray:
