@@ -20,9 +20,12 @@ see and undo:
   much they changed, over any gap up to ``shape_max_s``: distances within a segment do not depend on
   how it moved meanwhile, and they tell apart markers a few centimetres apart that come back in turn.
   Otherwise the cost is how well the constant-velocity extrapolations of both ends agree across a
-  short gap. The tracker's own link is preferred and kept across any gap unless the distances clearly
-  disagree (``shape_refuse_m``: a new marker next to a hidden one took its identity); it is the
-  fallback when nothing else fits.
+  short gap. Distances are kept per identity (not per output column), so a neighbour that was itself
+  relinked still counts. A cluster that comes back in view together (a leg's markers after the leg was
+  hidden) is assigned jointly: the distances between its own markers must match those between the
+  identities they take, which no marker-by-marker cost can check. The tracker's own link is
+  preferred and kept across any gap unless the distances clearly disagree (``shape_refuse_m``: a new
+  marker next to a hidden one took its identity); it is the fallback when nothing else fits.
 
 Both passes only move whole samples between identity columns (positions, residuals and camera
 masks together); they never change a position.
@@ -30,6 +33,8 @@ masks together); they never change a position.
 
 from __future__ import annotations
 
+import itertools
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -65,6 +70,8 @@ class RelabelConfig:
         shape_refuse_m: ... and refused, the tracker's own link included, above this (between the two, the
             extrapolation rules decide).
         shape_max_s: longest gap, seconds, a link by distances may span.
+        cluster_margin_m: a cluster's joint assignment replaces the marker-by-marker one when its summed
+            distance change is lower by more than this per marker, m.
     """
 
     swap_ratio: float = 0.25
@@ -81,6 +88,7 @@ class RelabelConfig:
     shape_gate_m: float = 0.008
     shape_refuse_m: float = 0.024
     shape_max_s: float = 10.0
+    cluster_margin_m: float = 0.001
 
 
 @dataclass
@@ -160,42 +168,49 @@ def _end_state(P: np.ndarray, run: np.ndarray, at_start: bool) -> tuple[int, np.
     return int(frame), pos, pos - P[run[-2][0], run[-2][1]]
 
 
-def _attached(P: np.ndarray, samples: np.ndarray, cfg: RelabelConfig) -> tuple[np.ndarray, np.ndarray]:
-    """Columns of the markers rigidly attached to a marker over ``samples`` (n, 2) (frame, column), and their
-    median distances, m: columns seen in every sample, within ``shape_radius_m``, whose distance varies less
-    than ``shape_steady_m`` (none with fewer than three samples)."""
-    if len(samples) < 3:
-        return np.zeros(0, dtype=np.intp), np.zeros(0)
+def _chain_distances(P: np.ndarray, samples: np.ndarray, owner: np.ndarray, chain: int, cfg: RelabelConfig
+                     ) -> dict[int, np.ndarray]:
+    """Distances from a tracklet's samples (n, 2) (frame, column) to the identities (chains) seen in the same
+    frames: ``{chain: (k,) distances, m}``, the last ``shape_window`` both were seen in, for those within
+    ``shape_radius_m`` (``chain`` itself left out; ``owner`` (F, M) maps samples to chains)."""
     frames, cols = samples[:, 0], samples[:, 1]
-    d = np.linalg.norm(P[frames] - P[frames, cols][:, None, :], axis=2)  # (n, M)
-    d[:, np.unique(cols)] = np.nan
-    seen = np.isfinite(d).all(axis=0)
-    d = d[:, seen]
-    keep = (np.median(d, axis=0) < cfg.shape_radius_m) & (d.max(axis=0) - d.min(axis=0) < cfg.shape_steady_m)
-    return np.flatnonzero(seen)[keep], np.median(d[:, keep], axis=0)
+    own = owner[frames]
+    ok = (own >= 0) & (own != chain)
+    if not ok.any():
+        return {}
+    d = np.linalg.norm(P[frames] - P[frames, cols][:, None, :], axis=2)
+    out = {}
+    for other in np.unique(own[ok]):
+        rows, where = np.nonzero(ok & (own == other))
+        v = d[rows, where][-cfg.shape_window:]
+        if np.median(v) < cfg.shape_radius_m:
+            out[int(other)] = v
+    return out
 
 
-def _distance_change(a: tuple[np.ndarray, np.ndarray], b: tuple[np.ndarray, np.ndarray], exclude: tuple[int, int],
-                     minimum: int) -> float:
-    """How much the distances (m) to the attached markers two tracklet ends share changed: their mean change
-    weighted by 1 / distance^2 (the nearest are the most likely on the same segment); NaN with too few."""
-    common, ia, ib = np.intersect1d(a[0], b[0], return_indices=True)
-    use = ~np.isin(common, exclude)
-    if use.sum() < minimum:
-        return np.nan
-    da, db = a[1][ia[use]], b[1][ib[use]]
-    w = 1.0 / (0.5 * (da + db)) ** 2
-    return float((w * np.abs(da - db)).sum() / w.sum())
+def _steady(distances: np.ndarray | None, cfg: RelabelConfig) -> bool:
+    """A distance that held still (attached markers): three samples or more, spread below ``shape_steady_m``."""
+    return distances is not None and distances.size >= 3 and np.ptp(distances) < cfg.shape_steady_m
+
+
+def _shape_misfit(pairs: list[tuple[float, float]]) -> float:
+    """Mean change of distances (m) over (then, now) pairs, weighted by 1 / distance^2 (the nearest are the
+    most likely on the same segment)."""
+    then, now = np.array(pairs).T
+    w = 1.0 / (0.5 * (then + now)) ** 2
+    return float((w * np.abs(then - now)).sum() / w.sum())
 
 
 def relink_tracklets(traj: Trajectories, config: RelabelConfig | None = None) -> int:
     """Re-link identities globally, in place; returns the number of identities saved.
 
     Tracklets (see :func:`_tracklets`) are taken in order of their first frame; those starting at
-    the same frame are assigned together (Hungarian) to identities that ended within ``max_gap``
-    frames before, by the mean disagreement of the two constant-velocity extrapolations across
-    the gap (the identity's forwards, the tracklet's backwards); a tracklet with no identity within
-    the gate starts a new one. Output columns are the resulting identities.
+    the same frame are assigned together (Hungarian) to identities that ended before: by how much
+    their distances to attached identities changed, else by the mean disagreement of the two
+    constant-velocity extrapolations across a short gap (the identity's forwards, the tracklet's
+    backwards). Tracklets starting together that are attached to each other (a cluster back in view)
+    are then assigned jointly, by their distances to each other as well. A tracklet with no identity
+    that fits starts a new one. Output columns are the resulting identities.
     """
     cfg = config or RelabelConfig()
     P = traj.positions
@@ -204,9 +219,10 @@ def relink_tracklets(traj: Trajectories, config: RelabelConfig | None = None) ->
         return 0
     runs.sort(key=lambda r: int(r[0, 0]))
     shape_max = max(int(round(cfg.shape_max_s * traj.fps)), cfg.max_gap)
+    owner = np.full(P.shape[:2], -1, dtype=np.intp)  # (F, M): the identity each sample was given
     chains: list[list[np.ndarray]] = []
     ends: list[tuple[int, np.ndarray, np.ndarray]] = []  # per chain: last frame, position, velocity
-    attached: list[tuple[np.ndarray, np.ndarray]] = []  # per chain: markers attached to its end, distances
+    memory: list[dict[int, np.ndarray]] = []  # per chain: latest distances to other chains, m
     i = 0
     while i < len(runs):
         start = int(runs[i][0, 0])
@@ -217,21 +233,22 @@ def relink_tracklets(traj: Trajectories, config: RelabelConfig | None = None) ->
         columns = {int(run[0, 1]) for run in group}
         open_chains = [c for c, (e, _, _) in enumerate(ends)
                        if 0 < start - e and (start - e <= cfg.max_gap or int(chains[c][-1][0, 1]) in columns
-                                             or (start - e <= shape_max and len(attached[c][0]) >= cfg.shape_min))]
+                                             or (start - e <= shape_max and _attached_count(memory[c], cfg) >= 1))]
+        heads = [_chain_distances(P, run[: cfg.shape_window], owner, -1, cfg) for run in group]
         assigned: dict[int, int] = {}
         refused: set[tuple[int, int]] = set()  # (group index, chain): the distances disagree
         if open_chains:
             cost = np.full((len(group), len(open_chains)), np.inf)
             for g, run in enumerate(group):
                 _, p0, v0 = _end_state(P, run, at_start=True)
-                here = _attached(P, run[: cfg.shape_window], cfg)
                 for j, c in enumerate(open_chains):
                     e, pe, ve = ends[c]
                     gap = start - e
-                    own_col = int(chains[c][-1][0, 1])
-                    same = own_col == int(run[0, 1])  # the tracker's own link
-                    change = _distance_change(attached[c], here, (own_col, int(run[0, 1])), cfg.shape_min)
-                    if np.isfinite(change):
+                    same = int(chains[c][-1][0, 1]) == int(run[0, 1])  # the tracker's own link
+                    pairs = [(np.median(memory[c][o]), np.median(h)) for o, h in heads[g].items()
+                             if o != c and _steady(h, cfg) and _steady(memory[c].get(o), cfg)]
+                    if len(pairs) >= cfg.shape_min:
+                        change = _shape_misfit(pairs)
                         if change < cfg.shape_gate_m and gap <= shape_max:
                             cost[g, j] = (cfg.own_link_weight if same else 1.0) * change
                             continue
@@ -251,6 +268,7 @@ def relink_tracklets(traj: Trajectories, config: RelabelConfig | None = None) ->
                 for g, j in zip(rows, cols, strict=True):
                     if finite[g, j]:
                         assigned[g] = open_chains[j]
+            _assign_cluster(P, group, heads, open_chains, memory, ends, start, shape_max, assigned, refused, cfg)
         taken = set(assigned.values())
         for g, run in enumerate(group):
             c = assigned.get(g)
@@ -264,10 +282,15 @@ def relink_tracklets(traj: Trajectories, config: RelabelConfig | None = None) ->
                 c = len(chains)
                 chains.append([])
                 ends.append(None)
-                attached.append(None)
+                memory.append({})
             chains[c].append(run)
             ends[c] = _end_state(P, run, at_start=False)
-            attached[c] = _attached(P, np.concatenate(chains[c][-cfg.shape_window :])[-cfg.shape_window :], cfg)
+            owner[run[:, 0], run[:, 1]] = c
+        for run in group:  # distances to the identities seen with it, both ways
+            c = int(owner[run[0, 0], run[0, 1]])
+            for other, d in _chain_distances(P, run, owner, c, cfg).items():
+                d = np.concatenate([memory[c].get(other, d[:0]), d])[-cfg.shape_window:]
+                memory[c][other] = memory[other][c] = d
     before = traj.n_markers
     F = traj.n_frames
     positions = np.full((F, len(chains), 3), np.nan)
@@ -281,6 +304,85 @@ def relink_tracklets(traj: Trajectories, config: RelabelConfig | None = None) ->
     traj.positions, traj.residuals, traj.camera_masks = positions, residuals, masks
     traj.labels = [f"M{k + 1:03d}" for k in range(len(chains))]
     return before - len(chains)
+
+
+def _attached_count(memory: dict[int, np.ndarray], cfg: RelabelConfig) -> int:
+    """How many identities were attached to a chain when last seen together."""
+    return sum(_steady(entry, cfg) for entry in memory.values())
+
+
+def _assign_cluster(P: np.ndarray, group: list[np.ndarray], heads: list[dict], open_chains: list[int],
+                    memory: list[dict], ends: list, start: int, shape_max: int, assigned: dict[int, int],
+                    refused: set[tuple[int, int]], cfg: RelabelConfig) -> None:
+    """Tracklets starting together and attached to each other (a cluster back in view) are assigned jointly.
+
+    Every injective assignment of the cluster to identities ended within ``shape_max`` frames is scored by
+    the change of all the distances it makes comparable (to identities in view, and within the cluster);
+    the best is taken, in place of ``assigned``'s, when every member has one of them at least, the cluster as
+    many as it has members, every member's changed less than ``shape_gate_m``, and it is clearly better than
+    the Hungarian's (or that one could not be scored).
+    """
+    n = len(group)
+    if n < 2:
+        return
+    # Distances between the cluster's tracklets over their first common frames.
+    within: dict[tuple[int, int], float] = {}  # median distance, m
+    for a in range(n):
+        for b in range(a + 1, n):
+            fa = group[a][: cfg.shape_window]
+            fb = group[b][: cfg.shape_window]
+            common = np.intersect1d(fa[:, 0], fb[:, 0])
+            if common.size < 3:
+                continue
+            v = np.linalg.norm(P[common, fa[0, 1]] - P[common, fb[0, 1]], axis=1)
+            if np.median(v) < cfg.shape_radius_m and _steady(v, cfg):
+                within[a, b] = within[b, a] = float(np.median(v))
+    members = sorted({a for a, _ in within})
+    chains = [c for c in open_chains if start - ends[c][0] <= shape_max and _attached_count(memory[c], cfg) >= 1]
+    if len(members) < 2 or len(members) > 6 or len(chains) < len(members):
+        return
+    if math.perm(len(chains), len(members)) > 20000:
+        return
+
+    def score(choice: tuple[int, ...]) -> float:
+        total, relations = 0.0, 0.0
+        for k, g in enumerate(members):
+            c = choice[k]
+            if (g, c) in refused:
+                return np.inf
+            pairs = [(np.median(memory[c][o]), np.median(h)) for o, h in heads[g].items()
+                     if o != c and _steady(h, cfg) and _steady(memory[c].get(o), cfg)]
+            relations += len(pairs)
+            inside = [(np.median(memory[c][choice[m]]), within[g, h]) for m, h in enumerate(members)
+                      if m != k and (g, h) in within and _steady(memory[c].get(choice[m]), cfg)]
+            relations += 0.5 * len(inside)
+            pairs += inside
+            if not pairs:
+                return np.inf
+            change = _shape_misfit(pairs)
+            if change >= cfg.shape_gate_m:
+                return np.inf
+            total += change
+        return total if relations >= len(members) else np.inf
+
+    best, best_score = None, np.inf
+    for choice in itertools.permutations(chains, len(members)):
+        value = score(choice)
+        if value < best_score:
+            best, best_score = choice, value
+    if best is None:
+        return
+    current = tuple(assigned.get(g, -1) for g in members)
+    if current == best:
+        return
+    if -1 not in current and len(set(current)) == len(current) and all(c in chains for c in current):
+        if score(current) <= best_score + cfg.cluster_margin_m * len(members):
+            return
+    for other, c in list(assigned.items()):
+        if c in best and other not in members:
+            del assigned[other]
+    for g, c in zip(members, best, strict=True):
+        assigned[g] = c
 
 
 def repair_identities(traj: Trajectories, config: RelabelConfig | None = None) -> RelabelStats:

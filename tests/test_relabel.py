@@ -109,3 +109,18 @@ def test_new_marker_does_not_keep_a_hidden_neighbours_identity():
     relink_tracklets(traj)
     assert traj.n_markers == 6
     assert _same_identities(traj, truth)
+
+
+def test_cluster_back_in_view_together_is_relinked_by_its_own_distances():
+    """A whole rigid segment is hidden for 40 frames while it turns; its five markers come back in the same
+    frame with the tracker's identities rotated among them. With no marker in view on both sides, only the
+    distances between the returning markers tell which is which."""
+    P = _segment()
+    hidden = P.copy()
+    hidden[60:100] = np.nan
+    rotated = hidden.copy()
+    rotated[100:] = P[100:, [1, 2, 3, 4, 0]]
+    traj = _traj(rotated)
+    relink_tracklets(traj)
+    assert traj.n_markers == 5
+    assert _same_identities(traj, P)
