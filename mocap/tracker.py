@@ -80,7 +80,9 @@ class TrackerConfig:
         n_sigma: pixel tolerances (epipolar_px, repick_px, support_px) widen to this many centroid stds.
         outlier_sigma: a camera is rejected from a point beyond this many centroid stds ...
         outlier_min_px: ... and beyond this many pixels, or ``outlier_rms_factor`` x the take's typical
-            reprojection RMS if larger (calibration error shows there; until measured, 4 x this floor).
+            reprojection RMS if larger (calibration error shows there).
+        outlier_start_px: the rejection threshold before the take's typical RMS is measured, pixels (the
+            running RMS starts from it / ``outlier_rms_factor``).
         outlier_rms_factor: see ``outlier_min_px``; the typical RMS is a running average (``error_alpha``) of
             each frame's median RMS over its points with three or more clean cameras.
         repick_px: a free detection this close to a point's reprojection joins the point, pixels.
@@ -131,7 +133,8 @@ class TrackerConfig:
     epipolar_px: float = 2.0
     n_sigma: float = 4.0
     outlier_sigma: float = 6.0
-    outlier_min_px: float = 0.15
+    outlier_min_px: float = 0.05
+    outlier_start_px: float = 0.6
     outlier_rms_factor: float = 4.0
     repick_px: float = 1.5
     support_px: float = 2.0
@@ -155,7 +158,7 @@ class TrackerConfig:
             if getattr(self, name) < 1:
                 raise MocapError(f"tracker setting {name} = {getattr(self, name)} must be >= 1")
         for name in ("epipolar_px", "gate_scale", "gate_floor_m", "gate_floor_px", "gate_max_px", "repick_px",
-                     "support_px", "outlier_min_px", "reid_max_m"):
+                     "support_px", "outlier_min_px", "outlier_start_px", "reid_max_m"):
             if not getattr(self, name) > 0:
                 raise MocapError(f"tracker setting {name} = {getattr(self, name)} must be > 0")
         if not 0 <= self.accel_damping <= 1:
@@ -346,8 +349,8 @@ class Tracker:
         self._clutter: deque[np.ndarray] = deque(maxlen=max(cfg.clutter_frames, 1))  # recent free detections
         self._first: int | None = None
         self._last = -1
-        self._rms_px = cfg.outlier_min_px  # typical reprojection RMS of the take's points, px (running)
-        self._outlier_px = 4.0 * cfg.outlier_min_px  # camera rejection floor until that is measured, px
+        self._outlier_px = cfg.outlier_start_px  # camera rejection floor, px (follows the residual level)
+        self._rms_px = cfg.outlier_start_px / max(cfg.outlier_rms_factor, 1.0)  # typical reprojection RMS, px
 
     # ------------------------------------------------------------------ public API
     def step(self, frame_index: int, detections: list[Detections]) -> FrameResult:
