@@ -13,7 +13,7 @@ from mocap.camera import load_rig
 from mocap.cli import main
 from mocap.errors import MocapError
 from mocap.synth import SynthSettings, marching_motion, motion_from_c3d, render_take, ring_rig, simulate
-from mocap.synth.simulate import plan_take
+from mocap.synth.simulate import plan_take, render_frame
 from mocap.synth.wand import centroid_frames
 from mocap.truth import Truth, load_truth
 from tests.conftest import require_shared_data
@@ -264,3 +264,37 @@ def test_centroid_stand_in_merges_each_group_of_touching_discs_into_one_flagged_
             centre = uv[list(pair)].mean(axis=0)
             assert np.linalg.norm(det.xy[det.merged] - centre, axis=1).min() < 0.5
         assert np.linalg.norm(det.xy[~det.merged][0] - uv[4]) < 0.5
+
+
+def test_exposure_smears_a_moving_marker_along_its_motion_centred_on_the_truth():
+    """A marker crossing the view at 6 m/s with a 2 ms shutter (12 mm, ~3 px at 4 m) is drawn as a streak along
+    its image motion; its intensity-weighted centre stays on the mid-exposure truth, and an instantaneous
+    shutter draws it round."""
+    fps = 100.0
+    rig = ring_rig(n_cameras=2, seed=2)
+    across = cv2.Rodrigues(np.asarray(rig[0].rotation, dtype=np.float64))[0][0]  # camera 0's image x axis, world
+    t = np.arange(5)[:, None] / fps
+    pos = (np.array([0.0, 0.0, 1.0]) + 6.0 * (t - 0.02) * across)[:, None, :]
+    shapes = []
+    for exposure in (0.0, 2.0):
+        plan = plan_take(rig, scripted_motion(pos, fps), SynthSettings(exposure_ms=exposure).clean())
+        image = render_frames_of(plan, frame=2, camera=0)
+        level = image.astype(np.float64) - SynthSettings().background
+        ys, xs = np.nonzero(level > 20)
+        w = level[ys, xs]
+        centre = np.array([(w * xs).sum(), (w * ys).sum()]) / w.sum()
+        cov = np.cov(np.stack([xs, ys]), aweights=w)
+        uv = plan.truth.uv[2, 0, 0]
+        motion = plan.truth.uv[3, 0, 0] - plan.truth.uv[1, 0, 0]
+        along = motion / np.linalg.norm(motion)
+        spread_along = along @ cov @ along
+        spread_across = np.array([-along[1], along[0]]) @ cov @ np.array([-along[1], along[0]])
+        assert np.linalg.norm(centre - uv) < 0.05
+        shapes.append(spread_along / spread_across)
+    print(f"spread along / across the motion: instantaneous {shapes[0]:.2f}, 2 ms {shapes[1]:.2f}")
+    assert shapes[0] == pytest.approx(1.0, abs=0.15) and shapes[1] > 1.5
+
+
+def render_frames_of(plan, frame: int, camera: int) -> np.ndarray:
+    """(H, W) uint8 image of one camera-frame of a planned take."""
+    return render_frame(plan, frame, camera, plan.noise_streams()[camera])

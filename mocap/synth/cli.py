@@ -68,6 +68,8 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
     img.add_argument("--brightness", type=float,
                      help=f"marker peak above background at 4 m, grey levels (default {d.brightness:g}; 1/d^2)")
     img.add_argument("--blur", type=float, dest="blur_px", help=f"optical blur std, px (default {d.blur_px:g})")
+    img.add_argument("--exposure", type=float, dest="exposure_ms",
+                     help=f"shutter time, ms: moving markers smear over it (default {d.exposure_ms:g}: none)")
     img.add_argument("--ghosts", type=int, help=f"fixed reflections per camera (default {d.ghosts})")
     img.add_argument("--ghost-blink", type=float,
                      help=f"fraction of the ghosts that flicker (default {d.ghost_blink:g})")

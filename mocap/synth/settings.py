@@ -24,6 +24,8 @@ class SynthSettings:
         brightness: peak level above background of a marker 4 m from the camera (the returned light
             falls off as 1/distance^2); discs saturate at 255.
         blur_px: standard deviation of the Gaussian optical blur (PSF), pixels.
+        exposure_ms: shutter (strobe) time, ms: a moving marker smears along its image motion over it
+            (0: instantaneous). The truth stays the mid-exposure position, the centre of the smear.
         ghosts: fixed bright reflections per camera (not markers; not in the truth).
         ghost_blink: fraction of the ghosts that flicker on and off.
         dropout_rate: long-run fraction of (camera, marker, frame) samples dropped at random.
@@ -38,6 +40,7 @@ class SynthSettings:
     noise: float = 2.0
     brightness: float = 300.0
     blur_px: float = 0.5
+    exposure_ms: float = 0.0
     ghosts: int = 3
     ghost_blink: float = 0.5
     dropout_rate: float = 0.01
@@ -53,6 +56,7 @@ class SynthSettings:
             ("noise", self.noise >= 0, ">= 0 grey levels"),
             ("brightness", self.brightness > 0, "> 0 grey levels"),
             ("blur_px", 0.3 <= self.blur_px <= 5, "in [0.3, 5] px (below 0.3 px the discs alias)"),
+            ("exposure_ms", 0 <= self.exposure_ms <= 100, "in [0, 100] ms"),
             ("ghosts", self.ghosts >= 0, ">= 0"),
             ("ghost_blink", 0 <= self.ghost_blink <= 1, "a fraction in [0, 1]"),
             ("dropout_rate", 0 <= self.dropout_rate < 1, "a fraction in [0, 1)"),

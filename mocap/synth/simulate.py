@@ -12,6 +12,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from mocap.camera import Rig, rig_to_toml
+from mocap.errors import MocapError
 from mocap.synth.motion import Motion, as_motion
 from mocap.synth.occlusion import occluded
 from mocap.synth.render import Sensor
@@ -41,6 +42,7 @@ class TakePlan:
         ghost_amplitude: (C, G) ghost heights, grey levels.
         ghost_on: (F, C, G) bool: the ghost shows in that frame.
         seed_sequence: where the per-camera noise streams come from.
+        exposure_frames: shutter time as a fraction of the frame interval (markers smear over it).
     """
 
     rig: Rig
@@ -54,6 +56,7 @@ class TakePlan:
     ghost_amplitude: np.ndarray
     ghost_on: np.ndarray
     seed_sequence: np.random.SeedSequence
+    exposure_frames: float = 0.0
 
     def noise_streams(self) -> list[np.random.Generator]:
         """One fresh noise generator per camera (the same every call)."""
@@ -160,8 +163,11 @@ def plan_take(rig: Rig, motion: Motion | tuple[list[str], float, np.ndarray], se
         "calibration_toml": rig_to_toml(rig),
     })
     truth = Truth(list(motion.labels), motion.fps, motion.positions.copy(), rig.names, uv, visible, sigma, record)
+    exposure = settings.exposure_ms * 1e-3 * motion.fps
+    if exposure >= 1.0:
+        raise MocapError(f"--exposure {settings.exposure_ms:g} ms is not shorter than a frame at {motion.fps:g} Hz")
     return TakePlan(rig, sensor, truth, drawn, radius, amplitude, ghost_uv, ghost_radius, ghost_amplitude,
-                    ghost_on, seeds[2])
+                    ghost_on, seeds[2], exposure)
 
 
 def simulate(rig: Rig, motion: Motion | tuple[list[str], float, np.ndarray], settings: SynthSettings | None = None
@@ -177,8 +183,33 @@ def render_frame(plan: TakePlan, frame: int, camera: int, rng: np.random.Generat
     image = plan.sensor.background_frame((h, w), rng)
     sel = plan.drawn[frame, camera]
     on = plan.ghost_on[frame, camera]
-    uv = np.concatenate([plan.truth.uv[frame, camera, sel], plan.ghost_uv[camera, on]])
-    radius = np.concatenate([plan.radius_px[frame, camera, sel], plan.ghost_radius[camera, on]])
-    amplitude = np.concatenate([plan.amplitude[frame, camera, sel], plan.ghost_amplitude[camera, on]])
+    uv, radius, amplitude = plan.truth.uv[frame, camera, sel], plan.radius_px[frame, camera, sel], \
+        plan.amplitude[frame, camera, sel]
+    if plan.exposure_frames > 0 and uv.size:
+        uv, radius, amplitude = _smeared(plan, frame, camera, sel)
+    uv = np.concatenate([uv, plan.ghost_uv[camera, on]])
+    radius = np.concatenate([radius, plan.ghost_radius[camera, on]])
+    amplitude = np.concatenate([amplitude, plan.ghost_amplitude[camera, on]])
     plan.sensor.draw(image, uv, radius, amplitude, rng)
     return image
+
+
+def _smeared(plan: TakePlan, frame: int, camera: int, sel: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The markers ``sel`` (M,) of one camera-frame as sub-discs spread over the exposure: (S*n, 2) centres,
+    px, (S*n,) radii and heights (each 1/S of the marker's), S enough for sub-discs <= 0.25 px apart.
+
+    The image velocity is the central difference of the projected centres (one-sided at the ends of the
+    take or of a visible stretch); the smear is centred on the frame's position."""
+    uv_all = plan.truth.uv[:, camera][:, sel]  # (F, n, 2)
+    here = uv_all[frame]
+    before = uv_all[frame - 1] if frame > 0 else here
+    after = uv_all[frame + 1] if frame + 1 < len(uv_all) else here
+    before = np.where(np.isfinite(before), before, here)
+    after = np.where(np.isfinite(after), after, here)
+    span = 0.5 * (after - before) * plan.exposure_frames  # (n, 2) smear over the exposure, px
+    steps = int(min(64, max(1, np.ceil(np.nanmax(np.linalg.norm(span, axis=1), initial=0.0) / 0.25) + 1)))
+    offsets = np.linspace(-0.5, 0.5, steps) if steps > 1 else np.zeros(1)
+    uv = (here[None] + offsets[:, None, None] * span[None]).reshape(-1, 2)
+    radius = np.tile(plan.radius_px[frame, camera, sel], steps)
+    amplitude = np.tile(plan.amplitude[frame, camera, sel] / steps, steps)
+    return uv, radius, amplitude
