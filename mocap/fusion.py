@@ -208,20 +208,21 @@ def repick(tri: Triangulated, D: np.ndarray, free: np.ndarray, limit_px: np.ndar
     """
     K, C = tri.used.shape
     out = np.full((K, C), -1, dtype=np.intp)
-    if K == 0 or D.shape[1] == 0:
+    cols = np.flatnonzero(free.any(axis=0))  # only detection slots free in some camera can be picked (a few)
+    if K == 0 or cols.size == 0:
         return out
     want = ~tri.used.T & np.isfinite(tri.X[:, 0])[None, :]  # (C, K)
-    d = np.sqrt(dist2(tri.proj[:, :, None, :], D[:, None, :, :]))  # (C, K, N)
+    d = np.sqrt(dist2(tri.proj[:, :, None, :], D[:, None, cols, :]))  # (C, K, n)
     limit = np.asarray(limit_px, dtype=float)
-    limit = limit[:, None, :] if limit.ndim else limit
-    ok = want[..., None] & free[:, None, :] & (d < limit)
+    limit = limit[:, None, cols] if limit.ndim else limit
+    ok = want[..., None] & free[:, None, cols] & (d < limit)
     d = np.where(ok, d, np.inf)
     best = np.argmin(d, axis=2)  # (C, K)
     # A detection wanted by several tracks goes to the nearest one.
-    nearest_track = np.argmin(d, axis=1)  # (C, N)
+    nearest_track = np.argmin(d, axis=1)  # (C, n)
     won = nearest_track[np.arange(C)[:, None], best] == np.arange(K)[None, :]
     take = ok.any(axis=2) & won  # (d is finite exactly where ok)
-    out.T[take] = best[take]
+    out.T[take] = cols[best[take]]
     return out
 
 
