@@ -166,13 +166,13 @@ def robust_triangulate(P: np.ndarray, uv: np.ndarray, cov: np.ndarray, start: np
     Winv = inv2x2(np.where(used[..., None, None], cov, np.eye(2)))
     X, cov3, proj, r, depth = _gauss_newton(P, uvz, Winv * used[..., None, None], start, iterations)
     err = np.where(used, np.hypot(r[..., 0], r[..., 1]), 0.0)
-    todo = np.arange(K)
+    todo = slice(None)  # the points still examined: all at first (views, not copies), then an index array
     for rnd in range(C - 1):
         ratio = np.where(used[:, todo], err[:, todo] / limit[:, todo], -1.0)
         drop = (ratio.max(axis=0) > 1.0) & (used[:, todo].sum(axis=0) >= 3)
         if not drop.any():
             break
-        todo = todo[drop]
+        todo = np.flatnonzero(drop) if rnd == 0 else todo[drop]
         if rnd == 0:
             used[:, todo] = _consensus(P, uvz[:, todo], Winv[:, todo], used[:, todo], X[todo], limit[:, todo],
                                        iterations)
@@ -185,8 +185,8 @@ def robust_triangulate(P: np.ndarray, uv: np.ndarray, cov: np.ndarray, start: np
     n = used.sum(axis=0)
     fail = (n < 2) | ((err > limit) & used).any(axis=0) & (n < 3) | ~np.isfinite(X).all(axis=1)
     used[:, fail] = False
-    with np.errstate(invalid="ignore", divide="ignore"):
-        rms = np.sqrt((err**2 * used).sum(axis=0) / used.sum(axis=0))
+    with np.errstate(invalid="ignore", divide="ignore"):  # (n differs from used's count only where failed)
+        rms = np.sqrt((err**2 * used).sum(axis=0) / n)
     X[fail] = np.nan
     cov3[fail] = np.nan
     rms[fail] = np.nan
