@@ -35,6 +35,7 @@ from __future__ import annotations
 from collections import deque
 from collections.abc import Iterator
 from dataclasses import dataclass, field, fields
+from itertools import accumulate
 
 import numpy as np
 
@@ -205,6 +206,12 @@ class _Records:
 
     def append(self, **values: np.ndarray) -> None:
         k = len(values["uid"])
+        if self._chunks and self._fill + k <= self.CHUNK:  # the usual case: one slice per column
+            chunk, fill = self._chunks[-1], self._fill
+            for name, value in values.items():
+                chunk[name][fill : fill + k] = value
+            self._fill += k
+            return
         done = 0
         while done < k:
             if self._fill == self.CHUNK:
@@ -763,7 +770,8 @@ class Tracker:
         tentative = t.ident < 0
         # A track born from a weak point must have moved, or stand still with its neighbours: fixed
         # reflections that happen to match across two cameras make a static point wherever they are.
-        t.weak &= np.linalg.norm(t.last_X - t.origin, axis=1) <= cfg.weak_motion_m
+        if t.weak.any():
+            t.weak &= np.linalg.norm(t.last_X - t.origin, axis=1) <= cfg.weak_motion_m
         idle, busy = self._neighbour_motion(t.weak & (t.since == 0))
         confirm = np.flatnonzero(tentative & (t.since == 0) & (t.hits >= cfg.confirm_frames) & (~t.weak | idle))
         # A static point confirmed that way is a reflection once its neighbours move and it does not:
@@ -815,15 +823,14 @@ class Tracker:
         depth = X @ self._P[:, 2, :3].T + self._P[:, 2, 3]
         scale = np.where(used, depth / self._focal[None, :], 0.0).sum(axis=1) / np.maximum(used.sum(axis=1), 1)
         res = meas.rms_px[rows] * scale * 1000.0
-        mask = (used.astype(np.uint32) << np.arange(C, dtype=np.uint32)).sum(axis=1).astype(np.uint32)
+        mask = used @ (np.uint32(1) << np.arange(C, dtype=np.uint32))  # (K,) uint32, bit c: camera c used
         self._records.append(frame=frame_index, uid=t.uid[rows], pos=X, res=res, mask=mask)
         conf = t.ident[rows] >= 0
         ids = t.ident[rows][conf]
-        offsets = np.cumsum([0, *fr.counts])  # all cameras' detections in one flat array
-        flat = np.full(offsets[-1], -1, dtype=np.intp)
+        bounds = list(accumulate(fr.counts, initial=0))  # all cameras' detections in one flat array
+        flat = np.full(bounds[-1], -1, dtype=np.intp)
         kk, cc = np.nonzero(used[conf])
-        flat[offsets[cc] + asg[conf][kk, cc]] = ids[kk]
-        bounds = offsets.tolist()
+        flat[np.array(bounds)[cc] + asg[conf][kk, cc]] = ids[kk]
         assignments = [flat[a:b] for a, b in zip(bounds[:-1], bounds[1:], strict=True)]
         return FrameResult(frame_index, ids, X[conf], res[conf], mask[conf], assignments)
 
