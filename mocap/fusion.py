@@ -61,26 +61,30 @@ def _gauss_newton(P: np.ndarray, uv: np.ndarray, W: np.ndarray, X: np.ndarray, i
 
     Inside, the cameras' u and v rows are stacked per point, (K, 2, C) projections and (K, 3, 2 C) transposed
     Jacobians with the cameras innermost, so that ``J^T W J`` and ``J^T W r`` summed over cameras are one
-    (3, 2C) x (2C, .) product per point.
+    (3, 2C) x (2C, .) product per point. The element-wise products that build ``J^T`` and ``(W J)^T`` run with the
+    points innermost ((3, 2, C, K): long inner loops; ``(W J)^T`` 8.5 -> 4 us at K = 40) and are copied into that
+    layout (the same numbers, ~4 % less per solve).
     """
     C, K = uv.shape[:2]
-    Wk = W.transpose(1, 2, 3, 0).copy()  # (K, 2, 2, C)
-    W0, W1 = Wk[:, None, :, 0], Wk[:, None, :, 1]  # (K, 1, 2, C): the columns of each camera's weight
-    few = (W[..., 0, 0] > 0).sum(axis=0) < 2
+    Wf = W.transpose(3, 2, 0, 1).copy()  # (2, 2, C, K): Wf[b, a, c, k] = W[c, k, a, b]
+    W0, W1 = Wf[0:1], Wf[1:2]  # (1, 2, C, K): the columns of each camera's weight
+    few = (Wf[0, 0] > 0).sum(axis=0) < 2
     few = few if few.any() else None
     uvk = uv.transpose(1, 2, 0)  # (K, 2, C)
     Pm = P[:, :, :3].transpose(1, 0, 2).reshape(3 * C, 3).T  # (3, 3C): u rows, v rows, w rows
     pt = P[:, :, 3].T.reshape(3 * C)
-    P01 = P[:, :2, :3].transpose(2, 1, 0).copy()  # (3, 2, C)
-    P2 = P[:, 2, :3].T[:, None, :].copy()  # (3, 1, C)
+    P01 = P[:, :2, :3].transpose(2, 1, 0)[..., None].copy()  # (3, 2, C, 1)
+    P2 = P[:, 2, :3].T[:, None, :, None].copy()  # (3, 1, C, 1)
     for it in range(iterations):
         h = X @ Pm + pt  # (K, 3C)
         w = h[:, None, 2 * C:]  # (K, 1, C)
         proj = h[:, :2 * C].reshape(K, 2, C) / w
-        Jt = (P01 - proj[:, None] * P2) / w[:, None]  # (K, 3, 2, C): J^T
+        Jf = (P01 - proj.transpose(1, 2, 0) * P2) / w[:, 0].T  # (3, 2, C, K): J^T, points innermost
+        WJf = W0 * Jf[:, 0:1] + W1 * Jf[:, 1:2]  # (W J)^T
+        Jt = np.ascontiguousarray(Jf.transpose(3, 0, 1, 2)).reshape(K, 3, 2 * C)
+        WJt = np.ascontiguousarray(WJf.transpose(3, 0, 1, 2)).reshape(K, 3, 2 * C)
         r = uvk - proj
-        WJt = (W0 * Jt[:, :, 0:1] + W1 * Jt[:, :, 1:2]).reshape(K, 3, 2 * C)  # (W J)^T
-        H = WJt @ Jt.reshape(K, 3, 2 * C).transpose(0, 2, 1)
+        H = WJt @ Jt.transpose(0, 2, 1)
         if few is not None:
             H[few] = np.eye(3)
         cov = inv3x3(H)  # the last one is the point's covariance
@@ -88,7 +92,7 @@ def _gauss_newton(P: np.ndarray, uv: np.ndarray, W: np.ndarray, X: np.ndarray, i
         X = X + dx
         if it == iterations - 1 or np.abs(dx).max(initial=0.0) < tol_m:
             break
-    step = (dx[:, None, :] @ Jt.reshape(K, 3, 2 * C)).reshape(K, 2, C)  # first order, for the returned values
+    step = (dx[:, None, :] @ Jt).reshape(K, 2, C)  # first order, for the returned values
     proj = proj + step
     r = r - step
     depth = X @ P[:, 2, :3].T + P[:, 2, 3]  # (K, C)
