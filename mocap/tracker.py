@@ -449,11 +449,12 @@ class Tracker:
             merged[fill] = np.concatenate([det.merged for det in detections])
             area = np.concatenate([det.area for det in detections])
             round_[fill] = np.where(area >= MIN_SHAPE_AREA, np.concatenate([det.roundness for det in detections]), 1.0)
-        valid = np.isfinite(D).all(axis=2)
+        valid = np.isfinite(D[..., 0]) & np.isfinite(D[..., 1])  # (reductions over an axis of 2 are slow)
         # A sphere's image is an ellipse of axis ratio cos(field angle); a blob much flatter than that is two
         # markers merged without a saddle, or one partly hidden: its centroid is off by up to a radius.
         ray = (D - self._centre[:, None, :]) / self._focal_xy[:, None, :]
-        merged |= round_ < self._cfg.round_merged / np.sqrt(1.0 + (ray * ray).sum(axis=2))
+        tan2 = ray[..., 0] * ray[..., 0] + ray[..., 1] * ray[..., 1]  # (the sum over an axis of 2, ~3x faster)
+        merged |= round_ < self._cfg.round_merged / np.sqrt(1.0 + tan2)
         S[merged] *= self._cfg.merged_variance_scale
         return _Frame(D, S, valid, merged, counts)
 
@@ -648,7 +649,7 @@ class Tracker:
         uvv = (z - t.last_uv[tk, cc]) / dt
         uva = (uvv - t.last_uvv[tk, cc]) / dt
         dev2 = (np.concatenate([z, uvv, uva], axis=1) - x2).reshape(-1, 3, 2)
-        err2 = np.sqrt((dev2 * dev2).sum(axis=2))
+        err2 = np.sqrt(dev2[..., 0] * dev2[..., 0] + dev2[..., 1] * dev2[..., 1])  # (the sum over 2, ~3x faster)
         e2 = t.e2[tk, cc]
         fin = np.isfinite(err2)
         e2 = np.where(locked[:, None] & fin, self._running.step(e2, np.where(fin, err2, 0.0)), e2)
