@@ -469,7 +469,8 @@ class Tracker:
         if K == 0:
             return
         scale = np.clip(t.noise / self._cfg.noisy_point_m, 1.0, 10.0)
-        t.x3, t.P3 = predict(t.x3, t.P3, self._F3, self._Q3 * (scale * scale)[:, None, None])
+        Q3 = self._Q3 * (scale * scale)[:, None, None] if (scale > 1.0).any() else self._Q3  # (usually none)
+        t.x3, t.P3 = predict(t.x3, t.P3, self._F3, Q3)
         x2, P2 = predict(t.x2.reshape(K * C, 6), t.P2.reshape(K * C, 6, 6), self._F2, self._Q2)
         t.x2, t.P2 = x2.reshape(K, C, 6), P2.reshape(K, C, 6, 6)
 
