@@ -72,7 +72,10 @@ def floored_covariance(cov: np.ndarray, std_px: float = MIN_CENTROID_STD_PX) -> 
     a, d = cov[:, 0, 0], cov[:, 1, 1]
     b = 0.5 * (cov[:, 0, 1] + cov[:, 1, 0])
     smallest = 0.5 * (a + d) - np.sqrt((0.5 * (a - d)) ** 2 + b * b)
-    out = cov + np.maximum(std_px * std_px - smallest, 0.0)[:, None, None] * np.eye(2)
-    bad = ~np.isfinite(out).all(axis=(1, 2))
-    out[bad] = np.eye(2) * Detections.DEFAULT_SIGMA_PX**2
+    lift = np.maximum(std_px * std_px - smallest, 0.0)
+    out = cov.copy()
+    out[:, 0, 0] += lift
+    out[:, 1, 1] += lift
+    if not np.isfinite(smallest).all():  # (any non-finite entry makes ``smallest`` non-finite)
+        out[~np.isfinite(out).all(axis=(1, 2))] = np.eye(2) * Detections.DEFAULT_SIGMA_PX**2
     return out

@@ -187,5 +187,7 @@ class RunningError:
     def radius(self, e_p: np.ndarray, e_v: np.ndarray, e_a: np.ndarray, since: np.ndarray, dt: float,
                floor: float) -> np.ndarray:
         """(K,) search radius ``since`` (K,) frames after each filter's last measurement."""
+        if np.ndim(since) == 0 and since <= 1:  # the next frame (t = 0): the same sums without the t arithmetic
+            return self.scale * (e_p + e_v * 0.0 + e_a * 0.0) + floor
         t = np.maximum(since - 1, 0) * dt
         return self.scale * (e_p + e_v * t + 0.5 * e_a * t * t) + floor

@@ -61,26 +61,30 @@ def _gauss_newton(P: np.ndarray, uv: np.ndarray, W: np.ndarray, X: np.ndarray, i
 
     Inside, the cameras' u and v rows are stacked per point, (K, 2, C) projections and (K, 3, 2 C) transposed
     Jacobians with the cameras innermost, so that ``J^T W J`` and ``J^T W r`` summed over cameras are one
-    (3, 2C) x (2C, .) product per point.
+    (3, 2C) x (2C, .) product per point. The element-wise products that build ``J^T`` and ``(W J)^T`` run with the
+    points innermost ((3, 2, C, K): long inner loops; ``(W J)^T`` 8.5 -> 4 us at K = 40) and are copied into that
+    layout (the same numbers, ~4 % less per solve).
     """
     C, K = uv.shape[:2]
-    Wk = W.transpose(1, 2, 3, 0).copy()  # (K, 2, 2, C)
-    W0, W1 = Wk[:, None, :, 0], Wk[:, None, :, 1]  # (K, 1, 2, C): the columns of each camera's weight
-    few = (W[..., 0, 0] > 0).sum(axis=0) < 2
+    Wf = W.transpose(3, 2, 0, 1).copy()  # (2, 2, C, K): Wf[b, a, c, k] = W[c, k, a, b]
+    W0, W1 = Wf[0:1], Wf[1:2]  # (1, 2, C, K): the columns of each camera's weight
+    few = (Wf[0, 0] > 0).sum(axis=0) < 2
     few = few if few.any() else None
     uvk = uv.transpose(1, 2, 0)  # (K, 2, C)
     Pm = P[:, :, :3].transpose(1, 0, 2).reshape(3 * C, 3).T  # (3, 3C): u rows, v rows, w rows
     pt = P[:, :, 3].T.reshape(3 * C)
-    P01 = P[:, :2, :3].transpose(2, 1, 0).copy()  # (3, 2, C)
-    P2 = P[:, 2, :3].T[:, None, :].copy()  # (3, 1, C)
+    P01 = P[:, :2, :3].transpose(2, 1, 0)[..., None].copy()  # (3, 2, C, 1)
+    P2 = P[:, 2, :3].T[:, None, :, None].copy()  # (3, 1, C, 1)
     for it in range(iterations):
         h = X @ Pm + pt  # (K, 3C)
         w = h[:, None, 2 * C:]  # (K, 1, C)
         proj = h[:, :2 * C].reshape(K, 2, C) / w
-        Jt = (P01 - proj[:, None] * P2) / w[:, None]  # (K, 3, 2, C): J^T
+        Jf = (P01 - proj.transpose(1, 2, 0) * P2) / w[:, 0].T  # (3, 2, C, K): J^T, points innermost
+        WJf = W0 * Jf[:, 0:1] + W1 * Jf[:, 1:2]  # (W J)^T
+        Jt = np.ascontiguousarray(Jf.transpose(3, 0, 1, 2)).reshape(K, 3, 2 * C)
+        WJt = np.ascontiguousarray(WJf.transpose(3, 0, 1, 2)).reshape(K, 3, 2 * C)
         r = uvk - proj
-        WJt = (W0 * Jt[:, :, 0:1] + W1 * Jt[:, :, 1:2]).reshape(K, 3, 2 * C)  # (W J)^T
-        H = WJt @ Jt.reshape(K, 3, 2 * C).transpose(0, 2, 1)
+        H = WJt @ Jt.transpose(0, 2, 1)
         if few is not None:
             H[few] = np.eye(3)
         cov = inv3x3(H)  # the last one is the point's covariance
@@ -88,7 +92,7 @@ def _gauss_newton(P: np.ndarray, uv: np.ndarray, W: np.ndarray, X: np.ndarray, i
         X = X + dx
         if it == iterations - 1 or np.abs(dx).max(initial=0.0) < tol_m:
             break
-    step = (dx[:, None, :] @ Jt.reshape(K, 3, 2 * C)).reshape(K, 2, C)  # first order, for the returned values
+    step = (dx[:, None, :] @ Jt).reshape(K, 2, C)  # first order, for the returned values
     proj = proj + step
     r = r - step
     depth = X @ P[:, 2, :3].T + P[:, 2, 3]  # (K, C)
@@ -166,13 +170,13 @@ def robust_triangulate(P: np.ndarray, uv: np.ndarray, cov: np.ndarray, start: np
     Winv = inv2x2(np.where(used[..., None, None], cov, np.eye(2)))
     X, cov3, proj, r, depth = _gauss_newton(P, uvz, Winv * used[..., None, None], start, iterations)
     err = np.where(used, np.hypot(r[..., 0], r[..., 1]), 0.0)
-    todo = np.arange(K)
+    todo = slice(None)  # the points still examined: all at first (views, not copies), then an index array
     for rnd in range(C - 1):
         ratio = np.where(used[:, todo], err[:, todo] / limit[:, todo], -1.0)
         drop = (ratio.max(axis=0) > 1.0) & (used[:, todo].sum(axis=0) >= 3)
         if not drop.any():
             break
-        todo = todo[drop]
+        todo = np.flatnonzero(drop) if rnd == 0 else todo[drop]
         if rnd == 0:
             used[:, todo] = _consensus(P, uvz[:, todo], Winv[:, todo], used[:, todo], X[todo], limit[:, todo],
                                        iterations)
@@ -185,8 +189,8 @@ def robust_triangulate(P: np.ndarray, uv: np.ndarray, cov: np.ndarray, start: np
     n = used.sum(axis=0)
     fail = (n < 2) | ((err > limit) & used).any(axis=0) & (n < 3) | ~np.isfinite(X).all(axis=1)
     used[:, fail] = False
-    with np.errstate(invalid="ignore", divide="ignore"):
-        rms = np.sqrt((err**2 * used).sum(axis=0) / used.sum(axis=0))
+    with np.errstate(invalid="ignore", divide="ignore"):  # (n differs from used's count only where failed)
+        rms = np.sqrt((err**2 * used).sum(axis=0) / n)
     X[fail] = np.nan
     cov3[fail] = np.nan
     rms[fail] = np.nan
@@ -208,20 +212,21 @@ def repick(tri: Triangulated, D: np.ndarray, free: np.ndarray, limit_px: np.ndar
     """
     K, C = tri.used.shape
     out = np.full((K, C), -1, dtype=np.intp)
-    if K == 0 or D.shape[1] == 0:
+    cols = np.flatnonzero(free.any(axis=0))  # only detection slots free in some camera can be picked (a few)
+    if K == 0 or cols.size == 0:
         return out
     want = ~tri.used.T & np.isfinite(tri.X[:, 0])[None, :]  # (C, K)
-    d = np.sqrt(dist2(tri.proj[:, :, None, :], D[:, None, :, :]))  # (C, K, N)
+    d = np.sqrt(dist2(tri.proj[:, :, None, :], D[:, None, cols, :]))  # (C, K, n)
     limit = np.asarray(limit_px, dtype=float)
-    limit = limit[:, None, :] if limit.ndim else limit
-    ok = want[..., None] & free[:, None, :] & (d < limit)
+    limit = limit[:, None, cols] if limit.ndim else limit
+    ok = want[..., None] & free[:, None, cols] & (d < limit)
     d = np.where(ok, d, np.inf)
     best = np.argmin(d, axis=2)  # (C, K)
     # A detection wanted by several tracks goes to the nearest one.
-    nearest_track = np.argmin(d, axis=1)  # (C, N)
+    nearest_track = np.argmin(d, axis=1)  # (C, n)
     won = nearest_track[np.arange(C)[:, None], best] == np.arange(K)[None, :]
     take = ok.any(axis=2) & won  # (d is finite exactly where ok)
-    out.T[take] = best[take]
+    out.T[take] = cols[best[take]]
     return out
 
 

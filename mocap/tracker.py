@@ -35,6 +35,7 @@ from __future__ import annotations
 from collections import deque
 from collections.abc import Iterator
 from dataclasses import dataclass, field, fields
+from itertools import accumulate
 
 import numpy as np
 
@@ -208,6 +209,12 @@ class _Records:
 
     def append(self, **values: np.ndarray) -> None:
         k = len(values["uid"])
+        if self._chunks and self._fill + k <= self.CHUNK:  # the usual case: one slice per column
+            chunk, fill = self._chunks[-1], self._fill
+            for name, value in values.items():
+                chunk[name][fill : fill + k] = value
+            self._fill += k
+            return
         done = 0
         while done < k:
             if self._fill == self.CHUNK:
@@ -445,11 +452,12 @@ class Tracker:
             merged[fill] = np.concatenate([det.merged for det in detections])
             area = np.concatenate([det.area for det in detections])
             round_[fill] = np.where(area >= MIN_SHAPE_AREA, np.concatenate([det.roundness for det in detections]), 1.0)
-        valid = np.isfinite(D).all(axis=2)
+        valid = np.isfinite(D[..., 0]) & np.isfinite(D[..., 1])  # (reductions over an axis of 2 are slow)
         # A sphere's image is an ellipse of axis ratio cos(field angle); a blob much flatter than that is two
         # markers merged without a saddle, or one partly hidden: its centroid is off by up to a radius.
         ray = (D - self._centre[:, None, :]) / self._focal_xy[:, None, :]
-        merged |= round_ < self._cfg.round_merged / np.sqrt(1.0 + (ray * ray).sum(axis=2))
+        tan2 = ray[..., 0] * ray[..., 0] + ray[..., 1] * ray[..., 1]  # (the sum over an axis of 2, ~3x faster)
+        merged |= round_ < self._cfg.round_merged / np.sqrt(1.0 + tan2)
         S[merged] *= self._cfg.merged_variance_scale
         return _Frame(D, S, valid, merged, counts)
 
@@ -464,7 +472,8 @@ class Tracker:
         if K == 0:
             return
         scale = np.clip(t.noise / self._cfg.noisy_point_m, 1.0, 10.0)
-        t.x3, t.P3 = predict(t.x3, t.P3, self._F3, self._Q3 * (scale * scale)[:, None, None])
+        Q3 = self._Q3 * (scale * scale)[:, None, None] if (scale > 1.0).any() else self._Q3  # (usually none)
+        t.x3, t.P3 = predict(t.x3, t.P3, self._F3, Q3)
         x2, P2 = predict(t.x2.reshape(K * C, 6), t.P2.reshape(K * C, 6, 6), self._F2, self._Q2)
         t.x2, t.P2 = x2.reshape(K, C, 6), P2.reshape(K, C, 6, 6)
 
@@ -545,7 +554,9 @@ class Tracker:
         d2[:, diag, diag] = np.inf
         with np.errstate(invalid="ignore", divide="ignore"):
             reach = self._focal[:, None] * self._cfg.marker_mm / 1000.0 / depth.T + self._cfg.merge_px  # (C, K)
-            c, k, j = np.nonzero(d2 < (reach * reach)[:, :, None])  # the few close pairs
+            close = np.flatnonzero(d2 < (reach * reach)[:, :, None])  # the few close pairs (flat: 2x faster)
+        c, k = np.divmod(close, d2.shape[1] * d2.shape[2])
+        k, j = np.divmod(k, d2.shape[2])
         own, other = asg[k, c], asg[j, c]
         merge = (own < 0) | (other < 0) | (own == other)
         crowded = np.zeros(asg.shape, dtype=bool)
@@ -598,7 +609,9 @@ class Tracker:
         rms = meas.rms_px[meas.ok & (_clean_views(fr.merged, meas.asg) >= 3) & np.isfinite(meas.rms_px)]
         if rms.size < 3:
             return
-        self._rms_px += cfg.error_alpha * (float(np.median(rms)) - self._rms_px)
+        rms.sort()  # the median as np.median computes it (mean of the middle two), without its overhead
+        median = 0.5 * (rms[(rms.size - 1) // 2] + rms[rms.size // 2])
+        self._rms_px += cfg.error_alpha * (float(median) - self._rms_px)
         self._outlier_px = max(cfg.outlier_min_px, cfg.outlier_rms_factor * self._rms_px)
 
     def _update(self, fr: _Frame, meas: _Measurements, idx: np.ndarray) -> None:
@@ -607,7 +620,8 @@ class Tracker:
             return
         t, dt = self._t, self._dt
         X = meas.X[idx]
-        R = meas.cov[idx] + np.eye(3) * 1e-12
+        cov = meas.cov[idx]
+        R = cov + np.eye(3) * 1e-12
         consecutive = t.since[idx] == 1
         prior = t.x3[idx]
         x_new, P_new, _, _ = update_position(prior, t.P3[idx], X, R)
@@ -622,7 +636,7 @@ class Tracker:
         t.x3[idx], t.P3[idx] = x_new, P_new
         t.last_v[idx] = np.where(consecutive[:, None], v_meas, np.nan)
         t.last_X[idx] = X
-        t.noise[idx] = _point_std(meas.cov[idx])
+        t.noise[idx] = _point_std(cov)
         t.hits[idx] = np.where(consecutive, t.hits[idx] + 1, 1)
         t.since[idx] = 0
         # Image filters of the cameras used.
@@ -639,7 +653,7 @@ class Tracker:
         uvv = (z - t.last_uv[tk, cc]) / dt
         uva = (uvv - t.last_uvv[tk, cc]) / dt
         dev2 = (np.concatenate([z, uvv, uva], axis=1) - x2).reshape(-1, 3, 2)
-        err2 = np.sqrt((dev2 * dev2).sum(axis=2))
+        err2 = np.sqrt(dev2[..., 0] * dev2[..., 0] + dev2[..., 1] * dev2[..., 1])  # (the sum over 2, ~3x faster)
         e2 = t.e2[tk, cc]
         fin = np.isfinite(err2)
         e2 = np.where(locked[:, None] & fin, self._running.step(e2, np.where(fin, err2, 0.0)), e2)
@@ -761,7 +775,8 @@ class Tracker:
         tentative = t.ident < 0
         # A track born from a weak point must have moved, or stand still with its neighbours: fixed
         # reflections that happen to match across two cameras make a static point wherever they are.
-        t.weak &= np.linalg.norm(t.last_X - t.origin, axis=1) <= cfg.weak_motion_m
+        if t.weak.any():
+            t.weak &= np.linalg.norm(t.last_X - t.origin, axis=1) <= cfg.weak_motion_m
         idle, busy = self._neighbour_motion(t.weak & (t.since == 0))
         confirm = np.flatnonzero(tentative & (t.since == 0) & (t.hits >= cfg.confirm_frames) & (~t.weak | idle))
         # A static point confirmed that way is a reflection once its neighbours move and it does not:
@@ -813,15 +828,14 @@ class Tracker:
         depth = X @ self._P[:, 2, :3].T + self._P[:, 2, 3]
         scale = np.where(used, depth / self._focal[None, :], 0.0).sum(axis=1) / np.maximum(used.sum(axis=1), 1)
         res = meas.rms_px[rows] * scale * 1000.0
-        mask = (used.astype(np.uint32) << np.arange(C, dtype=np.uint32)).sum(axis=1).astype(np.uint32)
+        mask = used @ (np.uint32(1) << np.arange(C, dtype=np.uint32))  # (K,) uint32, bit c: camera c used
         self._records.append(frame=frame_index, uid=t.uid[rows], pos=X, res=res, mask=mask)
         conf = t.ident[rows] >= 0
         ids = t.ident[rows][conf]
-        offsets = np.cumsum([0, *fr.counts])  # all cameras' detections in one flat array
-        flat = np.full(offsets[-1], -1, dtype=np.intp)
+        bounds = list(accumulate(fr.counts, initial=0))  # all cameras' detections in one flat array
+        flat = np.full(bounds[-1], -1, dtype=np.intp)
         kk, cc = np.nonzero(used[conf])
-        flat[offsets[cc] + asg[conf][kk, cc]] = ids[kk]
-        bounds = offsets.tolist()
+        flat[np.array(bounds)[cc] + asg[conf][kk, cc]] = ids[kk]
         assignments = [flat[a:b] for a, b in zip(bounds[:-1], bounds[1:], strict=True)]
         return FrameResult(frame_index, ids, X[conf], res[conf], mask[conf], assignments)
 
@@ -847,7 +861,7 @@ def _clean_views(merged: np.ndarray, det: np.ndarray) -> np.ndarray:
 
 def _point_std(cov: np.ndarray) -> np.ndarray:
     """(K,) RMS std, m, of points with covariances ``cov`` (K, 3, 3) m^2."""
-    return np.sqrt(np.trace(cov, axis1=1, axis2=2) / 3.0)
+    return np.sqrt((cov[:, 0, 0] + cov[:, 1, 1] + cov[:, 2, 2]) / 3.0)  # (np.trace's sum, without its overhead)
 
 
 def _taken(asg: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
