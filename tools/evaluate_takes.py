@@ -23,6 +23,8 @@ import time
 import tomllib
 from pathlib import Path
 
+from mocap.atomic import atomic_write_bytes
+
 ROOT = Path(__file__).resolve().parents[1]
 DATA = ROOT.parent / "shared" / "data"
 SCENARIOS = ROOT / "datasets" / "scenarios.toml"
@@ -78,7 +80,7 @@ def main() -> None:
         result.update({"take": name, "synth_s": round(t_synth, 1), "reconstruct_s": round(t_rec, 1)})
         rows.append(result)
         print(json.dumps({k: v for k, v in result.items() if not isinstance(v, (dict, list))}), flush=True)
-    (args.work / "summary.json").write_text(json.dumps(rows, indent=2))
+    atomic_write_bytes(args.work / "summary.json", json.dumps(rows, indent=2).encode())
     print("  ".join(f"{name:>{width}}" for name, _, width in COLUMNS))
     for row in rows:
         cells = [fmt.format(row[key]) if row.get(key) is not None else "n/a" for key, fmt, _ in COLUMNS]
