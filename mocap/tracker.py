@@ -105,6 +105,8 @@ class TrackerConfig:
             longer, behind the body, merges with nothing there).
         round_merged: a blob (of at least ``mocap.detect.MIN_SHAPE_AREA`` pixels) whose roundness is below this
             times cos(field angle), the roundness of a sphere's image there, is treated as merged.
+        smear_fraction: a flat blob a track takes alone is a streak of motion blur, not a merge, when a smear over
+            this fraction of the track's image motion per frame (a shutter open that long) explains its shape.
         merged_variance_scale: centroid variance multiplier of blobs flagged as merged (by the detector,
             by ``round_merged``, or by two tracks predicted that close). A point is output only when two cameras
             without such blobs support it, or it lies within ``suspect_m`` (clipped to ``gate_scale`` x the
@@ -149,6 +151,7 @@ class TrackerConfig:
     hidden_frames: int = 10
     round_merged: float = 0.8
     merged_variance_scale: float = 100.0
+    smear_fraction: float = 0.5
     suspect_m: tuple[float, float] = (0.001, 0.002)
     neighbour_m: float = 0.2
     noisy_point_m: float = 0.0003
@@ -311,12 +314,13 @@ class _Measurements(_Rows):
 @dataclass
 class _Frame:
     """One frame's detections, padded: ``D`` (C, N, 2) ideal px, ``S`` (C, N, 2, 2) px^2, ``valid``,
-    ``merged`` (C, N) bool, ``counts`` per camera."""
+    ``merged`` (C, N) bool, ``roundness`` (C, N) (1 for blobs too small to tell), ``counts`` per camera."""
 
     D: np.ndarray
     S: np.ndarray
     valid: np.ndarray
     merged: np.ndarray
+    roundness: np.ndarray
     counts: list[int]
 
 
@@ -459,7 +463,7 @@ class Tracker:
         tan2 = ray[..., 0] * ray[..., 0] + ray[..., 1] * ray[..., 1]  # (the sum over an axis of 2, ~3x faster)
         merged |= round_ < self._cfg.round_merged / np.sqrt(1.0 + tan2)
         S[merged] *= self._cfg.merged_variance_scale
-        return _Frame(D, S, valid, merged, counts)
+        return _Frame(D, S, valid, merged, round_, counts)
 
     def _in_play(self) -> np.ndarray:
         """(K,) tracks that search their own gates: confirmed ones for ``coast_frames`` after their last
@@ -489,6 +493,7 @@ class Tracker:
         if tent.size:
             meas.asg[tent] = assign(q[tent], fr.valid & ~_taken(meas.asg, fr.valid.shape))
         crowded = self._crowded(pred, play, depth, meas.asg)
+        self._clear_streaks(fr, meas.asg, crowded, depth, lock)
         self._measure(fr, crowded, meas)
         # A confirmed track's claim that its pruning or fusion dropped may have been a tentative track's blob:
         # tentative tracks left with fewer than two cameras try again with the detections now free.
@@ -562,6 +567,32 @@ class Tracker:
         crowded = np.zeros(asg.shape, dtype=bool)
         crowded[k[merge], c[merge]] = True
         return crowded
+
+    def _clear_streaks(self, fr: _Frame, asg: np.ndarray, crowded: np.ndarray, depth: np.ndarray, lock: np.ndarray
+                       ) -> None:
+        """Motion blur: a fast marker's blob is a streak over the shutter time, as flat as two merged markers.
+        A flat blob a track took alone (not ``crowded``), whose flattening a smear of at most ``smear_fraction``
+        of that track's image motion per frame explains, is clean again (flag and variance), in place.
+
+        A disc of image radius R (px) smeared over L px has roundness r = 1 / sqrt(1 + L^2 / (3 R^2)), so
+        L = R sqrt(3 (1 / r^2 - 1)); the image velocity is the locked image filter's (``lock`` (K, C)).
+        """
+        cfg = self._cfg
+        k, c = np.nonzero((asg >= 0) & lock & ~crowded)
+        j = asg[k, c]
+        flat = fr.merged[c, j] & (fr.roundness[c, j] < cfg.round_merged)
+        if not flat.any():
+            return
+        k, c, j = k[flat], c[flat], j[flat]
+        r = fr.roundness[c, j]
+        radius = self._focal[c] * cfg.marker_mm / 2000.0 / depth[k, c]
+        smear = radius * np.sqrt(3.0 * (1.0 / (r * r) - 1.0))
+        v = self._t.x2[k, c, 2:4]
+        motion = np.sqrt(v[:, 0] * v[:, 0] + v[:, 1] * v[:, 1]) * self._dt
+        streak = smear <= cfg.smear_fraction * motion
+        c, j = c[streak], j[streak]
+        fr.merged[c, j] = False
+        fr.S[c, j] /= cfg.merged_variance_scale
 
     def _measure(self, fr: _Frame, crowded: np.ndarray, meas: _Measurements) -> None:
         """Epipolar pruning, robust fusion and re-pick of the assigned detections ``meas.asg``; fills ``meas``."""
