@@ -65,7 +65,7 @@ class SynthSettings:
         )
         for name, ok, what in checks:
             if not ok:
-                flag = "--" + name.replace("_px", "").replace("_", "-")
+                flag = "--" + name.removesuffix("_px").removesuffix("_ms").replace("_", "-")
                 raise MocapError(f"synth setting {name} ({flag}) = {getattr(self, name)!r} must be {what}")
         if self.format not in FORMATS:
             raise MocapError(f"synth setting format (--format) = {self.format!r} must be one of {FORMATS}")
