@@ -25,7 +25,10 @@ see and undo:
   hidden) is assigned jointly: the distances between its own markers must match those between the
   identities they take, which no marker-by-marker cost can check. The tracker's own link is
   preferred and kept across any gap unless the distances clearly disagree (``shape_refuse_m``: a new
-  marker next to a hidden one took its identity); it is the fallback when nothing else fits.
+  marker next to a hidden one took its identity); it is the fallback when nothing else fits. A newcomer
+  whose distances changed less than that can still have taken the identity: when the marker itself comes
+  back and its distances fit the identity's from before the gap clearly better (``usurp_margin_m``), it
+  takes the identity back and the newcomer becomes an identity of its own.
 
 Both passes only move whole samples between identity columns (positions, residuals and camera
 masks together); they never change a position.
@@ -72,6 +75,8 @@ class RelabelConfig:
         shape_max_s: longest gap, seconds, a link by distances may span.
         cluster_margin_m: a cluster's joint assignment replaces the marker-by-marker one when its summed
             distance change is lower by more than this per marker, m.
+        usurp_margin_m: a marker back after a gap takes its identity back from the one that continued it
+            (a newcomer next to it) when its distances fit the identity's from before by this much better, m.
     """
 
     swap_ratio: float = 0.25
@@ -89,6 +94,7 @@ class RelabelConfig:
     shape_refuse_m: float = 0.024
     shape_max_s: float = 10.0
     cluster_margin_m: float = 0.001
+    usurp_margin_m: float = 0.003
 
 
 @dataclass
@@ -223,6 +229,7 @@ def relink_tracklets(traj: Trajectories, config: RelabelConfig | None = None) ->
     chains: list[list[np.ndarray]] = []
     ends: list[tuple[int, np.ndarray, np.ndarray]] = []  # per chain: last frame, position, velocity
     memory: list[dict[int, np.ndarray]] = []  # per chain: latest distances to other chains, m
+    junction: dict[int, tuple[int, dict[int, np.ndarray], float, int]] = {}  # chain: last shape-measured link
     i = 0
     while i < len(runs):
         start = int(runs[i][0, 0])
@@ -237,6 +244,7 @@ def relink_tracklets(traj: Trajectories, config: RelabelConfig | None = None) ->
         heads = [_chain_distances(P, run[: cfg.shape_window], owner, -1, cfg) for run in group]
         assigned: dict[int, int] = {}
         refused: set[tuple[int, int]] = set()  # (group index, chain): the distances disagree
+        changes: dict[tuple[int, int], float] = {}  # (group index, chain): measured distance change, m
         if open_chains:
             cost = np.full((len(group), len(open_chains)), np.inf)
             for g, run in enumerate(group):
@@ -248,7 +256,7 @@ def relink_tracklets(traj: Trajectories, config: RelabelConfig | None = None) ->
                     pairs = [(np.median(memory[c][o]), np.median(h)) for o, h in heads[g].items()
                              if o != c and _steady(h, cfg) and _steady(memory[c].get(o), cfg)]
                     if len(pairs) >= cfg.shape_min:
-                        change = _shape_misfit(pairs)
+                        change = changes[g, c] = _shape_misfit(pairs)
                         if change < cfg.shape_gate_m and gap <= shape_max:
                             cost[g, j] = (cfg.own_link_weight if same else 1.0) * change
                             continue
@@ -270,6 +278,28 @@ def relink_tracklets(traj: Trajectories, config: RelabelConfig | None = None) ->
                         assigned[g] = open_chains[j]
             _assign_cluster(P, group, heads, open_chains, memory, ends, start, shape_max, assigned, refused, cfg)
         taken = set(assigned.values())
+        for g in range(len(group)):
+            if g in assigned or not heads[g]:
+                continue
+            c = _usurped(heads[g], junction, start, shape_max, cfg)
+            if c is None or c in taken:
+                continue
+            # The identity's continuation after its gap was a newcomer: it becomes an identity of its own.
+            piece, before, _, _ = junction.pop(c)
+            n = len(chains)
+            chains.append(chains[c][piece:])
+            del chains[c][piece:]
+            ends.append(ends[c])
+            moved = np.concatenate(chains[n])
+            owner[moved[:, 0], moved[:, 1]] = n
+            memory.append(memory[c])
+            for other in memory[n]:
+                memory[other][n] = memory[other].pop(c)
+            memory[c] = dict(before)
+            for other, d in before.items():
+                memory[other][c] = d
+            assigned[g] = c
+            taken.add(c)
         for g, run in enumerate(group):
             c = assigned.get(g)
             if c is None:  # nothing fits: keep the tracker's own link if that identity is free and not refused
@@ -283,6 +313,8 @@ def relink_tracklets(traj: Trajectories, config: RelabelConfig | None = None) ->
                 chains.append([])
                 ends.append(None)
                 memory.append({})
+            elif chains[c] and (g, c) in changes:
+                junction[c] = (len(chains[c]), dict(memory[c]), changes[g, c], start)
             chains[c].append(run)
             ends[c] = _end_state(P, run, at_start=False)
             owner[run[:, 0], run[:, 1]] = c
@@ -304,6 +336,26 @@ def relink_tracklets(traj: Trajectories, config: RelabelConfig | None = None) ->
     traj.positions, traj.residuals, traj.camera_masks = positions, residuals, masks
     traj.labels = [f"M{k + 1:03d}" for k in range(len(chains))]
     return before - len(chains)
+
+
+def _usurped(head: dict[int, np.ndarray], junction: dict, start: int, shape_max: int,
+             cfg: RelabelConfig) -> int | None:
+    """The identity a tracklet starting at ``start`` takes back, if any: one re-linked after a gap within
+    ``shape_max`` frames to a continuation whose distances changed by ``usurp_margin_m`` more than this
+    tracklet's ``head`` distances differ from the identity's before the gap (and those by less than
+    ``shape_gate_m``). A newcomer next to a marker that had just vanished took its identity."""
+    best, best_change = None, np.inf
+    for c, (_, before, continued, frame) in junction.items():
+        if start - frame > shape_max:
+            continue
+        pairs = [(np.median(before[o]), np.median(h)) for o, h in head.items()
+                 if o != c and _steady(h, cfg) and _steady(before.get(o), cfg)]
+        if len(pairs) < cfg.shape_min:
+            continue
+        change = _shape_misfit(pairs)
+        if change < cfg.shape_gate_m and change + cfg.usurp_margin_m < continued and change < best_change:
+            best, best_change = c, change
+    return best
 
 
 def _attached_count(memory: dict[int, np.ndarray], cfg: RelabelConfig) -> int:

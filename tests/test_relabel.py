@@ -124,3 +124,23 @@ def test_cluster_back_in_view_together_is_relinked_by_its_own_distances():
     relink_tracklets(traj)
     assert traj.n_markers == 5
     assert _same_identities(traj, P)
+
+
+def test_marker_back_takes_its_identity_back_from_a_newcomer():
+    """A newcomer on the same segment, 13 mm from a marker that just vanished, kept that marker's identity (its
+    distances changed by 5.7 mm, within the gate); when the marker itself comes back, 20 frames later, its
+    distances fit the identity's from before the gap exactly, and it takes the identity back."""
+    P = _segment()
+    newcomer = P[:, 0] + np.array([0.0, -0.01, -0.008])
+    truth = np.concatenate([P, newcomer[:, None]], axis=1)
+    seen = np.concatenate([P, np.full((P.shape[0], 1, 3), np.nan)], axis=1)
+    seen[78:, 0] = np.nan  # marker 0 vanishes at frame 78 ...
+    seen[80:, 0] = newcomer[80:]  # ... its column follows the newcomer from frame 80 ...
+    seen[100:, 5] = P[100:, 0]  # ... and the marker comes back at frame 100 as a new identity
+    traj = _traj(seen)
+    relink_tracklets(traj)
+    assert traj.n_markers == 6
+    assert _same_identities(traj, truth)
+    rows = np.flatnonzero(np.isfinite(traj.positions[:, :, 0]).any(axis=0))
+    owner_of_0 = [c for c in rows if np.allclose(traj.positions[10, c], P[10, 0])][0]
+    np.testing.assert_array_equal(traj.positions[100:, owner_of_0], P[100:, 0])
