@@ -215,21 +215,16 @@ def relink_tracklets(traj: Trajectories, config: RelabelConfig | None = None) ->
     their distances to attached identities changed, else by the mean disagreement of the two
     constant-velocity extrapolations across a short gap (the identity's forwards, the tracklet's
     backwards). Tracklets starting together that are attached to each other (a cluster back in view)
-    are then assigned jointly, by their distances to each other as well. A tracklet with no identity
-    that fits starts a new one. Output columns are the resulting identities.
+    are then assigned jointly, by their distances to each other as well; one that fits no identity may
+    take one back from a newcomer that continued it (:meth:`_Linker.take_back`), else it starts a new
+    one. Output columns are the resulting identities.
     """
     cfg = config or RelabelConfig()
-    P = traj.positions
-    runs = _tracklets(P, cfg.split_acc_m)
+    runs = _tracklets(traj.positions, cfg.split_acc_m)
     if not runs:
         return 0
     runs.sort(key=lambda r: int(r[0, 0]))
-    shape_max = max(int(round(cfg.shape_max_s * traj.fps)), cfg.max_gap)
-    owner = np.full(P.shape[:2], -1, dtype=np.intp)  # (F, M): the identity each sample was given
-    chains: list[list[np.ndarray]] = []
-    ends: list[tuple[int, np.ndarray, np.ndarray]] = []  # per chain: last frame, position, velocity
-    memory: list[dict[int, np.ndarray]] = []  # per chain: latest distances to other chains, m
-    junction: dict[int, tuple[int, dict[int, np.ndarray], float, int]] = {}  # chain: last shape-measured link
+    linker = _Linker(traj.positions, max(int(round(cfg.shape_max_s * traj.fps)), cfg.max_gap), cfg)
     i = 0
     while i < len(runs):
         start = int(runs[i][0, 0])
@@ -237,100 +232,16 @@ def relink_tracklets(traj: Trajectories, config: RelabelConfig | None = None) ->
         while i < len(runs) and int(runs[i][0, 0]) == start:
             group.append(runs[i])
             i += 1
-        columns = {int(run[0, 1]) for run in group}
-        open_chains = [c for c, (e, _, _) in enumerate(ends)
-                       if 0 < start - e and (start - e <= cfg.max_gap or int(chains[c][-1][0, 1]) in columns
-                                             or (start - e <= shape_max and _attached_count(memory[c], cfg) >= 1))]
-        heads = [_chain_distances(P, run[: cfg.shape_window], owner, -1, cfg) for run in group]
-        assigned: dict[int, int] = {}
-        refused: set[tuple[int, int]] = set()  # (group index, chain): the distances disagree
-        changes: dict[tuple[int, int], float] = {}  # (group index, chain): measured distance change, m
-        if open_chains:
-            cost = np.full((len(group), len(open_chains)), np.inf)
-            for g, run in enumerate(group):
-                _, p0, v0 = _end_state(P, run, at_start=True)
-                for j, c in enumerate(open_chains):
-                    e, pe, ve = ends[c]
-                    gap = start - e
-                    same = int(chains[c][-1][0, 1]) == int(run[0, 1])  # the tracker's own link
-                    pairs = [(np.median(memory[c][o]), np.median(h)) for o, h in heads[g].items()
-                             if o != c and _steady(h, cfg) and _steady(memory[c].get(o), cfg)]
-                    if len(pairs) >= cfg.shape_min:
-                        change = changes[g, c] = _shape_misfit(pairs)
-                        if change < cfg.shape_gate_m and gap <= shape_max:
-                            cost[g, j] = (cfg.own_link_weight if same else 1.0) * change
-                            continue
-                        if change > cfg.shape_refuse_m:
-                            refused.add((g, c))
-                            continue
-                    miss = 0.5 * (np.linalg.norm(pe + ve * gap - p0) + np.linalg.norm(p0 - v0 * gap - pe))
-                    speed = 0.5 * (np.linalg.norm(ve) + np.linalg.norm(v0))
-                    gate = cfg.stitch_gate_m + speed * 0.5 * gap + cfg.stitch_acc_m * gap * gap
-                    if same:
-                        cost[g, j] = cfg.own_link_weight * miss if gap > cfg.max_gap or miss < gate else np.inf
-                    elif gap <= cfg.max_gap and miss < gate:
-                        cost[g, j] = miss
-            finite = np.isfinite(cost)
-            if finite.any():
-                rows, cols = linear_sum_assignment(np.where(finite, cost, 1e9))
-                for g, j in zip(rows, cols, strict=True):
-                    if finite[g, j]:
-                        assigned[g] = open_chains[j]
-            _assign_cluster(P, group, heads, open_chains, memory, ends, start, shape_max, assigned, refused, cfg)
-        taken = set(assigned.values())
-        for g in range(len(group)):
-            if g in assigned or not heads[g]:
-                continue
-            c = _usurped(heads[g], junction, start, shape_max, cfg)
-            if c is None or c in taken:
-                continue
-            # The identity's continuation after its gap was a newcomer: it becomes an identity of its own.
-            piece, before, _, _ = junction.pop(c)
-            n = len(chains)
-            chains.append(chains[c][piece:])
-            del chains[c][piece:]
-            ends.append(ends[c])
-            moved = np.concatenate(chains[n])
-            owner[moved[:, 0], moved[:, 1]] = n
-            memory.append(memory[c])
-            for other in memory[n]:
-                memory[other][n] = memory[other].pop(c)
-            memory[c] = dict(before)
-            for other, d in before.items():
-                memory[other][c] = d
-            assigned[g] = c
-            taken.add(c)
-        for g, run in enumerate(group):
-            c = assigned.get(g)
-            if c is None:  # nothing fits: keep the tracker's own link if that identity is free and not refused
-                own = [c for c in open_chains if int(chains[c][-1][0, 1]) == int(run[0, 1]) and c not in taken
-                       and (g, c) not in refused]
-                c = own[0] if own else None
-                if c is not None:
-                    taken.add(c)
-            if c is None:
-                c = len(chains)
-                chains.append([])
-                ends.append(None)
-                memory.append({})
-            elif chains[c] and (g, c) in changes:
-                junction[c] = (len(chains[c]), dict(memory[c]), changes[g, c], start)
-            chains[c].append(run)
-            ends[c] = _end_state(P, run, at_start=False)
-            owner[run[:, 0], run[:, 1]] = c
-        for run in group:  # distances to the identities seen with it, both ways
-            c = int(owner[run[0, 0], run[0, 1]])
-            for other, d in _chain_distances(P, run, owner, c, cfg).items():
-                d = np.concatenate([memory[c].get(other, d[:0]), d])[-cfg.shape_window:]
-                memory[c][other] = memory[other][c] = d
+        linker.link(start, group)
     before = traj.n_markers
     F = traj.n_frames
+    chains = linker.chains
     positions = np.full((F, len(chains), 3), np.nan)
     residuals = np.full((F, len(chains)), np.nan)
     masks = np.zeros((F, len(chains)), dtype=np.uint32)
     for c, pieces in enumerate(chains):
         idx = np.concatenate(pieces)
-        positions[idx[:, 0], c] = P[idx[:, 0], idx[:, 1]]
+        positions[idx[:, 0], c] = traj.positions[idx[:, 0], idx[:, 1]]
         residuals[idx[:, 0], c] = traj.residuals[idx[:, 0], idx[:, 1]]
         masks[idx[:, 0], c] = traj.camera_masks[idx[:, 0], idx[:, 1]]
     traj.positions, traj.residuals, traj.camera_masks = positions, residuals, masks
@@ -338,103 +249,231 @@ def relink_tracklets(traj: Trajectories, config: RelabelConfig | None = None) ->
     return before - len(chains)
 
 
-def _usurped(head: dict[int, np.ndarray], junction: dict, start: int, shape_max: int,
-             cfg: RelabelConfig) -> int | None:
-    """The identity a tracklet starting at ``start`` takes back, if any: one re-linked after a gap within
-    ``shape_max`` frames to a continuation whose distances changed by ``usurp_margin_m`` more than this
-    tracklet's ``head`` distances differ from the identity's before the gap (and those by less than
-    ``shape_gate_m``). A newcomer next to a marker that had just vanished took its identity."""
-    best, best_change = None, np.inf
-    for c, (_, before, continued, frame) in junction.items():
-        if start - frame > shape_max:
-            continue
-        pairs = [(np.median(before[o]), np.median(h)) for o, h in head.items()
-                 if o != c and _steady(h, cfg) and _steady(before.get(o), cfg)]
-        if len(pairs) < cfg.shape_min:
-            continue
-        change = _shape_misfit(pairs)
-        if change < cfg.shape_gate_m and change + cfg.usurp_margin_m < continued and change < best_change:
-            best, best_change = c, change
-    return best
+def _comparable(memory: dict[int, np.ndarray], head: dict[int, np.ndarray], chain: int, cfg: RelabelConfig
+                ) -> list[tuple[float, float]]:
+    """(then, now) median distances, m, to the identities steady in both an identity's ``memory`` and a
+    tracklet's ``head`` (the identity ``chain`` itself left out)."""
+    return [(float(np.median(memory[o])), float(np.median(h))) for o, h in head.items()
+            if o != chain and _steady(h, cfg) and _steady(memory.get(o), cfg)]
 
 
-def _attached_count(memory: dict[int, np.ndarray], cfg: RelabelConfig) -> int:
-    """How many identities were attached to a chain when last seen together."""
-    return sum(_steady(entry, cfg) for entry in memory.values())
+class _Linker:
+    """The identities (chains of tracklets) :func:`relink_tracklets` builds in time order, and what it
+    remembers of them.
 
-
-def _assign_cluster(P: np.ndarray, group: list[np.ndarray], heads: list[dict], open_chains: list[int],
-                    memory: list[dict], ends: list, start: int, shape_max: int, assigned: dict[int, int],
-                    refused: set[tuple[int, int]], cfg: RelabelConfig) -> None:
-    """Tracklets starting together and attached to each other (a cluster back in view) are assigned jointly.
-
-    Every injective assignment of the cluster to identities ended within ``shape_max`` frames is scored by
-    the change of all the distances it makes comparable (to identities in view, and within the cluster);
-    the best is taken, in place of ``assigned``'s, when every member has one of them at least, the cluster as
-    many as it has members, every member's changed less than ``shape_gate_m``, and it is clearly better than
-    the Hungarian's (or that one could not be scored).
+    Attributes:
+        chains: per identity, its tracklets ((n, 2) frame, column samples) in time order.
+        ends: per identity, its last frame, position and velocity (m, m/frame).
+        memory: per identity, its latest distances (m) to the other identities seen with it.
+        owner: (F, M) the identity each sample was given (-1: not yet).
+        junction: per identity, its last link after a gap that distances measured: the index of the
+            tracklet it starts, the memory before it, how much the distances changed (m), the frame.
     """
-    n = len(group)
-    if n < 2:
-        return
-    # Distances between the cluster's tracklets over their first common frames.
-    within: dict[tuple[int, int], float] = {}  # median distance, m
-    for a in range(n):
-        for b in range(a + 1, n):
-            fa = group[a][: cfg.shape_window]
-            fb = group[b][: cfg.shape_window]
-            common = np.intersect1d(fa[:, 0], fb[:, 0])
-            if common.size < 3:
+
+    def __init__(self, P: np.ndarray, shape_max: int, cfg: RelabelConfig) -> None:
+        self.P, self.shape_max, self.cfg = P, shape_max, cfg
+        self.chains: list[list[np.ndarray]] = []
+        self.ends: list[tuple[int, np.ndarray, np.ndarray]] = []
+        self.memory: list[dict[int, np.ndarray]] = []
+        self.owner = np.full(P.shape[:2], -1, dtype=np.intp)
+        self.junction: dict[int, tuple[int, dict[int, np.ndarray], float, int]] = {}
+
+    def link(self, start: int, group: list[np.ndarray]) -> None:
+        """Give each tracklet of ``group`` (all starting at frame ``start``) an identity."""
+        cfg = self.cfg
+        columns = {int(run[0, 1]) for run in group}
+        open_chains = [c for c, (e, _, _) in enumerate(self.ends)
+                       if 0 < start - e and (start - e <= cfg.max_gap or self._column(c) in columns
+                                             or (start - e <= self.shape_max and self._attached(c)))]
+        heads = [_chain_distances(self.P, run[: cfg.shape_window], self.owner, -1, cfg) for run in group]
+        assigned: dict[int, int] = {}
+        refused: set[tuple[int, int]] = set()  # (group index, chain): the distances disagree
+        changes: dict[tuple[int, int], float] = {}  # (group index, chain): measured distance change, m
+        if open_chains:
+            self._assign(start, group, heads, open_chains, assigned, refused, changes)
+            self._assign_cluster(start, group, heads, open_chains, assigned, refused)
+        taken = set(assigned.values())
+        for g in range(len(group)):
+            if g not in assigned and heads[g]:
+                c = self._usurped(start, heads[g])
+                if c is not None and c not in taken:
+                    self._take_back(c)
+                    assigned[g] = c
+                    taken.add(c)
+        for g, run in enumerate(group):
+            c = assigned.get(g)
+            if c is None:  # nothing fits: keep the tracker's own link if that identity is free and not refused
+                own = [c for c in open_chains if self._column(c) == int(run[0, 1]) and c not in taken
+                       and (g, c) not in refused]
+                c = own[0] if own else None
+                if c is not None:
+                    taken.add(c)
+            if c is None:
+                c = len(self.chains)
+                self.chains.append([])
+                self.ends.append(None)
+                self.memory.append({})
+            elif self.chains[c] and (g, c) in changes:
+                self.junction[c] = (len(self.chains[c]), dict(self.memory[c]), changes[g, c], start)
+            self.chains[c].append(run)
+            self.ends[c] = _end_state(self.P, run, at_start=False)
+            self.owner[run[:, 0], run[:, 1]] = c
+        for run in group:  # distances to the identities seen with it, both ways
+            c = int(self.owner[run[0, 0], run[0, 1]])
+            for other, d in _chain_distances(self.P, run, self.owner, c, cfg).items():
+                d = np.concatenate([self.memory[c].get(other, d[:0]), d])[-cfg.shape_window:]
+                self.memory[c][other] = self.memory[other][c] = d
+
+    def _column(self, c: int) -> int:
+        """The output column of identity ``c``'s last tracklet (the tracker's identity there)."""
+        return int(self.chains[c][-1][0, 1])
+
+    def _attached(self, c: int) -> bool:
+        """Identity ``c`` had an identity attached to it (a steady distance) when last seen with it."""
+        return any(_steady(d, self.cfg) for d in self.memory[c].values())
+
+    def _assign(self, start: int, group: list[np.ndarray], heads: list[dict], open_chains: list[int],
+                assigned: dict[int, int], refused: set[tuple[int, int]], changes: dict[tuple[int, int], float]
+                ) -> None:
+        """Marker by marker (Hungarian): by the change of the distances to attached identities where they
+        can be compared, else by how the extrapolations of both ends across the gap agree."""
+        cfg = self.cfg
+        cost = np.full((len(group), len(open_chains)), np.inf)
+        for g, run in enumerate(group):
+            _, p0, v0 = _end_state(self.P, run, at_start=True)
+            for j, c in enumerate(open_chains):
+                e, pe, ve = self.ends[c]
+                gap = start - e
+                same = self._column(c) == int(run[0, 1])  # the tracker's own link
+                pairs = _comparable(self.memory[c], heads[g], c, cfg)
+                if len(pairs) >= cfg.shape_min:
+                    change = changes[g, c] = _shape_misfit(pairs)
+                    if change < cfg.shape_gate_m and gap <= self.shape_max:
+                        cost[g, j] = (cfg.own_link_weight if same else 1.0) * change
+                        continue
+                    if change > cfg.shape_refuse_m:
+                        refused.add((g, c))
+                        continue
+                miss = 0.5 * (np.linalg.norm(pe + ve * gap - p0) + np.linalg.norm(p0 - v0 * gap - pe))
+                speed = 0.5 * (np.linalg.norm(ve) + np.linalg.norm(v0))
+                gate = cfg.stitch_gate_m + speed * 0.5 * gap + cfg.stitch_acc_m * gap * gap
+                if same:
+                    cost[g, j] = cfg.own_link_weight * miss if gap > cfg.max_gap or miss < gate else np.inf
+                elif gap <= cfg.max_gap and miss < gate:
+                    cost[g, j] = miss
+        finite = np.isfinite(cost)
+        if finite.any():
+            rows, cols = linear_sum_assignment(np.where(finite, cost, 1e9))
+            for g, j in zip(rows, cols, strict=True):
+                if finite[g, j]:
+                    assigned[g] = open_chains[j]
+
+    def _usurped(self, start: int, head: dict[int, np.ndarray]) -> int | None:
+        """The identity a tracklet starting at ``start`` takes back, if any: one re-linked after a gap within
+        ``shape_max`` frames to a continuation whose distances changed by ``usurp_margin_m`` more than this
+        tracklet's ``head`` distances differ from the identity's before the gap (and those by less than
+        ``shape_gate_m``). A newcomer next to a marker that had just vanished took its identity."""
+        cfg = self.cfg
+        best, best_change = None, np.inf
+        for c, (_, before, continued, frame) in self.junction.items():
+            if start - frame > self.shape_max:
                 continue
-            v = np.linalg.norm(P[common, fa[0, 1]] - P[common, fb[0, 1]], axis=1)
-            if np.median(v) < cfg.shape_radius_m and _steady(v, cfg):
-                within[a, b] = within[b, a] = float(np.median(v))
-    members = sorted({a for a, _ in within})
-    chains = [c for c in open_chains if start - ends[c][0] <= shape_max and _attached_count(memory[c], cfg) >= 1]
-    if len(members) < 2 or len(members) > 6 or len(chains) < len(members):
-        return
-    if math.perm(len(chains), len(members)) > 20000:
-        return
-
-    def score(choice: tuple[int, ...]) -> float:
-        total, relations = 0.0, 0.0
-        for k, g in enumerate(members):
-            c = choice[k]
-            if (g, c) in refused:
-                return np.inf
-            pairs = [(np.median(memory[c][o]), np.median(h)) for o, h in heads[g].items()
-                     if o != c and _steady(h, cfg) and _steady(memory[c].get(o), cfg)]
-            relations += len(pairs)
-            inside = [(np.median(memory[c][choice[m]]), within[g, h]) for m, h in enumerate(members)
-                      if m != k and (g, h) in within and _steady(memory[c].get(choice[m]), cfg)]
-            relations += 0.5 * len(inside)
-            pairs += inside
-            if not pairs:
-                return np.inf
+            pairs = _comparable(before, head, c, cfg)
+            if len(pairs) < cfg.shape_min:
+                continue
             change = _shape_misfit(pairs)
-            if change >= cfg.shape_gate_m:
-                return np.inf
-            total += change
-        return total if relations >= len(members) else np.inf
+            if change < cfg.shape_gate_m and change + cfg.usurp_margin_m < continued and change < best_change:
+                best, best_change = c, change
+        return best
 
-    best, best_score = None, np.inf
-    for choice in itertools.permutations(chains, len(members)):
-        value = score(choice)
-        if value < best_score:
-            best, best_score = choice, value
-    if best is None:
-        return
-    current = tuple(assigned.get(g, -1) for g in members)
-    if current == best:
-        return
-    if -1 not in current and len(set(current)) == len(current) and all(c in chains for c in current):
-        if score(current) <= best_score + cfg.cluster_margin_m * len(members):
+    def _take_back(self, c: int) -> None:
+        """Identity ``c``'s continuation after its last junction becomes an identity of its own (a newcomer),
+        and ``c`` is left as it was before the junction."""
+        piece, before, _, _ = self.junction.pop(c)
+        n = len(self.chains)
+        self.chains.append(self.chains[c][piece:])
+        del self.chains[c][piece:]
+        self.ends.append(self.ends[c])
+        moved = np.concatenate(self.chains[n])
+        self.owner[moved[:, 0], moved[:, 1]] = n
+        self.memory.append(self.memory[c])
+        for other in self.memory[n]:
+            self.memory[other][n] = self.memory[other].pop(c)
+        self.memory[c] = dict(before)
+        for other, d in before.items():
+            self.memory[other][c] = d
+
+    def _assign_cluster(self, start: int, group: list[np.ndarray], heads: list[dict], open_chains: list[int],
+                        assigned: dict[int, int], refused: set[tuple[int, int]]) -> None:
+        """Tracklets starting together and attached to each other (a cluster back in view) are assigned jointly.
+
+        Every injective assignment of the cluster to identities ended within ``shape_max`` frames is scored by
+        the change of all the distances it makes comparable (to identities in view, and within the cluster);
+        the best is taken, in place of ``assigned``'s, when every member has one of them at least, the cluster
+        as many as it has members, every member's changed less than ``shape_gate_m``, and it is clearly better
+        than the Hungarian's (or that one could not be scored).
+        """
+        cfg, P, memory = self.cfg, self.P, self.memory
+        n = len(group)
+        if n < 2:
             return
-    for other, c in list(assigned.items()):
-        if c in best and other not in members:
-            del assigned[other]
-    for g, c in zip(members, best, strict=True):
-        assigned[g] = c
+        # Distances between the cluster's tracklets over their first common frames.
+        within: dict[tuple[int, int], float] = {}  # median distance, m
+        for a in range(n):
+            for b in range(a + 1, n):
+                fa = group[a][: cfg.shape_window]
+                fb = group[b][: cfg.shape_window]
+                common = np.intersect1d(fa[:, 0], fb[:, 0])
+                if common.size < 3:
+                    continue
+                v = np.linalg.norm(P[common, fa[0, 1]] - P[common, fb[0, 1]], axis=1)
+                if np.median(v) < cfg.shape_radius_m and _steady(v, cfg):
+                    within[a, b] = within[b, a] = float(np.median(v))
+        members = sorted({a for a, _ in within})
+        chains = [c for c in open_chains if start - self.ends[c][0] <= self.shape_max and self._attached(c)]
+        if len(members) < 2 or len(members) > 6 or len(chains) < len(members):
+            return
+        if math.perm(len(chains), len(members)) > 20000:
+            return
+
+        def score(choice: tuple[int, ...]) -> float:
+            total, relations = 0.0, 0.0
+            for k, g in enumerate(members):
+                c = choice[k]
+                if (g, c) in refused:
+                    return np.inf
+                pairs = _comparable(memory[c], heads[g], c, cfg)
+                relations += len(pairs)
+                inside = [(np.median(memory[c][choice[m]]), within[g, h]) for m, h in enumerate(members)
+                          if m != k and (g, h) in within and _steady(memory[c].get(choice[m]), cfg)]
+                relations += 0.5 * len(inside)
+                pairs += inside
+                if not pairs:
+                    return np.inf
+                change = _shape_misfit(pairs)
+                if change >= cfg.shape_gate_m:
+                    return np.inf
+                total += change
+            return total if relations >= len(members) else np.inf
+
+        best, best_score = None, np.inf
+        for choice in itertools.permutations(chains, len(members)):
+            value = score(choice)
+            if value < best_score:
+                best, best_score = choice, value
+        if best is None:
+            return
+        current = tuple(assigned.get(g, -1) for g in members)
+        if current == best:
+            return
+        if -1 not in current and len(set(current)) == len(current) and all(c in chains for c in current):
+            if score(current) <= best_score + cfg.cluster_margin_m * len(members):
+                return
+        for other, c in list(assigned.items()):
+            if c in best and other not in members:
+                del assigned[other]
+        for g, c in zip(members, best, strict=True):
+            assigned[g] = c
 
 
 def repair_identities(traj: Trajectories, config: RelabelConfig | None = None) -> RelabelStats:
