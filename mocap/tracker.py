@@ -585,11 +585,12 @@ class Tracker:
             return
         k, c, j = k[flat], c[flat], j[flat]
         r = fr.roundness[c, j]
-        radius = self._focal[c] * cfg.marker_mm / 2000.0 / depth[k, c]
-        smear = radius * np.sqrt(3.0 * (1.0 / (r * r) - 1.0))
+        with np.errstate(divide="ignore", invalid="ignore"):  # a line-thin blob (r = 0) needs an endless smear
+            radius = self._focal[c] * cfg.marker_mm / 2000.0 / depth[k, c]
+            smear = radius * np.sqrt(3.0 * (1.0 / (r * r) - 1.0))
         v = self._t.x2[k, c, 2:4]
         motion = np.sqrt(v[:, 0] * v[:, 0] + v[:, 1] * v[:, 1]) * self._dt
-        streak = smear <= cfg.smear_fraction * motion
+        streak = (radius > 0) & (smear <= cfg.smear_fraction * motion)
         c, j = c[streak], j[streak]
         fr.merged[c, j] = False
         fr.S[c, j] /= cfg.merged_variance_scale
