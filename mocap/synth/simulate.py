@@ -183,10 +183,10 @@ def render_frame(plan: TakePlan, frame: int, camera: int, rng: np.random.Generat
     image = plan.sensor.background_frame((h, w), rng)
     sel = plan.drawn[frame, camera]
     on = plan.ghost_on[frame, camera]
-    uv, radius, amplitude = plan.truth.uv[frame, camera, sel], plan.radius_px[frame, camera, sel], \
-        plan.amplitude[frame, camera, sel]
-    if plan.exposure_frames > 0 and uv.size:
+    if plan.exposure_frames > 0 and sel.any():
         uv, radius, amplitude = _smeared(plan, frame, camera, sel)
+    else:
+        uv, radius, amplitude = (a[frame, camera, sel] for a in (plan.truth.uv, plan.radius_px, plan.amplitude))
     uv = np.concatenate([uv, plan.ghost_uv[camera, on]])
     radius = np.concatenate([radius, plan.ghost_radius[camera, on]])
     amplitude = np.concatenate([amplitude, plan.ghost_amplitude[camera, on]])
