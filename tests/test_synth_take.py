@@ -278,7 +278,7 @@ def test_exposure_smears_a_moving_marker_along_its_motion_centred_on_the_truth()
     shapes = []
     for exposure in (0.0, 2.0):
         plan = plan_take(rig, scripted_motion(pos, fps), SynthSettings(exposure_ms=exposure).clean())
-        image = render_frames_of(plan, frame=2, camera=0)
+        image = _frame_image(plan, frame=2, camera=0)
         level = image.astype(np.float64) - SynthSettings().background
         ys, xs = np.nonzero(level > 20)
         w = level[ys, xs]
@@ -295,6 +295,6 @@ def test_exposure_smears_a_moving_marker_along_its_motion_centred_on_the_truth()
     assert shapes[0] == pytest.approx(1.0, abs=0.15) and shapes[1] > 1.5
 
 
-def render_frames_of(plan, frame: int, camera: int) -> np.ndarray:
+def _frame_image(plan, frame: int, camera: int) -> np.ndarray:
     """(H, W) uint8 image of one camera-frame of a planned take."""
     return render_frame(plan, frame, camera, plan.noise_streams()[camera])

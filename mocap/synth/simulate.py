@@ -200,10 +200,10 @@ def _smeared(plan: TakePlan, frame: int, camera: int, sel: np.ndarray) -> tuple[
 
     The image velocity is the central difference of the projected centres (one-sided at the ends of the
     take or of a visible stretch); the smear is centred on the frame's position."""
-    uv_all = plan.truth.uv[:, camera][:, sel]  # (F, n, 2)
-    here = uv_all[frame]
-    before = uv_all[frame - 1] if frame > 0 else here
-    after = uv_all[frame + 1] if frame + 1 < len(uv_all) else here
+    centres = plan.truth.uv[:, camera]  # (F, M, 2), a view
+    here = centres[frame, sel]
+    before = centres[frame - 1, sel] if frame > 0 else here
+    after = centres[frame + 1, sel] if frame + 1 < len(centres) else here
     before = np.where(np.isfinite(before), before, here)
     after = np.where(np.isfinite(after), after, here)
     span = 0.5 * (after - before) * plan.exposure_frames  # (n, 2) smear over the exposure, px
