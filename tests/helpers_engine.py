@@ -17,7 +17,7 @@ import numpy as np
 
 from mocap.camera import Rig
 from mocap.detections import Detections
-from mocap.synth import SynthSettings, fit_ring_radius, marching_motion, motion_from_c3d, plan_take, ring_rig
+from mocap.synth import SynthSettings, marching_motion, motion_from_c3d, plan_take, rig_for_motion, ring_rig
 from mocap.synth.motion import Motion
 from mocap.synth.occlusion import Capsules
 from mocap.synth.wand import centroid_frames
@@ -39,14 +39,8 @@ class Take:
 
 
 def fitted_rig(motion: Motion, seed: int = 1) -> Rig:
-    """The six-camera ring ``mocap synth`` puts around a motion (radius widened until it fits)."""
-    pts = motion.positions.reshape(-1, 3)
-    pts = pts[np.isfinite(pts).all(axis=1)]
-    lo, hi = np.percentile(pts, [0.5, 99.5], axis=0)
-    target = (0.0, 0.0, float(np.clip((lo[2] + hi[2]) / 2, 0.2, 1.2)))
-    sample = pts[np.random.default_rng(0).choice(len(pts), min(len(pts), 4000), replace=False)]
-    radius = fit_ring_radius(sample, 4.0, target=target, seed=seed)
-    return ring_rig(radius=radius, target=target, seed=seed)
+    """The rig ``mocap synth`` puts around a motion (a widened ring, or a walkway for a long straight path)."""
+    return rig_for_motion(motion.positions, seed=seed)
 
 
 def simulate(name: str, rig: Rig, motion: Motion, settings: SynthSettings | None = None,
@@ -62,7 +56,7 @@ def simulate(name: str, rig: Rig, motion: Motion, settings: SynthSettings | None
 
 def c3d_take(name: str, frames: int | None = None, start: int = 0, seed: int = 1,
              settings: SynthSettings | None = None) -> Take:
-    """A real C3D motion (``C3D_TAKES``), windowed and centred, through its fitted ring."""
+    """A real C3D motion (``C3D_TAKES``), windowed and centred, through its fitted rig."""
     motion = motion_from_c3d(C3D_DIR / f"{name}.c3d").window(start, frames).centred()
     return simulate(name, fitted_rig(motion, seed), motion, settings, seed=seed)
 
@@ -112,3 +106,13 @@ def swing_positions(frames: int = 200, fps: float = 50.0, amplitude: float = 1.5
     pos[:, 4:, 1] = 0.1
     pos[:, :, 2] = 1.2 - r * np.cos(angle)[:, None]
     return pos
+
+
+def walk_positions(frames: int = 360, fps: float = 60.0, speed: float = 2.0, markers: int = 10,
+                   seed: int = 5) -> np.ndarray:
+    """(F, markers, 3) a rigid cluster walked along x at ``speed`` m/s (12 m at the defaults), centred on
+    the origin, swaying 0.1 m sideways and bobbing 0.03 m; markers 0.3-1.5 m up within 0.15 m of the axis."""
+    t = np.arange(frames) / fps
+    offsets = np.random.default_rng(seed).uniform([-0.15, -0.15, 0.3], [0.15, 0.15, 1.5], (markers, 3))
+    path = np.stack([speed * (t - t[-1] / 2), 0.1 * np.sin(2 * np.pi * t), 0.03 * np.sin(4 * np.pi * t)], axis=1)
+    return offsets[None] + path[:, None]

@@ -12,12 +12,20 @@ import pytest
 from mocap.camera import load_rig
 from mocap.cli import main
 from mocap.errors import MocapError
-from mocap.synth import SynthSettings, marching_motion, motion_from_c3d, render_take, ring_rig, simulate
+from mocap.synth import (
+    SynthSettings,
+    marching_motion,
+    motion_from_c3d,
+    render_take,
+    rig_for_motion,
+    ring_rig,
+    simulate,
+)
 from mocap.synth.simulate import plan_take, render_frame
 from mocap.synth.wand import centroid_frames
 from mocap.truth import Truth, load_truth
 from tests.conftest import require_shared_data
-from tests.helpers_engine import scripted_motion
+from tests.helpers_engine import scripted_motion, walk_positions
 
 FRAMES = 16
 
@@ -298,3 +306,22 @@ def test_exposure_smears_a_moving_marker_along_its_motion_centred_on_the_truth()
 def _frame_image(plan, frame: int, camera: int) -> np.ndarray:
     """(H, W) uint8 image of one camera-frame of a planned take."""
     return render_frame(plan, frame, camera, plan.noise_streams()[camera])
+
+
+def test_a_long_straight_motion_gets_a_walkway_rig_that_gives_it_four_views():
+    walk = walk_positions()  # 12 m along x
+    rig = rig_for_motion(walk, seed=2)
+    assert rig.metadata["layout"] == "walkway" and len(rig) >= 6 and len(rig) % 2 == 0
+    pts = walk.reshape(-1, 3)
+    views = sum(cam.in_image(cam.project(pts), 10.0).astype(int) for cam in rig.cameras)
+    assert np.mean(views >= 4) >= 0.99
+    fewer = rig_for_motion(walk, n_cameras=len(rig) - 2, seed=2)  # the fit took the fewest cameras
+    views = sum(cam.in_image(cam.project(pts), 10.0).astype(int) for cam in fewer.cameras)
+    assert np.mean(views >= 4) < 0.99
+    assert rig_for_motion(marching_motion(60, seed=1).positions, seed=2).metadata["layout"] == "ring"
+    ring = rig_for_motion(walk, layout="ring", seed=2)
+    assert ring.metadata["layout"] == "ring" and len(ring) == 6 and ring.metadata["ring_radius_m"] > 6
+    with pytest.raises(MocapError, match="layout"):
+        rig_for_motion(walk, layout="circle")
+    with pytest.raises(MocapError, match="no marker samples"):
+        rig_for_motion(np.full((5, 2, 3), np.nan))

@@ -16,7 +16,7 @@ Modules: :mod:`~mocap.synth.rig` (camera ring), :mod:`~mocap.synth.motion` (C3D 
 from mocap.synth.body import marching_body, marching_motion
 from mocap.synth.motion import Motion, as_motion, load_motion, motion_from_c3d
 from mocap.synth.render import Sensor
-from mocap.synth.rig import fit_ring_radius, ring_rig
+from mocap.synth.rig import fit_ring_radius, rig_for_motion, ring_rig, walkway_rig
 from mocap.synth.settings import SynthSettings
 from mocap.synth.simulate import TakePlan, plan_take, render_frame, simulate
 from mocap.synth.writer import default_truth_path, render_take
@@ -24,5 +24,5 @@ from mocap.synth.writer import default_truth_path, render_take
 __all__ = [
     "Motion", "Sensor", "SynthSettings", "TakePlan", "as_motion", "default_truth_path", "fit_ring_radius",
     "load_motion", "marching_body", "marching_motion", "motion_from_c3d", "plan_take", "render_frame", "render_take",
-    "ring_rig", "simulate",
+    "rig_for_motion", "ring_rig", "simulate", "walkway_rig",
 ]

@@ -17,7 +17,7 @@ from mocap.camera import Rig
 from mocap.errors import MocapError
 from mocap.synth.body import DEFAULT_MARKERS, marching_motion
 from mocap.synth.motion import UP_AXES, Motion, motion_from_c3d
-from mocap.synth.rig import fit_ring_radius, ring_rig
+from mocap.synth.rig import DEFAULT_CAMERAS, DEFAULT_RADIUS_M, WALKWAY_MIN_LENGTH_M, rig_for_motion, ring_rig
 from mocap.synth.settings import FORMATS, SynthSettings
 from mocap.synth.writer import default_truth_path, render_take
 
@@ -26,8 +26,6 @@ __all__ = ["configure_parser", "run"]
 log = logging.getLogger(__name__)
 
 DEFAULT_BODY_FRAMES = 600
-DEFAULT_RADIUS_M = 4.0
-_FIT_SAMPLES = 4000  # motion samples used to fit the ring radius
 _SCENES = {"wand": ("mocap.synth.wand", "render_wand_take"), "board": ("mocap.synth.board", "render_board_take")}
 
 
@@ -54,13 +52,21 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
                                                "the built-in body); a C3D file is resampled linearly")
     src.add_argument("--markers", type=int, default=DEFAULT_MARKERS,
                      help=f"markers on the built-in body (default {DEFAULT_MARKERS}, at most 49)")
-    src.add_argument("--cameras", type=int, default=6, help="cameras on the ring (default 6)")
+    src.add_argument("--layout", choices=("auto", "ring", "walkway"), default="auto",
+                     help="camera layout: a ring around the motion, or two staggered rows along a long straight "
+                          f"path (default auto: a walkway for a C3D motion over {WALKWAY_MIN_LENGTH_M:g} m long "
+                          "and 3x longer than wide)")
+    src.add_argument("--cameras", type=int,
+                     help=f"number of cameras (default {DEFAULT_CAMERAS} on a ring; along a walkway, as many as "
+                          "give 99%% of the motion 4 views)")
     src.add_argument("--size", type=_size, default=(1024, 768), metavar="WxH", help="image size (default 1024x768)")
     src.add_argument("--focal", type=float, default=1000.0, help="focal length, px (default 1000)")
     src.add_argument("--distortion", type=float, default=0.05,
                      help="bound of the random radial distortion k1 (default 0.05; 0: none)")
     src.add_argument("--radius", type=float,
-                     help=f"camera ring radius, m (default {DEFAULT_RADIUS_M}, widened to cover a C3D motion)")
+                     help=f"camera ring radius, m (default {DEFAULT_RADIUS_M}, widened to cover a C3D motion); "
+                          f"along a walkway, the cameras' distance from its centre line (default: half its width "
+                          f"+ {DEFAULT_RADIUS_M:g})")
     img = parser.add_argument_group("image realism (every artefact has a knob; --clean turns them all off)")
     img.add_argument("--marker-mm", type=float, help=f"marker diameter, mm (default {d.marker_mm:g})")
     img.add_argument("--background", type=float, help=f"background grey level (default {d.background:g})")
@@ -114,27 +120,20 @@ def _motion(args: argparse.Namespace, settings: SynthSettings) -> Motion:
 
 
 def _rig(args: argparse.Namespace, motion: Motion | None, seed: int) -> Rig:
-    """The camera ring; around a C3D motion, widened until every camera sees 99.5 % of it."""
-    kwargs = {"n_cameras": args.cameras, "size": args.size, "focal_px": args.focal, "distortion": args.distortion,
-              "seed": seed}
+    """The cameras: the default ring, or (around a C3D motion) :func:`rig_for_motion`'s fitted rig."""
+    kwargs = {"size": args.size, "focal_px": args.focal, "distortion": args.distortion, "seed": seed}
     if motion is None or args.motion is None:
-        return ring_rig(radius=args.radius or DEFAULT_RADIUS_M, **kwargs)
-    pts = motion.positions.reshape(-1, 3)
-    pts = pts[np.isfinite(pts).all(axis=1)]
-    lo, hi = np.percentile(pts, [0.5, 99.5], axis=0)
-    target = (0.0, 0.0, float(np.clip((lo[2] + hi[2]) / 2, 0.2, 1.2)))
-    radius = args.radius
-    if radius is None:
-        sample = pts[np.random.default_rng(0).choice(len(pts), min(len(pts), _FIT_SAMPLES), replace=False)]
-        radius = fit_ring_radius(sample, DEFAULT_RADIUS_M, target=target, **kwargs)
-        if radius > DEFAULT_RADIUS_M:
-            log.warning("the motion spans %.1f x %.1f m of floor: camera ring widened from %.1f to %.1f m so every "
-                        "camera sees it (markers get smaller; use --start/--frames to film a part)",
-                        hi[0] - lo[0], hi[1] - lo[1], DEFAULT_RADIUS_M, radius)
-    rig = ring_rig(radius=radius, target=target, **kwargs)
-    rig.metadata.update({"ring_radius_fitted_to_motion": args.radius is None,
-                         "motion_volume_m": [lo.round(3).tolist(), hi.round(3).tolist()]})
-    return rig
+        return ring_rig(args.cameras or DEFAULT_CAMERAS, radius=args.radius or DEFAULT_RADIUS_M, **kwargs)
+    return rig_for_motion(motion.positions, args.layout, args.cameras, args.radius, **kwargs)
+
+
+def _rig_summary(rig: Rig) -> str:
+    """One line on how the synthetic cameras stand."""
+    meta = rig.metadata
+    if meta.get("layout") == "walkway":
+        return (f"walkway rig: {len(rig)} cameras in two rows {meta['standoff_m']:.2f} m from a "
+                f"{meta['walkway_length_m']:.1f} m centre line")
+    return f"ring of {len(rig)} cameras, radius {meta['ring_radius_m']:.2f} m"
 
 
 def _render_scene(args: argparse.Namespace, rig: Rig, settings: SynthSettings, truth_path: Path) -> None:
@@ -172,7 +171,7 @@ def run(args: argparse.Namespace) -> int:
     views = truth.views[np.isfinite(truth.positions).all(axis=2)]
     print(f"take written to {args.out_dir} ({truth.n_frames} frames at {truth.fps:g} Hz, {len(rig)} cameras, "
           f"{len(truth.labels)} markers, {settings.format}); truth in {truth_path}")
-    print(f"  source: {motion.info.get('source')}; ring radius {rig.metadata['ring_radius_m']:.2f} m")
+    print(f"  source: {motion.info.get('source')}; {_rig_summary(rig)}")
     print(f"  marker samples seen by >= 2 cameras: {np.mean(views >= 2):.1%}, mean cameras per marker "
           f"{views.mean():.2f}; occluded {truth.settings['occluded_fraction']:.1%}, dropped "
           f"{truth.settings['dropped_fraction']:.1%}; {time.perf_counter() - started:.1f} s")
