@@ -17,6 +17,7 @@ from mocap.stereo import (
     match_pairs,
     triangulate_matches,
 )
+from mocap.synth import walkway_rig
 
 
 def _ideal(rig, X):
@@ -48,6 +49,23 @@ def test_pairs_scale_to_other_rigs():
     assert len(pairs) > 10 and pairs.neighbour.sum() == 10
     assert len(camera_pairs(ring_rig(2))) == 1
 
+
+def test_pairs_of_a_walkway_cover_every_stretch_of_it():
+    """Two rows of cameras along a 14 m walkway, each seeing a stretch: every point two cameras see has a
+    pair among them, and every camera is in a pair (one central volume left the end cameras out)."""
+    rig = walkway_rig(12, length=14.0, standoff=5.0, seed=1)
+    pairs = camera_pairs(rig)
+    assert set(pairs.index.ravel()) == set(range(12))
+    assert (pairs.angle_deg >= 15).all() and (pairs.angle_deg <= 150).all()
+    rng = np.random.default_rng(2)
+    X = rng.uniform([-6.0, -1.0, 0.1], [6.0, 1.0, 1.8], (2000, 3))
+    seen = np.stack([cam.in_image(cam.project(X), 10.0) for cam in rig.cameras])  # (C, N)
+    paired = np.zeros(len(X), dtype=bool)
+    for i, j in pairs.index:
+        paired |= seen[i] & seen[j]
+    two_views = seen.sum(axis=0) >= 2
+    assert two_views.mean() > 0.95
+    assert paired[two_views].mean() > 0.99
 
 def test_epipolar_distance_agrees_with_geometry_and_opencv(rig):
     rng = np.random.default_rng(0)
