@@ -1,9 +1,10 @@
 """End-to-end accuracy and identity figures on rendered takes (issue 3's acceptance table).
 
 For each named scenario of ``datasets/scenarios.toml`` (default: the built-in marching body and
-one scenario per real C3D file in ../shared/data/c3d/), ``mocap synth`` renders a six-camera take
-with default realism, ``mocap reconstruct`` runs the engine on the images, and ``mocap evaluate``
-scores the result against the ground truth. The 3D motion of the C3D takes is real (recorded by
+one scenario per real C3D file in ../shared/data/c3d/), ``mocap synth`` renders a take with default
+realism (a ring of six cameras; a walkway of cameras along the whole sprint's 12 m path),
+``mocap reconstruct`` runs the engine on the images, and ``mocap evaluate`` scores the result against
+the ground truth. The 3D motion of the C3D takes is real (recorded by
 OptiTrack systems); the 2D images are simulated by this project's renderer.
 
 Usage:
