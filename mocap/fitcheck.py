@@ -46,17 +46,18 @@ class FitReport:
     blobs: np.ndarray
     tolerance_px: float
 
-    def poor_cameras(self, rig: Rig, relative: float = 0.5, over_chance: float = 3.0, margin: float = 0.02
-                     ) -> list[str]:
+    def poor_cameras(self, rig: Rig, relative: float = 0.5, over_chance: float = 3.0, margin: float = 0.02,
+                     few: float = 0.25) -> list[str]:
         """Names of cameras whose support is below ``relative`` x the median camera's, or not clearly above
-        chance (``over_chance`` x chance + ``margin``).
+        chance (``over_chance`` x chance + ``margin``). Cameras with fewer blobs than ``few`` x the busiest
+        camera's are not judged: along a walkway, a camera far from the subject sees only its reflections.
 
         A correct calibration's support is the share of blobs seen by three cameras or more: ~0.9 with six
         cameras, ~0.4 with four, ~0.05 with three (measured; chance 0-0.09); a camera at fault falls far
         below the others (a swapped pair: 0.01-0.3 where the rest keep 0.7-0.9), and a wrong file takes
         every camera to chance.
         """
-        s = self.support
+        s = np.where(self.blobs >= few * self.blobs.max(initial=0), self.support, np.nan)
         if not np.isfinite(s).any():
             return []
         limit = np.maximum(relative * float(np.nanmedian(s)), over_chance * np.nan_to_num(self.chance) + margin)

@@ -83,3 +83,20 @@ def test_three_cameras_are_judged_against_chance():
     other = Rig([c.with_pose(o.rotation, o.translation) for c, o in zip(rig.cameras, ring_rig(3, radius=5.0).cameras,
                                                                           strict=True)])
     assert sorted(check_calibration_fit(other, frames).poor_cameras(rig)) == ["cam1", "cam2", "cam3"]
+
+
+def test_cameras_that_see_only_reflections_are_not_judged():
+    """Along a walkway, the cameras far from the subject see only a few fixed reflections: too little to
+    judge (they used to be named); a swapped pair among the cameras that see the subject still is."""
+    rig = ring_rig(8)
+    rng = np.random.default_rng(3)
+    frames = _frames(rig, n_markers=30, seed=3)
+    reflections = [rng.uniform(0, 700, (3, 2)) for _ in rig]
+    for dets in frames:
+        for c in (5, 6, 7):  # the subject is out of these cameras' view
+            dets[c] = Detections(reflections[c] + rng.normal(0, 0.1, (3, 2)))
+    assert check_calibration_fit(rig, frames).poor_cameras(rig) == []
+    cams = list(rig.cameras)
+    order = [0, 3, 2, 1, 4, 5, 6, 7]
+    swapped = Rig([c.with_pose(cams[o].rotation, cams[o].translation) for c, o in zip(cams, order, strict=True)])
+    assert sorted(check_calibration_fit(swapped, frames).poor_cameras(rig)) == ["cam2", "cam4"]
