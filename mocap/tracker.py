@@ -93,8 +93,8 @@ class TrackerConfig:
             where more frame it) is confirmed only once it has moved this far, m, or while the confirmed tracks
             around it (``neighbour_m``, at least ``neighbour_min``) move less than that over ``confirm_frames``
             too (a still subject); confirmed that way and left behind when they move, it is withdrawn.
-        weak_motion_sigma: ... or this many times the point's own std if that is larger: two reflections whose
-            rays cross 20 m away at 4 degrees make a point whose depth wanders by centimetres.
+        weak_motion_sigma: ... or this many stds of the point's displacement if that is larger: two reflections
+            whose rays cross 20 m away at 4 degrees make a point whose depth wanders by millimetres.
         min_separation_m: a new point closer than this to a measured track is that track's, not new.
         clutter_px: a free detection this close to a free one of the recent frames is not new (see
             ``_known_clutter``).
@@ -145,7 +145,7 @@ class TrackerConfig:
     support_px: float = 2.0
     new_min_views: int = 3
     weak_motion_m: float = 0.003
-    weak_motion_sigma: float = 6.0
+    weak_motion_sigma: float = 4.0
     min_separation_m: float = 0.012
     clutter_px: float = 0.5
     clutter_frames: int = 30
@@ -811,8 +811,10 @@ class Tracker:
         # A track born from a weak point must have moved, or stand still with its neighbours: fixed
         # reflections that happen to match across two cameras make a static point wherever they are.
         if t.weak.any():
+            # (the difference of two points: sqrt(2) x their std; sqrt(3) x the RMS std bounds the depth's)
+            noise = np.sqrt(6.0) * t.noise
             t.weak &= np.linalg.norm(t.last_X - t.origin, axis=1) <= np.maximum(cfg.weak_motion_m,
-                                                                                cfg.weak_motion_sigma * t.noise)
+                                                                                cfg.weak_motion_sigma * noise)
         idle, busy = self._neighbour_motion(t.weak & (t.since == 0))
         confirm = np.flatnonzero(tentative & (t.since == 0) & (t.hits >= cfg.confirm_frames) & (~t.weak | idle))
         # A static point confirmed that way is a reflection once its neighbours move and it does not:
