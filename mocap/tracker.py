@@ -39,6 +39,7 @@ from itertools import accumulate
 
 import numpy as np
 
+from mocap import kernels
 from mocap.camera import Rig
 from mocap.detect import MIN_SHAPE_AREA
 from mocap.detections import Detections, floored_covariance
@@ -362,6 +363,7 @@ class Tracker:
         self._last = -1
         self._outlier_px = cfg.outlier_start_px  # camera rejection floor, px (follows the residual level)
         self._rms_px = cfg.outlier_start_px / max(cfg.outlier_rms_factor, 1.0)  # typical reprojection RMS, px
+        kernels.announce()
 
     # ------------------------------------------------------------------ public API
     def step(self, frame_index: int, detections: list[Detections]) -> FrameResult:
@@ -552,6 +554,10 @@ class Tracker:
         """(K, C) bool: another track in play, seen by that camera within ``hidden_frames``, is predicted within a
         marker's image diameter + ``merge_px`` (a marker hidden from a camera merges with nothing in its image),
         and did not take a blob of its own there this frame (``asg`` (K, C)): two blobs are not one merged."""
+        if kernels.HAVE_NUMBA:
+            c = kernels.contiguous
+            return kernels.crowded(c(pred), c(play, bool), c(self._t.unseen2 <= self._cfg.hidden_frames, bool),
+                                   c(depth), c(asg, np.intp), self._focal, self._cfg.marker_mm, self._cfg.merge_px)
         p = np.ascontiguousarray(np.where(play[:, None, None], pred, np.nan).swapaxes(0, 1))  # (C, K, 2)
         seen = np.where((self._t.unseen2.T <= self._cfg.hidden_frames)[:, :, None], p, np.nan)  # (C, K, 2)
         d2 = dist2(p[:, :, None, :], seen[:, None, :, :])
