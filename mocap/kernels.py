@@ -22,7 +22,7 @@ import os
 import numpy as np
 
 __all__ = ["HAVE_NUMBA", "REASON", "announce", "contiguous", "robust_triangulate", "gauss_newton", "update_position",
-           "repick", "epipolar_consistency", "gate", "crowded"]
+           "repick", "predict", "update_tracks", "epipolar_consistency", "gate", "search_regions", "crowded"]
 
 _log = logging.getLogger("mocap")
 
@@ -351,65 +351,185 @@ def repick(used, X, proj, D, free, limit):
 
 # ---------------------------------------------------------------------------------------------- filters
 @_jit
+def predict(x, P, F, Q):
+    """:func:`mocap.ekf.predict` of K filters: ``x`` (K, n), ``P`` (K, n, n), ``F`` (n, n), ``Q`` (1 or K, n, n)
+    -> ``x'``, ``P'``. Only the non-zero entries of ``F`` enter the sums (a few per row)."""
+    K, n = x.shape
+    cols = np.zeros((n, n), dtype=np.intp)  # per row of F, its non-zero columns
+    nnz = np.zeros(n, dtype=np.intp)
+    for i in range(n):
+        for j in range(n):
+            if F[i, j] != 0.0:
+                cols[i, nnz[i]] = j
+                nnz[i] += 1
+    x_new = np.empty((K, n))
+    P_new = np.empty((K, n, n))
+    FP = np.empty((n, n))
+    one_q = Q.shape[0] == 1
+    for k in range(K):
+        q = 0 if one_q else k
+        for i in range(n):
+            s = 0.0
+            for m in range(nnz[i]):
+                s += F[i, cols[i, m]] * x[k, cols[i, m]]
+            x_new[k, i] = s
+            for j in range(n):
+                s = 0.0
+                for m in range(nnz[i]):
+                    s += F[i, cols[i, m]] * P[k, cols[i, m], j]
+                FP[i, j] = s
+        for i in range(n):
+            for j in range(n):
+                s = 0.0
+                for m in range(nnz[j]):
+                    s += FP[i, cols[j, m]] * F[j, cols[j, m]]
+                P_new[k, i, j] = s + Q[q, i, j]
+    return x_new, P_new
+
+
+@_jit
+def _update_one(x, P, z, R, d, x_new, P_new, y, S, Si, gain, M, A):
+    """One filter's position update (``d`` a constant, so its loops unroll); ``Si``, ``gain``, ``M``, ``A`` are
+    work arrays (3, 3), (n, d), (n, n), (n, d)."""
+    n = x.shape[0]
+    for i in range(d):
+        for j in range(d):
+            S[i, j] = P[i, j] + R[i, j]
+    if d == 2:
+        Si[0, 0], Si[0, 1], Si[1, 0], Si[1, 1] = _inv2x2(S[0, 0], S[0, 1], S[1, 0], S[1, 1])
+    else:
+        _inv3x3(S, Si)
+    for i in range(n):
+        for j in range(d):
+            s = 0.0
+            for m in range(d):
+                s += P[i, m] * Si[m, j]
+            gain[i, j] = s
+    for i in range(d):
+        y[i] = z[i] - x[i]
+    for i in range(n):
+        s = 0.0
+        for m in range(d):
+            s += gain[i, m] * y[m]
+        x_new[i] = x[i] + s
+    for i in range(n):
+        for j in range(n):
+            s = 0.0
+            for m in range(d):
+                s += gain[i, m] * P[m, j]
+            M[i, j] = P[i, j] - s
+    for i in range(n):
+        for j in range(d):
+            s = 0.0
+            for m in range(d):
+                s += gain[i, m] * R[m, j]
+            A[i, j] = s - M[i, j]
+    for i in range(n):
+        for j in range(n):
+            s = 0.0
+            for m in range(d):
+                s += A[i, m] * gain[j, m]
+            P_new[i, j] = M[i, j] + s
+
+
+@_jit
+def _update_all(x, P, z, R, d):
+    K, n = x.shape
+    x_new, P_new, y, S = np.empty((K, n)), np.empty((K, n, n)), np.empty((K, d)), np.empty((K, d, d))
+    Si, gain, M, A = np.empty((3, 3)), np.empty((n, d)), np.empty((n, n)), np.empty((n, d))
+    for k in range(K):
+        _update_one(x[k], P[k], z[k], R[k], d, x_new[k], P_new[k], y[k], S[k], Si, gain, M, A)
+    return x_new, P_new, y, S
+
+
+@_jit
 def update_position(x, P, z, R):
     """:func:`mocap.ekf.update_position` (Joseph form, d = 2 or 3) of K filters: ``x`` (K, n), ``P`` (K, n, n),
     ``z`` (K, d), ``R`` (K, d, d) -> ``x'``, ``P'``, innovation ``y`` (K, d), its covariance ``S`` (K, d, d)."""
     if z.shape[1] == 2:  # a constant d: the compiler unrolls the loops over it (2x faster)
-        return _update_position(x, P, z, R, 2)
-    return _update_position(x, P, z, R, 3)
+        return _update_all(x, P, z, R, 2)
+    return _update_all(x, P, z, R, 3)
 
 
 @_jit
-def _update_position(x, P, z, R, d):
-    K, n = x.shape
-    x_new = np.empty((K, n))
-    P_new = np.empty((K, n, n))
-    y = np.empty((K, d))
-    S = np.empty((K, d, d))
-    Si = np.empty((3, 3))
-    gain = np.empty((n, d))
-    M = np.empty((n, n))
-    A = np.empty((n, d))
-    for k in range(K):
-        for i in range(d):
-            for j in range(d):
-                S[k, i, j] = P[k, i, j] + R[k, i, j]
-        if d == 2:
-            Si[0, 0], Si[0, 1], Si[1, 0], Si[1, 1] = _inv2x2(S[k, 0, 0], S[k, 0, 1], S[k, 1, 0], S[k, 1, 1])
-        else:
-            _inv3x3(S[k], Si)
-        for i in range(n):
-            for j in range(d):
-                s = 0.0
-                for m in range(d):
-                    s += P[k, i, m] * Si[m, j]
-                gain[i, j] = s
-        for i in range(d):
-            y[k, i] = z[k, i] - x[k, i]
-        for i in range(n):
-            s = 0.0
-            for m in range(d):
-                s += gain[i, m] * y[k, m]
-            x_new[k, i] = x[k, i] + s
-        for i in range(n):
-            for j in range(n):
-                s = 0.0
-                for m in range(d):
-                    s += gain[i, m] * P[k, m, j]
-                M[i, j] = P[k, i, j] - s
-        for i in range(n):
-            for j in range(d):
-                s = 0.0
-                for m in range(d):
-                    s += gain[i, m] * R[k, m, j]
-                A[i, j] = s - M[i, j]
-        for i in range(n):
-            for j in range(n):
-                s = 0.0
-                for m in range(d):
-                    s += A[i, m] * gain[j, m]
-                P_new[k, i, j] = M[i, j] + s
-    return x_new, P_new, y, S
+def update_tracks(idx, X, cov, asg, D, S, P, focal, dt, alpha, velocity_std, accel_std,
+                  since, hits, x3, P3, e3, last_X, last_v, noise, x2, P2, e2, last_uv, last_uvv, lock2, unseen2):
+    """The tracker's ``_update`` of tracks ``idx`` in place: 3D filters and running errors from this frame's points
+    ``X`` (K, 3), ``cov`` (K, 3, 3); then the image filters of the cameras used (``asg`` (K, C) into ``D``
+    (C, N, 2), ``S`` (C, N, 2, 2)): updated where locked, else restarted from the projected 3D state."""
+    C = asg.shape[1]
+    xn3, Pn3, y3, S3 = np.empty(9), np.empty((9, 9)), np.empty(3), np.empty((3, 3))
+    xn2, Pn2, y2, S2 = np.empty(6), np.empty((6, 6)), np.empty(2), np.empty((2, 2))
+    Si, R = np.empty((3, 3)), np.empty((3, 3))
+    gain3, M3, A3 = np.empty((9, 3)), np.empty((9, 9)), np.empty((9, 3))
+    gain2, M2, A2 = np.empty((6, 2)), np.empty((6, 6)), np.empty((6, 2))
+    meas = np.empty(9)
+    for k in idx:
+        consecutive = since[k] == 1
+        for i in range(3):
+            for j in range(3):
+                R[i, j] = cov[k, i, j] + (1e-12 if i == j else 0.0)
+        _update_one(x3[k], P3[k], X[k], R, 3, xn3, Pn3, y3, S3, Si, gain3, M3, A3)
+        for i in range(3):  # measured position, velocity, acceleration (finite differences)
+            v = (X[k, i] - last_X[k, i]) / dt
+            meas[i], meas[3 + i], meas[6 + i] = X[k, i], v, (v - last_v[k, i]) / dt
+        for g in range(3):  # running prediction errors, from consecutive frames only
+            b = 3 * g
+            d0, d1, d2 = meas[b] - x3[k, b], meas[b + 1] - x3[k, b + 1], meas[b + 2] - x3[k, b + 2]
+            err = math.sqrt(d0 * d0 + d1 * d1 + d2 * d2)
+            if consecutive:
+                e3[k, g] = alpha * (err if math.isfinite(err) else e3[k, g]) + (1.0 - alpha) * e3[k, g]
+        x3[k] = xn3
+        P3[k] = Pn3
+        for i in range(3):
+            last_v[k, i] = meas[3 + i] if consecutive else np.nan
+            last_X[k, i] = X[k, i]
+        noise[k] = math.sqrt((cov[k, 0, 0] + cov[k, 1, 1] + cov[k, 2, 2]) / 3.0)
+        hits[k] = hits[k] + 1 if consecutive else 1
+        since[k] = 0
+    for k in idx:  # the image filters, from the updated 3D states
+        for c in range(C):
+            n = asg[k, c]
+            if n < 0:
+                lock2[k, c] = False
+                continue
+            z = D[c, n]
+            locked = lock2[k, c]
+            uvv0, uvv1 = (z[0] - last_uv[k, c, 0]) / dt, (z[1] - last_uv[k, c, 1]) / dt
+            if locked:
+                _update_one(x2[k, c], P2[k, c], z, S[c, n], 2, xn2, Pn2, y2, S2, Si, gain2, M2, A2)
+                meas[0], meas[1], meas[2], meas[3] = z[0], z[1], uvv0, uvv1
+                meas[4], meas[5] = (uvv0 - last_uvv[k, c, 0]) / dt, (uvv1 - last_uvv[k, c, 1]) / dt
+                for g in range(3):
+                    d0, d1 = meas[2 * g] - x2[k, c, 2 * g], meas[2 * g + 1] - x2[k, c, 2 * g + 1]
+                    err = math.sqrt(d0 * d0 + d1 * d1)
+                    if math.isfinite(err):
+                        e2[k, c, g] = alpha * err + (1.0 - alpha) * e2[k, c, g]
+                x2[k, c] = xn2
+                P2[k, c] = Pn2
+                last_uvv[k, c, 0], last_uvv[k, c, 1] = uvv0, uvv1
+            else:  # (re)start from the projected 3D state (mocap.ekf.init_state), errors seeded from the 3D ones
+                X0, X1, X2 = x3[k, 0], x3[k, 1], x3[k, 2]
+                w = X0 * P[c, 2, 0] + X1 * P[c, 2, 1] + X2 * P[c, 2, 2] + P[c, 2, 3]
+                x2[k, c] = 0.0
+                P2[k, c] = 0.0
+                for a in range(2):
+                    u = (X0 * P[c, a, 0] + X1 * P[c, a, 1] + X2 * P[c, a, 2] + P[c, a, 3]) / w
+                    vel = 0.0
+                    for i in range(3):
+                        vel += (P[c, a, i] - u * P[c, 2, i]) / w * x3[k, 3 + i]
+                    x2[k, c, a], x2[k, c, 2 + a] = z[a], vel
+                    P2[k, c, a, 0], P2[k, c, a, 1] = S[c, n, a, 0], S[c, n, a, 1]
+                    P2[k, c, 2 + a, 2 + a] = velocity_std**2
+                    P2[k, c, 4 + a, 4 + a] = accel_std**2
+                depth = P[c, 2, 0] * X0 + P[c, 2, 1] * X1 + P[c, 2, 2] * X2 + P[c, 2, 3]
+                scale = focal[c] / (depth if (depth >= 1e-6 or depth != depth) else 1e-6)
+                for g in range(3):
+                    e2[k, c, g] = e3[k, g] * scale
+                last_uvv[k, c, 0] = last_uvv[k, c, 1] = 0.0
+            last_uv[k, c, 0], last_uv[k, c, 1] = z[0], z[1]
+            lock2[k, c] = True
+            unseen2[k, c] = 0
 
 
 # ---------------------------------------------------------------------------------------------- stereo
@@ -457,6 +577,34 @@ def epipolar_consistency(index, F, uv, tol_px, sigma, n_sigma):
 
 
 # ---------------------------------------------------------------------------------------------- tracker
+@_jit
+def search_regions(x3, e3, since, x2, e2, lock, P, focal, dt, scale, floor_m, reid_max_m, floor_px, max_px):
+    """The tracker's ``_search_regions``: predicted ideal pixels (K, C, 2) (the locked image filter's, else the
+    projected 3D prediction; NaN behind the camera), search radii (K, C), px, and depths (K, C), m."""
+    K, C = lock.shape
+    pred, radius, depth = np.empty((K, C, 2)), np.empty((K, C)), np.empty((K, C))
+    for k in range(K):
+        t = max(since[k] - 1, 0) * dt  # :meth:`mocap.ekf.RunningError.radius`, clipped to reid_max_m
+        r3 = scale * (e3[k, 0] + e3[k, 1] * t + 0.5 * e3[k, 2] * t * t) + floor_m
+        r3 = r3 if (r3 <= reid_max_m or r3 != r3) else reid_max_m
+        X0, X1, X2 = x3[k, 0], x3[k, 1], x3[k, 2]
+        for c in range(C):
+            w = X0 * P[c, 2, 0] + X1 * P[c, 2, 1] + X2 * P[c, 2, 2] + P[c, 2, 3]
+            depth[k, c] = w
+            if lock[k, c]:
+                pred[k, c, 0], pred[k, c, 1] = x2[k, c, 0], x2[k, c, 1]
+                r = scale * (e2[k, c, 0] + e2[k, c, 1] * 0.0 + e2[k, c, 2] * 0.0) + floor_px
+            else:
+                for a in range(2):
+                    pred[k, c, a] = (X0 * P[c, a, 0] + X1 * P[c, a, 1] + X2 * P[c, a, 2] + P[c, a, 3]) / w
+                r = r3 * focal[c] / w
+            r = r if (r >= floor_px or r != r) else floor_px  # np.clip: NaN stays NaN
+            radius[k, c] = r if (r <= max_px or r != r) else max_px
+            if w <= 0:
+                pred[k, c, 0] = pred[k, c, 1] = np.nan
+    return pred, radius, depth
+
+
 @_jit
 def crowded(pred, play, seen, depth, asg, focal, marker_mm, merge_px):
     """The tracker's ``_crowded``: (K, C) bool, another track in ``play`` (K,) and ``seen`` (K, C) by that camera

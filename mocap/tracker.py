@@ -539,6 +539,10 @@ class Tracker:
     def _search_regions(self, lock: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Predicted ideal pixels (K, C, 2), search radii (K, C), pixels, and predicted depths (K, C), m."""
         t, cfg = self._t, self._cfg
+        if kernels.HAVE_NUMBA:
+            return kernels.search_regions(t.x3, t.e3, t.since, t.x2, t.e2, kernels.contiguous(lock, bool), self._P,
+                                          self._focal, self._dt, cfg.gate_scale, cfg.gate_floor_m, cfg.reid_max_m,
+                                          cfg.gate_floor_px, cfg.gate_max_px)
         proj, depth = project_ideal(self._P, t.x3[:, :3])  # (C, K, 2), (C, K)
         depth = depth.T
         r3 = np.minimum(self._running.radius(*t.e3.T, t.since, self._dt, cfg.gate_floor_m), cfg.reid_max_m)
@@ -657,6 +661,13 @@ class Tracker:
         if idx.size == 0:
             return
         t, dt = self._t, self._dt
+        if kernels.HAVE_NUMBA:  # the same steps, in place
+            c = kernels.contiguous
+            kernels.update_tracks(idx, c(meas.X), c(meas.cov), c(meas.asg, np.intp), fr.D, fr.S, self._P, self._focal,
+                                  dt, self._running.alpha, _IMAGE_VELOCITY_STD, _IMAGE_ACCEL_STD, t.since, t.hits,
+                                  t.x3, t.P3, t.e3, t.last_X, t.last_v, t.noise, t.x2, t.P2, t.e2, t.last_uv,
+                                  t.last_uvv, t.lock2, t.unseen2)
+            return
         X = meas.X[idx]
         cov = meas.cov[idx]
         R = cov + np.eye(3) * 1e-12
