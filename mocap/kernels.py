@@ -129,23 +129,29 @@ def gauss_newton(P, uv, Winv, mask, point, X, iterations, tol_m, cov, proj, res,
                 for i in range(3):
                     WJ[0, c, i] = w00 * J[lo, 0, c, i] + w01 * J[lo, 1, c, i]
                     WJ[1, c, i] = w10 * J[lo, 0, c, i] + w11 * J[lo, 1, c, i]
-            for i in range(3):
-                for j in range(3):
-                    s = 0.0
-                    for a in range(2):
-                        for c in range(C):
-                            s += WJ[a, c, i] * J[lo, a, c, j]
-                    H[i, j] = s
-            if few[lo]:
-                H[:] = 0.0
-                H[0, 0] = H[1, 1] = H[2, 2] = 1.0
-            _inv3x3(H, cov[lo])
-            g0 = g1 = g2 = 0.0
-            for a in range(2):
+            h00 = h01 = h02 = h10 = h11 = h12 = h20 = h21 = h22 = g0 = g1 = g2 = 0.0
+            for a in range(2):  # J^T W J and J^T W r, summed over (a, c) in numpy's order
                 for c in range(C):
-                    g0 += WJ[a, c, 0] * res[c, lo, a]
-                    g1 += WJ[a, c, 1] * res[c, lo, a]
-                    g2 += WJ[a, c, 2] * res[c, lo, a]
+                    w0, w1, w2 = WJ[a, c, 0], WJ[a, c, 1], WJ[a, c, 2]
+                    j0, j1, j2, r = J[lo, a, c, 0], J[lo, a, c, 1], J[lo, a, c, 2], res[c, lo, a]
+                    h00 += w0 * j0
+                    h01 += w0 * j1
+                    h02 += w0 * j2
+                    h10 += w1 * j0
+                    h11 += w1 * j1
+                    h12 += w1 * j2
+                    h20 += w2 * j0
+                    h21 += w2 * j1
+                    h22 += w2 * j2
+                    g0 += w0 * r
+                    g1 += w1 * r
+                    g2 += w2 * r
+            if few[lo]:
+                h00, h01, h02, h10, h11, h12, h20, h21, h22 = 1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0
+            H[0, 0], H[0, 1], H[0, 2] = h00, h01, h02
+            H[1, 0], H[1, 1], H[1, 2] = h10, h11, h12
+            H[2, 0], H[2, 1], H[2, 2] = h20, h21, h22
+            _inv3x3(H, cov[lo])
             for i in range(3):
                 d = cov[lo, i, 0] * g0 + cov[lo, i, 1] * g1 + cov[lo, i, 2] * g2
                 dx[lo, i] = d
@@ -173,16 +179,20 @@ def _solve(P, uvz, Winv, used, point, X, iterations, cov3, proj, res, depth, err
             mask[c, lo] = used[c, point[lo]]
     Xs = np.empty((L, 3))
     for lo in range(L):
-        Xs[lo] = X[point[lo]]
+        for i in range(3):
+            Xs[lo, i] = X[point[lo], i]
     cs, ps, rs, ds = np.empty((L, 3, 3)), np.empty((C, L, 2)), np.empty((C, L, 2)), np.empty((C, L))
     gauss_newton(P, uvz, Winv, mask, point, Xs, iterations, 1e-6, cs, ps, rs, ds)
-    for lo in range(L):
+    for lo in range(L):  # (element by element: array-slice assignments are slow to compile)
         k = point[lo]
-        X[k] = Xs[lo]
-        cov3[k] = cs[lo]
+        for i in range(3):
+            X[k, i] = Xs[lo, i]
+            for j in range(3):
+                cov3[k, i, j] = cs[lo, i, j]
         for c in range(C):
-            proj[c, k] = ps[c, lo]
-            res[c, k] = rs[c, lo]
+            for a in range(2):
+                proj[c, k, a] = ps[c, lo, a]
+                res[c, k, a] = rs[c, lo, a]
             depth[c, k] = ds[c, lo]
             err[c, k] = math.hypot(rs[c, lo, 0], rs[c, lo, 1]) if mask[c, lo] else 0.0
 
@@ -215,7 +225,8 @@ def _consensus(P, uvz, Winv, used, X, limit, todo, iterations):
             if used[pi[q], k] and used[pj[q], k]:
                 point[lo] = k
                 mask[pi[q], lo] = mask[pj[q], lo] = True
-                Xs[lo] = X[k]
+                for i in range(3):
+                    Xs[lo, i] = X[k, i]
                 lo += 1
     if L == 0:
         return
@@ -304,10 +315,13 @@ def robust_triangulate(P, uv, cov, start, outlier_sigma, outlier_min_px, iterati
         fail = n < 2 or (out and n < 3) or not (math.isfinite(X[k, 0]) and math.isfinite(X[k, 1])
                                                  and math.isfinite(X[k, 2]))
         if fail:
-            used[:, k] = False
-            X[k] = np.nan
-            cov3[k] = np.nan
             rms[k] = np.nan
+            for c in range(C):
+                used[c, k] = False
+            for i in range(3):
+                X[k, i] = np.nan
+                for j in range(3):
+                    cov3[k, i, j] = np.nan
     return X, cov3, rms, used.T.copy(), proj, depth
 
 
@@ -390,7 +404,8 @@ def predict(x, P, F, Q):
 @_jit
 def _update_one(x, P, z, R, d, x_new, P_new, y, S, Si, gain, M, A):
     """One filter's position update (``d`` a constant, so its loops unroll); ``Si``, ``gain``, ``M``, ``A`` are
-    work arrays (3, 3), (n, d), (n, n), (n, d)."""
+    work arrays (3, 3), (n, d), (n, n), (n, d). ``x_new`` and ``P_new`` may be ``x`` and ``P`` (each element is
+    read before it is written)."""
     n = x.shape[0]
     for i in range(d):
         for j in range(d):
@@ -458,8 +473,7 @@ def update_tracks(idx, X, cov, asg, D, S, P, focal, dt, alpha, velocity_std, acc
     ``X`` (K, 3), ``cov`` (K, 3, 3); then the image filters of the cameras used (``asg`` (K, C) into ``D``
     (C, N, 2), ``S`` (C, N, 2, 2)): updated where locked, else restarted from the projected 3D state."""
     C = asg.shape[1]
-    xn3, Pn3, y3, S3 = np.empty(9), np.empty((9, 9)), np.empty(3), np.empty((3, 3))
-    xn2, Pn2, y2, S2 = np.empty(6), np.empty((6, 6)), np.empty(2), np.empty((2, 2))
+    y3, S3, y2, S2 = np.empty(3), np.empty((3, 3)), np.empty(2), np.empty((2, 2))
     Si, R = np.empty((3, 3)), np.empty((3, 3))
     gain3, M3, A3 = np.empty((9, 3)), np.empty((9, 9)), np.empty((9, 3))
     gain2, M2, A2 = np.empty((6, 2)), np.empty((6, 6)), np.empty((6, 2))
@@ -469,7 +483,6 @@ def update_tracks(idx, X, cov, asg, D, S, P, focal, dt, alpha, velocity_std, acc
         for i in range(3):
             for j in range(3):
                 R[i, j] = cov[k, i, j] + (1e-12 if i == j else 0.0)
-        _update_one(x3[k], P3[k], X[k], R, 3, xn3, Pn3, y3, S3, Si, gain3, M3, A3)
         for i in range(3):  # measured position, velocity, acceleration (finite differences)
             v = (X[k, i] - last_X[k, i]) / dt
             meas[i], meas[3 + i], meas[6 + i] = X[k, i], v, (v - last_v[k, i]) / dt
@@ -479,8 +492,7 @@ def update_tracks(idx, X, cov, asg, D, S, P, focal, dt, alpha, velocity_std, acc
             err = math.sqrt(d0 * d0 + d1 * d1 + d2 * d2)
             if consecutive:
                 e3[k, g] = alpha * (err if math.isfinite(err) else e3[k, g]) + (1.0 - alpha) * e3[k, g]
-        x3[k] = xn3
-        P3[k] = Pn3
+        _update_one(x3[k], P3[k], X[k], R, 3, x3[k], P3[k], y3, S3, Si, gain3, M3, A3)  # in place (see _update_one)
         for i in range(3):
             last_v[k, i] = meas[3 + i] if consecutive else np.nan
             last_X[k, i] = X[k, i]
@@ -497,7 +509,6 @@ def update_tracks(idx, X, cov, asg, D, S, P, focal, dt, alpha, velocity_std, acc
             locked = lock2[k, c]
             uvv0, uvv1 = (z[0] - last_uv[k, c, 0]) / dt, (z[1] - last_uv[k, c, 1]) / dt
             if locked:
-                _update_one(x2[k, c], P2[k, c], z, S[c, n], 2, xn2, Pn2, y2, S2, Si, gain2, M2, A2)
                 meas[0], meas[1], meas[2], meas[3] = z[0], z[1], uvv0, uvv1
                 meas[4], meas[5] = (uvv0 - last_uvv[k, c, 0]) / dt, (uvv1 - last_uvv[k, c, 1]) / dt
                 for g in range(3):
@@ -505,14 +516,15 @@ def update_tracks(idx, X, cov, asg, D, S, P, focal, dt, alpha, velocity_std, acc
                     err = math.sqrt(d0 * d0 + d1 * d1)
                     if math.isfinite(err):
                         e2[k, c, g] = alpha * err + (1.0 - alpha) * e2[k, c, g]
-                x2[k, c] = xn2
-                P2[k, c] = Pn2
+                _update_one(x2[k, c], P2[k, c], z, S[c, n], 2, x2[k, c], P2[k, c], y2, S2, Si, gain2, M2, A2)
                 last_uvv[k, c, 0], last_uvv[k, c, 1] = uvv0, uvv1
             else:  # (re)start from the projected 3D state (mocap.ekf.init_state), errors seeded from the 3D ones
                 X0, X1, X2 = x3[k, 0], x3[k, 1], x3[k, 2]
                 w = X0 * P[c, 2, 0] + X1 * P[c, 2, 1] + X2 * P[c, 2, 2] + P[c, 2, 3]
-                x2[k, c] = 0.0
-                P2[k, c] = 0.0
+                for i in range(6):
+                    x2[k, c, i] = 0.0
+                    for j in range(6):
+                        P2[k, c, i, j] = 0.0
                 for a in range(2):
                     u = (X0 * P[c, a, 0] + X1 * P[c, a, 1] + X2 * P[c, a, 2] + P[c, a, 3]) / w
                     vel = 0.0
