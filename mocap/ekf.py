@@ -23,6 +23,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from mocap import kernels
 from mocap.geometry import inv2x2, inv3x3
 
 __all__ = [
@@ -101,6 +102,9 @@ def predict(x: np.ndarray, P: np.ndarray, F: np.ndarray, Q: np.ndarray) -> tuple
         ``x'`` (K, n), ``P'`` (K, n, n).
     """
     K, n = x.shape
+    if kernels.HAVE_NUMBA:
+        c = kernels.contiguous
+        return kernels.predict(c(x), c(P), c(F), c(Q.reshape(-1, n, n)))
     # Two plain (n, n) x (n, K n) products instead of 2 K tiny stacked ones (same sums, ~3x faster).
     FP = (F @ P.transpose(1, 0, 2).reshape(n, K * n)).reshape(n, K, n).transpose(1, 0, 2)
     return x @ F.T, (FP.reshape(K * n, n) @ F.T).reshape(K, n, n) + Q
@@ -150,6 +154,9 @@ def update_position(x: np.ndarray, P: np.ndarray, z: np.ndarray, R: np.ndarray
         ``x'`` (K, n), ``P'`` (K, n, n), innovation ``y`` (K, d) and its covariance ``S`` (K, d, d).
     """
     d = z.shape[-1]
+    if kernels.HAVE_NUMBA and d in (2, 3):
+        c = kernels.contiguous
+        return kernels.update_position(c(x), c(P), c(z), c(np.broadcast_to(R, z.shape + (d,))))
     PHt = P[:, :, :d]
     S = P[:, :d, :d] + R
     gain = PHt @ (inv2x2(S) if d == 2 else inv3x3(S) if d == 3 else np.linalg.inv(S))  # (K, n, d)

@@ -22,6 +22,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
+from mocap import kernels
 from mocap.geometry import inv2x2, inv3x3, reprojection_jacobians
 from mocap.pairs import CameraPairs
 from mocap.stereo import dist2, match_pairs, triangulate_matches
@@ -163,6 +164,10 @@ def robust_triangulate(P: np.ndarray, uv: np.ndarray, cov: np.ndarray, start: np
         outlier_min_px: rejection threshold floor, pixels.
         iterations: largest number of Gauss-Newton steps per solve (it stops when converged).
     """
+    if kernels.HAVE_NUMBA:
+        c = kernels.contiguous
+        return Triangulated(*kernels.robust_triangulate(c(P), c(uv), c(cov), c(start), float(outlier_sigma),
+                                                        float(outlier_min_px), int(iterations)))
     C, K = uv.shape[:2]
     used = np.isfinite(uv[..., 0])  # (C, K)
     limit = np.maximum(outlier_sigma * np.sqrt(0.5 * (cov[..., 0, 0] + cov[..., 1, 1])), outlier_min_px)
@@ -211,6 +216,10 @@ def repick(tri: Triangulated, D: np.ndarray, free: np.ndarray, limit_px: np.ndar
         (K, C) detection index picked (each detection at most once: the nearest track wins), -1: none.
     """
     K, C = tri.used.shape
+    if kernels.HAVE_NUMBA:
+        c = kernels.contiguous
+        return kernels.repick(c(tri.used, bool), c(tri.X), c(tri.proj), c(D), c(free, bool),
+                              c(np.broadcast_to(np.asarray(limit_px, dtype=float), free.shape)))
     out = np.full((K, C), -1, dtype=np.intp)
     cols = np.flatnonzero(free.any(axis=0))  # only detection slots free in some camera can be picked (a few)
     if K == 0 or cols.size == 0:

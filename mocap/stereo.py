@@ -21,6 +21,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
+from mocap import kernels
 from mocap.geometry import triangulate_weighted
 from mocap.pairs import CameraPairs
 
@@ -40,6 +41,8 @@ def gate(pred: np.ndarray, radius: np.ndarray, D: np.ndarray) -> np.ndarray:
     Returns:
         (K, C, N) ``|pred - det|^2 / radius^2``; inf where undefined. In the gate when < 1.
     """
+    if kernels.HAVE_NUMBA:
+        return kernels.gate(kernels.contiguous(pred), kernels.contiguous(radius), kernels.contiguous(D))
     q = dist2(pred[:, :, None, :], D[None]) / (radius * radius)[..., None]
     return np.where(np.isnan(q), np.inf, q)
 
@@ -131,6 +134,10 @@ def epipolar_consistency(pairs: CameraPairs, uv: np.ndarray, tol_px: float, sigm
         ``tested`` (K, C) bool: the camera had a partner with a point to test against.
     """
     K, C = uv.shape[:2]
+    if kernels.HAVE_NUMBA:
+        c = kernels.contiguous
+        return kernels.epipolar_consistency(c(pairs.index, np.intp), c(pairs.F), c(uv), float(tol_px),
+                                            c(np.zeros((K, C)) if sigma is None else sigma), float(n_sigma))
     if len(pairs) == 0 or K == 0:
         return np.zeros((K, C), dtype=bool), np.zeros((K, C), dtype=bool)
     i, j = pairs.index[:, 0], pairs.index[:, 1]

@@ -39,6 +39,7 @@ from itertools import accumulate
 
 import numpy as np
 
+from mocap import kernels
 from mocap.camera import Rig
 from mocap.detect import MIN_SHAPE_AREA
 from mocap.detections import Detections, floored_covariance
@@ -365,6 +366,7 @@ class Tracker:
         self._last = -1
         self._outlier_px = cfg.outlier_start_px  # camera rejection floor, px (follows the residual level)
         self._rms_px = cfg.outlier_start_px / max(cfg.outlier_rms_factor, 1.0)  # typical reprojection RMS, px
+        kernels.announce()
 
     # ------------------------------------------------------------------ public API
     def step(self, frame_index: int, detections: list[Detections]) -> FrameResult:
@@ -540,6 +542,10 @@ class Tracker:
     def _search_regions(self, lock: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Predicted ideal pixels (K, C, 2), search radii (K, C), pixels, and predicted depths (K, C), m."""
         t, cfg = self._t, self._cfg
+        if kernels.HAVE_NUMBA:
+            return kernels.search_regions(t.x3, t.e3, t.since, t.x2, t.e2, kernels.contiguous(lock, bool), self._P,
+                                          self._focal, self._dt, cfg.gate_scale, cfg.gate_floor_m, cfg.reid_max_m,
+                                          cfg.gate_floor_px, cfg.gate_max_px)
         proj, depth = project_ideal(self._P, t.x3[:, :3])  # (C, K, 2), (C, K)
         depth = depth.T
         r3 = np.minimum(self._running.radius(*t.e3.T, t.since, self._dt, cfg.gate_floor_m), cfg.reid_max_m)
@@ -555,6 +561,10 @@ class Tracker:
         """(K, C) bool: another track in play, seen by that camera within ``hidden_frames``, is predicted within a
         marker's image diameter + ``merge_px`` (a marker hidden from a camera merges with nothing in its image),
         and did not take a blob of its own there this frame (``asg`` (K, C)): two blobs are not one merged."""
+        if kernels.HAVE_NUMBA:
+            c = kernels.contiguous
+            return kernels.crowded(c(pred), c(play, bool), c(self._t.unseen2 <= self._cfg.hidden_frames, bool),
+                                   c(depth), c(asg, np.intp), self._focal, self._cfg.marker_mm, self._cfg.merge_px)
         p = np.ascontiguousarray(np.where(play[:, None, None], pred, np.nan).swapaxes(0, 1))  # (C, K, 2)
         seen = np.where((self._t.unseen2.T <= self._cfg.hidden_frames)[:, :, None], p, np.nan)  # (C, K, 2)
         d2 = dist2(p[:, :, None, :], seen[:, None, :, :])
@@ -654,6 +664,13 @@ class Tracker:
         if idx.size == 0:
             return
         t, dt = self._t, self._dt
+        if kernels.HAVE_NUMBA:  # the same steps, in place
+            c = kernels.contiguous
+            kernels.update_tracks(idx, c(meas.X), c(meas.cov), c(meas.asg, np.intp), fr.D, fr.S, self._P, self._focal,
+                                  dt, self._running.alpha, _IMAGE_VELOCITY_STD, _IMAGE_ACCEL_STD, t.since, t.hits,
+                                  t.x3, t.P3, t.e3, t.last_X, t.last_v, t.noise, t.x2, t.P2, t.e2, t.last_uv,
+                                  t.last_uvv, t.lock2, t.unseen2)
+            return
         X = meas.X[idx]
         cov = meas.cov[idx]
         R = cov + np.eye(3) * 1e-12

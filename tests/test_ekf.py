@@ -7,6 +7,7 @@ import pytest
 from filterpy.common import Q_discrete_white_noise
 from filterpy.kalman import ExtendedKalmanFilter
 
+from mocap import kernels
 from mocap.ekf import (
     RunningError,
     ca_process_noise,
@@ -18,6 +19,15 @@ from mocap.ekf import (
     update_position,
 )
 from mocap.geometry import reprojection_jacobians
+
+
+@pytest.fixture(autouse=True, params=["numpy", "numba"])
+def path(request, monkeypatch):
+    """Every test on both paths: the numpy functions, and the compiled kernels they switch to."""
+    if request.param == "numba" and not kernels.HAVE_NUMBA:
+        pytest.skip(f"compiled kernels off: {kernels.REASON}")
+    monkeypatch.setattr(kernels, "HAVE_NUMBA", request.param == "numba")
+    return request.param
 
 
 def _random_spd(rng: np.random.Generator, n: int, scale: float) -> np.ndarray:

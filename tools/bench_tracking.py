@@ -7,10 +7,15 @@ the same frames on one core (BLAS threads pinned to 1); the figures are frames p
 ``Tracker.step`` (undistortion, prediction, association, fusion, identities, recording) plus
 ``finish``, and the accuracy / identity scores of both outputs from ``mocap.evaluate``.
 
+The tracker runs twice when numba is installed: on the numpy path (``mocap.kernels.HAVE_NUMBA`` off, as with
+``MOCAP_NO_NUMBA=1``) and with the compiled kernels (after one untimed warm-up run that compiles them or loads
+them from numba's cache, timed on its own), and the largest difference of their outputs is printed.
+
 ``--stages`` adds one more (untimed-for-the-table) tracker run with a timer around each stage method of
-``Tracker`` and around the main functions it calls (EKF, gating, assignment, epipolar pruning, fusion)
-and prints microseconds per frame and per call (inclusive: a stage called from another counts in both;
-each timer adds ~1 us per call), to see where the time goes.
+``Tracker`` and around the main functions it calls (EKF, gating, assignment, epipolar pruning, fusion), on
+the default path (compiled kernels when numba is installed), and prints microseconds per frame and per call
+(inclusive: a stage called from another counts in both; each timer adds ~1 us per call), to see where the
+time goes.
 
 Usage:
     python tools/bench_tracking.py [--frames 1200] [--markers 40] [--cameras 6] [--motion body|FILE.c3d]
@@ -31,6 +36,7 @@ import time  # noqa: E402
 import numpy as np  # noqa: E402
 from machine_info import describe  # noqa: E402  (tools/ is on sys.path when run as a script)
 
+from mocap import kernels  # noqa: E402
 from mocap.evaluate import evaluate  # noqa: E402
 from mocap.reference import ReferenceTracker  # noqa: E402
 from mocap.synth import SynthSettings, marching_motion, motion_from_c3d, plan_take, ring_rig  # noqa: E402
@@ -119,15 +125,26 @@ def main() -> None:
     args = ap.parse_args()
 
     rig, truth, frames = _take(args)
+    compiled = kernels.HAVE_NUMBA
     print(f"machine: {describe()}")
+    print(f"tracker paths: numpy{' and compiled kernels' if compiled else ''} ({kernels.REASON})")
     n_blobs = np.mean([sum(len(d) for d in dets) for dets in frames])
     print(f"take: {args.motion}, {len(frames)} frames at {truth.fps:g} Hz, {truth.positions.shape[1]} markers, "
           f"{len(rig)} cameras, {n_blobs:.0f} blobs per frame (all cameras); centroid-level simulation")
-    rows = []
-    for name, make in (("reference", ReferenceTracker), ("tracker", Tracker)):
+    runs = [("reference", ReferenceTracker, False), ("tracker", Tracker, False)]
+    if compiled:
+        t0 = time.perf_counter()
+        _time(Tracker, rig, truth.fps, frames[:30])  # untimed warm-up: compile, or load from numba's cache
+        print(f"compiled kernels ready in {time.perf_counter() - t0:.2f} s (first use in this process)")
+        runs.append(("tracker+nb", Tracker, True))
+    rows, outputs = [], []
+    for name, make, on in runs:
+        kernels.HAVE_NUMBA = on
         best, traj = min((_time(make, rig, truth.fps, frames) for _ in range(args.repeat)), key=lambda r: r[0])
         report = evaluate(traj, truth)
         rows.append((name, len(frames) / best, report))
+        outputs.append(traj)
+    kernels.HAVE_NUMBA = compiled
     base = rows[0][1]
     print(f"{'':10s} {'frames/s':>9s} {'x ref':>6s} {'RMSE mm':>8s} {'/CRLB':>6s} {'complete%':>9s} {'ghost%':>7s} "
           f"{'switches':>8s} {'/10k':>6s} {'IDF1':>6s}")
@@ -135,7 +152,15 @@ def main() -> None:
         print(f"{name:10s} {fps:9.0f} {fps / base:6.2f} {r.rmse_mm:8.3f} {r.rmse_over_crlb:6.2f} "
               f"{100 * r.completeness:9.2f} {100 * r.ghost_rate:7.3f} {r.switches:8d} {r.switches_per_10k:6.1f} "
               f"{r.idf1:6.4f}")
+    if compiled:
+        a, b = outputs[1], outputs[2]
+        same = a.labels == b.labels and np.array_equal(np.isnan(a.positions), np.isnan(b.positions))
+        diff = np.nanmax(np.abs(a.positions - b.positions), initial=0.0) if same else np.nan
+        print(f"tracker+nb (compiled kernels) vs tracker (numpy): {rows[2][1] / rows[1][1]:.2f}x the frames/s; "
+              f"same identities and samples: {same and np.array_equal(a.camera_masks, b.camera_masks)}, "
+              f"largest position difference {diff:.1e} m")
     if args.stages:
+        print(f"stages on the {'compiled' if compiled else 'numpy'} path")
         stages = _stage_times(rig, truth.fps, frames)
         print(f"tracker stages and functions (inclusive, one run with timers; {len(frames)} frames):")
         print(f"{'stage':30s} {'us/frame':>9s} {'calls/frame':>11s} {'us/call':>8s} {'share':>6s}")

@@ -1,0 +1,641 @@
+"""Compiled kernels of the tracker's hot per-frame loops (numba, optional), and the switch that selects them.
+
+The numpy functions (:mod:`mocap.fusion`, :mod:`mocap.ekf`, :mod:`mocap.stereo`, the tracker's stages) are
+the reference; each kernel here computes the same numbers with one loop over the points, tracks or filters
+(one call per stage and frame instead of dozens of numpy calls on small arrays) and the callers switch to it
+where :data:`HAVE_NUMBA` is true. The same arithmetic in the same order, so results agree to rounding
+(BLAS sums products in its own order: ~1e-16 relative). Install with ``pip install 'mocap[fast]'``.
+
+:data:`HAVE_NUMBA` is false when numba cannot be imported or the environment variable ``MOCAP_NO_NUMBA`` is
+set to anything but ``0`` (tests and benchmarks use it to run the numpy path). Kernels are compiled on first
+use and cached on disk next to this file (or in numba's user cache folder when that is read-only; without
+any writable folder they are compiled in every process, which is only slower).
+"""
+
+from __future__ import annotations
+
+import functools
+import logging
+import math
+import os
+
+import numpy as np
+
+__all__ = ["HAVE_NUMBA", "REASON", "announce", "contiguous", "robust_triangulate", "gauss_newton", "update_position",
+           "repick", "predict", "update_tracks", "epipolar_consistency", "gate", "search_regions", "crowded"]
+
+_log = logging.getLogger("mocap")
+
+
+def _load_numba():
+    """(numba module or None, why)."""
+    if os.environ.get("MOCAP_NO_NUMBA", "0") not in ("", "0"):
+        return None, "MOCAP_NO_NUMBA is set"
+    try:
+        import numba
+    except ImportError:
+        return None, "numba is not installed (pip install 'mocap[fast]')"
+    return numba, f"numba {numba.__version__}"
+
+
+_numba, REASON = _load_numba()
+HAVE_NUMBA: bool = _numba is not None  # the switch the callers read (``kernels.HAVE_NUMBA``, at call time)
+
+
+def _jit(function):
+    """``numba.njit`` with an on-disk cache (without, where no cache folder is writable); IEEE division
+    (x / 0 is inf or NaN, as in numpy). Without numba the plain function (never called by the callers)."""
+    if _numba is None:
+        return function
+    try:
+        return _numba.njit(cache=True, error_model="numpy")(function)
+    except RuntimeError:  # "cannot cache function ...: no locator available": no writable folder
+        return _numba.njit(error_model="numpy")(function)
+
+
+def contiguous(a: np.ndarray, dtype: type = np.float64) -> np.ndarray:
+    """``a`` as a C-contiguous array of ``dtype`` (no copy if it is one): one compiled version of each kernel."""
+    return np.ascontiguousarray(a, dtype=dtype)
+
+
+@functools.cache
+def announce() -> None:
+    """Log once which path the tracker runs (called when a tracker is made)."""
+    if HAVE_NUMBA:
+        _log.info("tracking kernels: compiled (%s)", REASON)
+    else:
+        _log.info("tracking kernels: numpy (%s)", REASON)
+
+
+# ---------------------------------------------------------------------------------------------- small algebra
+@_jit
+def _inv2x2(a, b, c, d):
+    """Inverse of [[a, b], [c, d]] as :func:`mocap.geometry.inv2x2` computes it: (d, -b, -c, a) / det."""
+    det = a * d - b * c
+    return d / det, -b / det, -c / det, a / det
+
+
+@_jit
+def _inv3x3(A, out):
+    """``out`` (3, 3) = inverse of ``A`` (3, 3) as :func:`mocap.geometry.inv3x3` computes it (adjugate / det)."""
+    for i in range(3):
+        i1, i2 = (i + 1) % 3, (i + 2) % 3
+        for j in range(3):
+            j1, j2 = (j + 1) % 3, (j + 2) % 3
+            out[i, j] = A[j1, i1] * A[j2, i2] - A[j1, i2] * A[j2, i1]
+    det = A[0, 0] * out[0, 0] + A[0, 1] * out[1, 0] + A[0, 2] * out[2, 0]
+    for i in range(3):
+        for j in range(3):
+            out[i, j] /= det
+
+
+# ---------------------------------------------------------------------------------------------- fusion
+@_jit
+def gauss_newton(P, uv, Winv, mask, point, X, iterations, tol_m, cov, proj, res, depth):
+    """:func:`mocap.fusion._gauss_newton` for L problems solved together (one stopping test for all).
+
+    Problem l is point ``point[l]`` seen by the cameras ``mask[:, l]`` (C, L) bool, weights ``Winv`` (C, K, 2, 2)
+    times the mask, detections ``uv`` (C, K, 2) zero where unseen. ``X`` (L, 3) start, refined in place;
+    fills ``cov`` (L, 3, 3), ``proj`` and ``res`` (C, L, 2) (first order after the last step), ``depth`` (C, L).
+    """
+    C = P.shape[0]
+    L = point.shape[0]
+    J = np.empty((L, 2, C, 3))  # the last linearisation
+    WJ = np.empty((2, C, 3))
+    H = np.empty((3, 3))
+    dx = np.zeros((L, 3))
+    few = np.zeros(L, dtype=np.bool_)
+    for lo in range(L):
+        n = 0
+        for c in range(C):
+            n += Winv[c, point[lo], 0, 0] * (1.0 if mask[c, lo] else 0.0) > 0
+        few[lo] = n < 2
+    for it in range(iterations):
+        converged = True
+        for lo in range(L):
+            k = point[lo]
+            x0, x1, x2 = X[lo, 0], X[lo, 1], X[lo, 2]
+            for c in range(C):
+                m = 1.0 if mask[c, lo] else 0.0
+                w = x0 * P[c, 2, 0] + x1 * P[c, 2, 1] + x2 * P[c, 2, 2] + P[c, 2, 3]
+                for a in range(2):
+                    p = (x0 * P[c, a, 0] + x1 * P[c, a, 1] + x2 * P[c, a, 2] + P[c, a, 3]) / w
+                    proj[c, lo, a] = p
+                    res[c, lo, a] = uv[c, k, a] - p
+                    for i in range(3):
+                        J[lo, a, c, i] = (P[c, a, i] - p * P[c, 2, i]) / w
+                w00, w01 = Winv[c, k, 0, 0] * m, Winv[c, k, 0, 1] * m
+                w10, w11 = Winv[c, k, 1, 0] * m, Winv[c, k, 1, 1] * m
+                for i in range(3):
+                    WJ[0, c, i] = w00 * J[lo, 0, c, i] + w01 * J[lo, 1, c, i]
+                    WJ[1, c, i] = w10 * J[lo, 0, c, i] + w11 * J[lo, 1, c, i]
+            h00 = h01 = h02 = h10 = h11 = h12 = h20 = h21 = h22 = g0 = g1 = g2 = 0.0
+            for a in range(2):  # J^T W J and J^T W r, summed over (a, c) in numpy's order
+                for c in range(C):
+                    w0, w1, w2 = WJ[a, c, 0], WJ[a, c, 1], WJ[a, c, 2]
+                    j0, j1, j2, r = J[lo, a, c, 0], J[lo, a, c, 1], J[lo, a, c, 2], res[c, lo, a]
+                    h00 += w0 * j0
+                    h01 += w0 * j1
+                    h02 += w0 * j2
+                    h10 += w1 * j0
+                    h11 += w1 * j1
+                    h12 += w1 * j2
+                    h20 += w2 * j0
+                    h21 += w2 * j1
+                    h22 += w2 * j2
+                    g0 += w0 * r
+                    g1 += w1 * r
+                    g2 += w2 * r
+            if few[lo]:
+                h00, h01, h02, h10, h11, h12, h20, h21, h22 = 1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0
+            H[0, 0], H[0, 1], H[0, 2] = h00, h01, h02
+            H[1, 0], H[1, 1], H[1, 2] = h10, h11, h12
+            H[2, 0], H[2, 1], H[2, 2] = h20, h21, h22
+            _inv3x3(H, cov[lo])
+            for i in range(3):
+                d = cov[lo, i, 0] * g0 + cov[lo, i, 1] * g1 + cov[lo, i, 2] * g2
+                dx[lo, i] = d
+                X[lo, i] += d
+                converged &= abs(d) < tol_m
+        if it == iterations - 1 or converged:
+            break
+    for lo in range(L):
+        for c in range(C):
+            for a in range(2):
+                step = dx[lo, 0] * J[lo, a, c, 0] + dx[lo, 1] * J[lo, a, c, 1] + dx[lo, 2] * J[lo, a, c, 2]
+                proj[c, lo, a] += step
+                res[c, lo, a] -= step
+            depth[c, lo] = X[lo, 0] * P[c, 2, 0] + X[lo, 1] * P[c, 2, 1] + X[lo, 2] * P[c, 2, 2] + P[c, 2, 3]
+
+
+@_jit
+def _solve(P, uvz, Winv, used, point, X, iterations, cov3, proj, res, depth, err):
+    """Gauss-Newton of the points ``point`` over their ``used`` cameras, written back at those points."""
+    C = P.shape[0]
+    L = point.shape[0]
+    mask = np.empty((C, L), dtype=np.bool_)
+    for lo in range(L):
+        for c in range(C):
+            mask[c, lo] = used[c, point[lo]]
+    Xs = np.empty((L, 3))
+    for lo in range(L):
+        for i in range(3):
+            Xs[lo, i] = X[point[lo], i]
+    cs, ps, rs, ds = np.empty((L, 3, 3)), np.empty((C, L, 2)), np.empty((C, L, 2)), np.empty((C, L))
+    gauss_newton(P, uvz, Winv, mask, point, Xs, iterations, 1e-6, cs, ps, rs, ds)
+    for lo in range(L):  # (element by element: array-slice assignments are slow to compile)
+        k = point[lo]
+        for i in range(3):
+            X[k, i] = Xs[lo, i]
+            for j in range(3):
+                cov3[k, i, j] = cs[lo, i, j]
+        for c in range(C):
+            for a in range(2):
+                proj[c, k, a] = ps[c, lo, a]
+                res[c, k, a] = rs[c, lo, a]
+            depth[c, k] = ds[c, lo]
+            err[c, k] = math.hypot(rs[c, lo, 0], rs[c, lo, 1]) if mask[c, lo] else 0.0
+
+
+@_jit
+def _consensus(P, uvz, Winv, used, X, limit, todo, iterations):
+    """:func:`mocap.fusion._consensus` of the points ``todo``: their ``used`` (C, K) columns set in place to the
+    cameras agreeing with the best camera pair (the first pair of the lowest truncated cost)."""
+    C = P.shape[0]
+    T = todo.shape[0]
+    n_pairs = C * (C - 1) // 2
+    pi = np.empty(n_pairs, dtype=np.intp)
+    pj = np.empty(n_pairs, dtype=np.intp)
+    q = 0
+    for i in range(C):  # np.triu_indices(C, 1) order
+        for j in range(i + 1, C):
+            pi[q], pj[q] = i, j
+            q += 1
+    L = 0
+    for q in range(n_pairs):
+        for t in range(T):
+            L += used[pi[q], todo[t]] and used[pj[q], todo[t]]
+    point = np.empty(L, dtype=np.intp)
+    mask = np.zeros((C, L), dtype=np.bool_)
+    Xs = np.empty((L, 3))
+    lo = 0
+    for q in range(n_pairs):  # (pair, point) problems, pair-major as np.nonzero gives them
+        for t in range(T):
+            k = todo[t]
+            if used[pi[q], k] and used[pj[q], k]:
+                point[lo] = k
+                mask[pi[q], lo] = mask[pj[q], lo] = True
+                for i in range(3):
+                    Xs[lo, i] = X[k, i]
+                lo += 1
+    if L == 0:
+        return
+    cs, ps, rs, ds = np.empty((L, 3, 3)), np.empty((C, L, 2)), np.empty((C, L, 2)), np.empty((C, L))
+    gauss_newton(P, uvz, Winv, mask, point, Xs, iterations, 1e-6, cs, ps, rs, ds)
+    e2 = np.empty((C, L))
+    best_cost = np.full(X.shape[0], np.inf)
+    best = np.full(X.shape[0], -1, dtype=np.intp)
+    for lo in range(L):
+        k = point[lo]
+        cost = 0.0
+        for c in range(C):
+            e = math.hypot(rs[c, lo, 0], rs[c, lo, 1]) / limit[c, k]
+            e = e * e
+            e2[c, lo] = e
+            cost += (e if (e < 1.0 or e != e) else 1.0) * (1.0 if used[c, k] else 0.0)
+        if cost < best_cost[k]:  # NaN never wins
+            best_cost[k] = cost
+            best[k] = lo
+    for t in range(T):
+        k = todo[t]
+        if best[k] >= 0:
+            for c in range(C):
+                used[c, k] = used[c, k] and e2[c, best[k]] < 1.0
+
+
+@_jit
+def robust_triangulate(P, uv, cov, start, outlier_sigma, outlier_min_px, iterations):
+    """:func:`mocap.fusion.robust_triangulate` in one call: returns X (K, 3), cov (K, 3, 3), rms_px (K,),
+    used (K, C), proj (C, K, 2), depth (C, K) (the fields of :class:`mocap.fusion.Triangulated`)."""
+    C, K = uv.shape[0], uv.shape[1]
+    used = np.empty((C, K), dtype=np.bool_)
+    limit = np.empty((C, K))
+    uvz = np.zeros((C, K, 2))
+    Winv = np.empty((C, K, 2, 2))
+    for c in range(C):
+        for k in range(K):
+            used[c, k] = math.isfinite(uv[c, k, 0])
+            v = outlier_sigma * math.sqrt(0.5 * (cov[c, k, 0, 0] + cov[c, k, 1, 1]))
+            limit[c, k] = v if (v >= outlier_min_px or v != v) else outlier_min_px
+            if used[c, k]:
+                uvz[c, k, 0], uvz[c, k, 1] = uv[c, k, 0], uv[c, k, 1]
+                a, b, cc, d = _inv2x2(cov[c, k, 0, 0], cov[c, k, 0, 1], cov[c, k, 1, 0], cov[c, k, 1, 1])
+            else:
+                a, b, cc, d = _inv2x2(1.0, 0.0, 0.0, 1.0)
+            Winv[c, k, 0, 0], Winv[c, k, 0, 1], Winv[c, k, 1, 0], Winv[c, k, 1, 1] = a, b, cc, d
+    X = start.copy()
+    cov3, proj, res = np.empty((K, 3, 3)), np.empty((C, K, 2)), np.empty((C, K, 2))
+    depth, err = np.empty((C, K)), np.empty((C, K))
+    _solve(P, uvz, Winv, used, np.arange(K), X, iterations, cov3, proj, res, depth, err)
+    todo = np.arange(K)
+    ratio = np.empty((C, K))
+    for rnd in range(C - 1):
+        keep = np.zeros(todo.shape[0], dtype=np.bool_)
+        for t in range(todo.shape[0]):
+            k = todo[t]
+            top, n, nan = -np.inf, 0, False
+            for c in range(C):
+                r = err[c, k] / limit[c, k] if used[c, k] else -1.0
+                ratio[c, k] = r
+                nan |= r != r
+                top = max(top, r)
+                n += used[c, k]
+            keep[t] = not nan and top > 1.0 and n >= 3
+        if not keep.any():
+            break
+        todo = todo[keep]
+        if rnd == 0:
+            _consensus(P, uvz, Winv, used, X, limit, todo, iterations)
+        else:  # the consensus refit still leaves a camera out of bounds: drop the worst (the first of the largest)
+            for k in todo:
+                worst = 0
+                for c in range(1, C):
+                    if ratio[c, k] > ratio[worst, k]:
+                        worst = c
+                used[worst, k] = False
+        _solve(P, uvz, Winv, used, todo, X, iterations, cov3, proj, res, depth, err)
+    rms = np.empty(K)
+    for k in range(K):
+        n, out, s = 0, False, 0.0
+        for c in range(C):
+            n += used[c, k]
+            out |= err[c, k] > limit[c, k] and used[c, k]
+            s += err[c, k] * err[c, k] * (1.0 if used[c, k] else 0.0)
+        rms[k] = math.sqrt(s / n)
+        fail = n < 2 or (out and n < 3) or not (math.isfinite(X[k, 0]) and math.isfinite(X[k, 1])
+                                                 and math.isfinite(X[k, 2]))
+        if fail:
+            rms[k] = np.nan
+            for c in range(C):
+                used[c, k] = False
+            for i in range(3):
+                X[k, i] = np.nan
+                for j in range(3):
+                    cov3[k, i, j] = np.nan
+    return X, cov3, rms, used.T.copy(), proj, depth
+
+
+@_jit
+def repick(used, X, proj, D, free, limit):
+    """:func:`mocap.fusion.repick`: ``used`` (K, C), ``X`` (K, 3), ``proj`` (C, K, 2), ``D`` (C, N, 2), ``free``
+    and ``limit`` (C, N) -> (K, C) detection index, -1: none. A track gets its nearest eligible free detection
+    (the first of equals) when it is also that detection's nearest track (the first of equals)."""
+    K, C = used.shape
+    N = D.shape[1]
+    out = np.full((K, C), -1, dtype=np.intp)
+    d = np.empty((K, N))
+    best = np.empty(K, dtype=np.intp)
+    for c in range(C):
+        for k in range(K):
+            want = not used[k, c] and math.isfinite(X[k, 0])
+            b, bd = -1, np.inf
+            for n in range(N):
+                e = np.inf
+                if want and free[c, n]:
+                    du, dv = proj[c, k, 0] - D[c, n, 0], proj[c, k, 1] - D[c, n, 1]
+                    s = math.sqrt(du * du + dv * dv)
+                    if s < limit[c, n]:
+                        e = s
+                d[k, n] = e
+                if e < bd:
+                    b, bd = n, e
+            best[k] = b
+        for k in range(K):
+            n = best[k]
+            if n < 0:
+                continue
+            nearest = 0
+            for j in range(1, K):
+                if d[j, n] < d[nearest, n]:
+                    nearest = j
+            if nearest == k:
+                out[k, c] = n
+    return out
+
+
+# ---------------------------------------------------------------------------------------------- filters
+@_jit
+def predict(x, P, F, Q):
+    """:func:`mocap.ekf.predict` of K filters: ``x`` (K, n), ``P`` (K, n, n), ``F`` (n, n), ``Q`` (1 or K, n, n)
+    -> ``x'``, ``P'``. Only the non-zero entries of ``F`` enter the sums (a few per row)."""
+    K, n = x.shape
+    cols = np.zeros((n, n), dtype=np.intp)  # per row of F, its non-zero columns
+    nnz = np.zeros(n, dtype=np.intp)
+    for i in range(n):
+        for j in range(n):
+            if F[i, j] != 0.0:
+                cols[i, nnz[i]] = j
+                nnz[i] += 1
+    x_new = np.empty((K, n))
+    P_new = np.empty((K, n, n))
+    FP = np.empty((n, n))
+    one_q = Q.shape[0] == 1
+    for k in range(K):
+        q = 0 if one_q else k
+        for i in range(n):
+            s = 0.0
+            for m in range(nnz[i]):
+                s += F[i, cols[i, m]] * x[k, cols[i, m]]
+            x_new[k, i] = s
+            for j in range(n):
+                s = 0.0
+                for m in range(nnz[i]):
+                    s += F[i, cols[i, m]] * P[k, cols[i, m], j]
+                FP[i, j] = s
+        for i in range(n):
+            for j in range(n):
+                s = 0.0
+                for m in range(nnz[j]):
+                    s += FP[i, cols[j, m]] * F[j, cols[j, m]]
+                P_new[k, i, j] = s + Q[q, i, j]
+    return x_new, P_new
+
+
+@_jit
+def _update_one(x, P, z, R, d, x_new, P_new, y, S, Si, gain, M, A):
+    """One filter's position update (``d`` a constant, so its loops unroll); ``Si``, ``gain``, ``M``, ``A`` are
+    work arrays (3, 3), (n, d), (n, n), (n, d). ``x_new`` and ``P_new`` may be ``x`` and ``P`` (each element is
+    read before it is written)."""
+    n = x.shape[0]
+    for i in range(d):
+        for j in range(d):
+            S[i, j] = P[i, j] + R[i, j]
+    if d == 2:
+        Si[0, 0], Si[0, 1], Si[1, 0], Si[1, 1] = _inv2x2(S[0, 0], S[0, 1], S[1, 0], S[1, 1])
+    else:
+        _inv3x3(S, Si)
+    for i in range(n):
+        for j in range(d):
+            s = 0.0
+            for m in range(d):
+                s += P[i, m] * Si[m, j]
+            gain[i, j] = s
+    for i in range(d):
+        y[i] = z[i] - x[i]
+    for i in range(n):
+        s = 0.0
+        for m in range(d):
+            s += gain[i, m] * y[m]
+        x_new[i] = x[i] + s
+    for i in range(n):
+        for j in range(n):
+            s = 0.0
+            for m in range(d):
+                s += gain[i, m] * P[m, j]
+            M[i, j] = P[i, j] - s
+    for i in range(n):
+        for j in range(d):
+            s = 0.0
+            for m in range(d):
+                s += gain[i, m] * R[m, j]
+            A[i, j] = s - M[i, j]
+    for i in range(n):
+        for j in range(n):
+            s = 0.0
+            for m in range(d):
+                s += A[i, m] * gain[j, m]
+            P_new[i, j] = M[i, j] + s
+
+
+@_jit
+def _update_all(x, P, z, R, d):
+    K, n = x.shape
+    x_new, P_new, y, S = np.empty((K, n)), np.empty((K, n, n)), np.empty((K, d)), np.empty((K, d, d))
+    Si, gain, M, A = np.empty((3, 3)), np.empty((n, d)), np.empty((n, n)), np.empty((n, d))
+    for k in range(K):
+        _update_one(x[k], P[k], z[k], R[k], d, x_new[k], P_new[k], y[k], S[k], Si, gain, M, A)
+    return x_new, P_new, y, S
+
+
+@_jit
+def update_position(x, P, z, R):
+    """:func:`mocap.ekf.update_position` (Joseph form, d = 2 or 3) of K filters: ``x`` (K, n), ``P`` (K, n, n),
+    ``z`` (K, d), ``R`` (K, d, d) -> ``x'``, ``P'``, innovation ``y`` (K, d), its covariance ``S`` (K, d, d)."""
+    if z.shape[1] == 2:  # a constant d: the compiler unrolls the loops over it (2x faster)
+        return _update_all(x, P, z, R, 2)
+    return _update_all(x, P, z, R, 3)
+
+
+@_jit
+def update_tracks(idx, X, cov, asg, D, S, P, focal, dt, alpha, velocity_std, accel_std,
+                  since, hits, x3, P3, e3, last_X, last_v, noise, x2, P2, e2, last_uv, last_uvv, lock2, unseen2):
+    """The tracker's ``_update`` of tracks ``idx`` in place: 3D filters and running errors from this frame's points
+    ``X`` (K, 3), ``cov`` (K, 3, 3); then the image filters of the cameras used (``asg`` (K, C) into ``D``
+    (C, N, 2), ``S`` (C, N, 2, 2)): updated where locked, else restarted from the projected 3D state."""
+    C = asg.shape[1]
+    y3, S3, y2, S2 = np.empty(3), np.empty((3, 3)), np.empty(2), np.empty((2, 2))
+    Si, R = np.empty((3, 3)), np.empty((3, 3))
+    gain3, M3, A3 = np.empty((9, 3)), np.empty((9, 9)), np.empty((9, 3))
+    gain2, M2, A2 = np.empty((6, 2)), np.empty((6, 6)), np.empty((6, 2))
+    meas = np.empty(9)
+    for k in idx:
+        consecutive = since[k] == 1
+        for i in range(3):
+            for j in range(3):
+                R[i, j] = cov[k, i, j] + (1e-12 if i == j else 0.0)
+        for i in range(3):  # measured position, velocity, acceleration (finite differences)
+            v = (X[k, i] - last_X[k, i]) / dt
+            meas[i], meas[3 + i], meas[6 + i] = X[k, i], v, (v - last_v[k, i]) / dt
+        for g in range(3):  # running prediction errors, from consecutive frames only
+            b = 3 * g
+            d0, d1, d2 = meas[b] - x3[k, b], meas[b + 1] - x3[k, b + 1], meas[b + 2] - x3[k, b + 2]
+            err = math.sqrt(d0 * d0 + d1 * d1 + d2 * d2)
+            if consecutive:
+                e3[k, g] = alpha * (err if math.isfinite(err) else e3[k, g]) + (1.0 - alpha) * e3[k, g]
+        _update_one(x3[k], P3[k], X[k], R, 3, x3[k], P3[k], y3, S3, Si, gain3, M3, A3)  # in place (see _update_one)
+        for i in range(3):
+            last_v[k, i] = meas[3 + i] if consecutive else np.nan
+            last_X[k, i] = X[k, i]
+        noise[k] = math.sqrt((cov[k, 0, 0] + cov[k, 1, 1] + cov[k, 2, 2]) / 3.0)
+        hits[k] = hits[k] + 1 if consecutive else 1
+        since[k] = 0
+    for k in idx:  # the image filters, from the updated 3D states
+        for c in range(C):
+            n = asg[k, c]
+            if n < 0:
+                lock2[k, c] = False
+                continue
+            z = D[c, n]
+            locked = lock2[k, c]
+            uvv0, uvv1 = (z[0] - last_uv[k, c, 0]) / dt, (z[1] - last_uv[k, c, 1]) / dt
+            if locked:
+                meas[0], meas[1], meas[2], meas[3] = z[0], z[1], uvv0, uvv1
+                meas[4], meas[5] = (uvv0 - last_uvv[k, c, 0]) / dt, (uvv1 - last_uvv[k, c, 1]) / dt
+                for g in range(3):
+                    d0, d1 = meas[2 * g] - x2[k, c, 2 * g], meas[2 * g + 1] - x2[k, c, 2 * g + 1]
+                    err = math.sqrt(d0 * d0 + d1 * d1)
+                    if math.isfinite(err):
+                        e2[k, c, g] = alpha * err + (1.0 - alpha) * e2[k, c, g]
+                _update_one(x2[k, c], P2[k, c], z, S[c, n], 2, x2[k, c], P2[k, c], y2, S2, Si, gain2, M2, A2)
+                last_uvv[k, c, 0], last_uvv[k, c, 1] = uvv0, uvv1
+            else:  # (re)start from the projected 3D state (mocap.ekf.init_state), errors seeded from the 3D ones
+                X0, X1, X2 = x3[k, 0], x3[k, 1], x3[k, 2]
+                w = X0 * P[c, 2, 0] + X1 * P[c, 2, 1] + X2 * P[c, 2, 2] + P[c, 2, 3]
+                for i in range(6):
+                    x2[k, c, i] = 0.0
+                    for j in range(6):
+                        P2[k, c, i, j] = 0.0
+                for a in range(2):
+                    u = (X0 * P[c, a, 0] + X1 * P[c, a, 1] + X2 * P[c, a, 2] + P[c, a, 3]) / w
+                    vel = 0.0
+                    for i in range(3):
+                        vel += (P[c, a, i] - u * P[c, 2, i]) / w * x3[k, 3 + i]
+                    x2[k, c, a], x2[k, c, 2 + a] = z[a], vel
+                    P2[k, c, a, 0], P2[k, c, a, 1] = S[c, n, a, 0], S[c, n, a, 1]
+                    P2[k, c, 2 + a, 2 + a] = velocity_std**2
+                    P2[k, c, 4 + a, 4 + a] = accel_std**2
+                depth = P[c, 2, 0] * X0 + P[c, 2, 1] * X1 + P[c, 2, 2] * X2 + P[c, 2, 3]
+                scale = focal[c] / (depth if (depth >= 1e-6 or depth != depth) else 1e-6)
+                for g in range(3):
+                    e2[k, c, g] = e3[k, g] * scale
+                last_uvv[k, c, 0] = last_uvv[k, c, 1] = 0.0
+            last_uv[k, c, 0], last_uv[k, c, 1] = z[0], z[1]
+            lock2[k, c] = True
+            unseen2[k, c] = 0
+
+
+# ---------------------------------------------------------------------------------------------- stereo
+@_jit
+def gate(pred, radius, D):
+    """:func:`mocap.stereo.gate`: (K, C, N) ``|pred - det|^2 / radius^2``, inf where undefined."""
+    K, C = radius.shape
+    N = D.shape[1]
+    q = np.empty((K, C, N))
+    for k in range(K):
+        for c in range(C):
+            r2 = radius[k, c] * radius[k, c]
+            for n in range(N):
+                du, dv = pred[k, c, 0] - D[c, n, 0], pred[k, c, 1] - D[c, n, 1]
+                v = (du * du + dv * dv) / r2
+                q[k, c, n] = np.inf if v != v else v
+    return q
+
+
+@_jit
+def epipolar_consistency(index, F, uv, tol_px, sigma, n_sigma):
+    """:func:`mocap.stereo.epipolar_consistency` with ``sigma`` (K, C): ``supported`` and ``tested`` (K, C).
+    ``index`` (P, 2) the pairs' cameras, ``F`` (P, 3, 3) their fundamental matrices."""
+    K, C = uv.shape[0], uv.shape[1]
+    supported = np.zeros((K, C), dtype=np.bool_)
+    tested = np.zeros((K, C), dtype=np.bool_)
+    for p in range(index.shape[0]):
+        i, j = index[p, 0], index[p, 1]
+        f = F[p]
+        for k in range(K):
+            u1, v1, u2, v2 = uv[k, i, 0], uv[k, i, 1], uv[k, j, 0], uv[k, j, 1]
+            a2 = f[0, 0] * u1 + f[0, 1] * v1 + f[0, 2]  # line in image j of the point in image i
+            b2 = f[1, 0] * u1 + f[1, 1] * v1 + f[1, 2]
+            c2 = f[2, 0] * u1 + f[2, 1] * v1 + f[2, 2]
+            a1 = f[0, 0] * u2 + f[1, 0] * v2 + f[2, 0]  # line in image i of the point in image j
+            b1 = f[0, 1] * u2 + f[1, 1] * v2 + f[2, 1]
+            e = abs(a2 * u2 + b2 * v2 + c2) / min(math.hypot(a2, b2), math.hypot(a1, b1))
+            if not math.isfinite(e):
+                continue
+            tested[k, i] = tested[k, j] = True
+            tol = max(tol_px, n_sigma * math.hypot(sigma[k, i], sigma[k, j]))
+            if e < tol:
+                supported[k, i] = supported[k, j] = True
+    return supported, tested
+
+
+# ---------------------------------------------------------------------------------------------- tracker
+@_jit
+def search_regions(x3, e3, since, x2, e2, lock, P, focal, dt, scale, floor_m, reid_max_m, floor_px, max_px):
+    """The tracker's ``_search_regions``: predicted ideal pixels (K, C, 2) (the locked image filter's, else the
+    projected 3D prediction; NaN behind the camera), search radii (K, C), px, and depths (K, C), m."""
+    K, C = lock.shape
+    pred, radius, depth = np.empty((K, C, 2)), np.empty((K, C)), np.empty((K, C))
+    for k in range(K):
+        t = max(since[k] - 1, 0) * dt  # :meth:`mocap.ekf.RunningError.radius`, clipped to reid_max_m
+        r3 = scale * (e3[k, 0] + e3[k, 1] * t + 0.5 * e3[k, 2] * t * t) + floor_m
+        r3 = r3 if (r3 <= reid_max_m or r3 != r3) else reid_max_m
+        X0, X1, X2 = x3[k, 0], x3[k, 1], x3[k, 2]
+        for c in range(C):
+            w = X0 * P[c, 2, 0] + X1 * P[c, 2, 1] + X2 * P[c, 2, 2] + P[c, 2, 3]
+            depth[k, c] = w
+            if lock[k, c]:
+                pred[k, c, 0], pred[k, c, 1] = x2[k, c, 0], x2[k, c, 1]
+                r = scale * (e2[k, c, 0] + e2[k, c, 1] * 0.0 + e2[k, c, 2] * 0.0) + floor_px
+            else:
+                for a in range(2):
+                    pred[k, c, a] = (X0 * P[c, a, 0] + X1 * P[c, a, 1] + X2 * P[c, a, 2] + P[c, a, 3]) / w
+                r = r3 * focal[c] / w
+            r = r if (r >= floor_px or r != r) else floor_px  # np.clip: NaN stays NaN
+            radius[k, c] = r if (r <= max_px or r != r) else max_px
+            if w <= 0:
+                pred[k, c, 0] = pred[k, c, 1] = np.nan
+    return pred, radius, depth
+
+
+@_jit
+def crowded(pred, play, seen, depth, asg, focal, marker_mm, merge_px):
+    """The tracker's ``_crowded``: (K, C) bool, another track in ``play`` (K,) and ``seen`` (K, C) by that camera
+    lately is predicted (``pred`` (K, C, 2)) within the marker's image diameter + ``merge_px`` (depth (K, C) m,
+    ``focal`` (C,) px) and did not take a blob of its own there (``asg`` (K, C))."""
+    K, C = asg.shape
+    out = np.zeros((K, C), dtype=np.bool_)
+    for c in range(C):
+        for k in range(K):
+            if not play[k]:
+                continue
+            reach = focal[c] * marker_mm / 1000.0 / depth[k, c] + merge_px
+            reach2 = reach * reach
+            for j in range(K):
+                if j == k or not play[j] or not seen[j, c]:
+                    continue
+                du, dv = pred[k, c, 0] - pred[j, c, 0], pred[k, c, 1] - pred[j, c, 1]
+                if du * du + dv * dv < reach2:
+                    own, other = asg[k, c], asg[j, c]
+                    if own < 0 or other < 0 or own == other:
+                        out[k, c] = True
+    return out

@@ -1,0 +1,308 @@
+"""The compiled kernels (:mod:`mocap.kernels`, numba) against the numpy functions they replace.
+
+Every function that switches to a kernel is run on the same seeded inputs with ``kernels.HAVE_NUMBA`` off
+(numpy, the reference) and on (compiled): the same numbers to rounding, the same integer and boolean
+outputs, NaN in the same places; edge cases included (no tracks, one camera, points the geometry cannot
+place). The whole tracker, run both ways, keeps the same state frame after frame.
+"""
+
+from __future__ import annotations
+
+import copy
+import dataclasses
+
+import numpy as np
+import pytest
+from conftest import ring_rig
+from helpers_engine import body_take
+
+from mocap import kernels
+from mocap.detections import Detections
+from mocap.ekf import ca_process_noise, ca_transition, init_state, predict, update_position
+from mocap.fusion import Triangulated, _gauss_newton, repick, robust_triangulate
+from mocap.pairs import CameraPairs, camera_pairs
+from mocap.stereo import epipolar_consistency, gate
+from mocap.synth import SynthSettings
+from mocap.tracker import Tracker, _Frame, _Measurements, _Tracks
+
+pytestmark = pytest.mark.skipif(not kernels.HAVE_NUMBA, reason=f"compiled kernels off: {kernels.REASON}")
+
+
+@pytest.fixture
+def both(monkeypatch):
+    """``run(fn, *args)``: ``fn`` on copies of ``args``, numpy path then compiled path -> (reference, compiled)."""
+
+    def run(fn, *args):
+        out = []
+        for on in (False, True):
+            monkeypatch.setattr(kernels, "HAVE_NUMBA", on)
+            out.append(fn(*copy.deepcopy(args)))
+        return out
+
+    return run
+
+
+def _same(ref, got, rtol: float = 1e-11) -> None:
+    """Equal arrays (exactly for integers and booleans; for floats within ``rtol`` times the array's largest
+    magnitude, NaN in the same places), tuples and dataclasses field by field."""
+    if dataclasses.is_dataclass(ref):
+        for f in dataclasses.fields(ref):
+            _same(getattr(ref, f.name), getattr(got, f.name), rtol)
+    elif isinstance(ref, tuple | list):
+        assert len(ref) == len(got)
+        for r, g in zip(ref, got, strict=True):
+            _same(r, g, rtol)
+    else:
+        ref, got = np.asarray(ref), np.asarray(got)
+        assert ref.shape == got.shape and ref.dtype.kind == got.dtype.kind
+        if ref.dtype.kind == "f":
+            finite = np.abs(ref[np.isfinite(ref)])
+            scale = finite.max() if finite.size else 0.0
+            np.testing.assert_allclose(got, ref, rtol=0, atol=rtol * scale)  # (NaN must match NaN, inf inf)
+        else:
+            np.testing.assert_array_equal(got, ref)
+
+
+def _projections(P: np.ndarray, X: np.ndarray) -> np.ndarray:
+    """(C, K, 2) ideal pixels of points ``X`` (K, 3) through projection matrices ``P`` (C, 3, 4)."""
+    h = np.einsum("cij,kj->cki", P, np.concatenate([X, np.ones((len(X), 1))], axis=1))
+    return h[..., :2] / h[..., 2:]
+
+
+def _scene(rng: np.random.Generator, P: np.ndarray, K: int = 40):
+    """Detections of K points with every trouble the fusion handles: noise, unseen cameras (0 to C views),
+    dragged cameras (a ghost, a merged blob), precise wrong cameras, inflated covariances."""
+    C = len(P)
+    X = rng.normal(scale=0.3, size=(K, 3)) + [0, 0, 1]
+    uv = _projections(P, X) + rng.normal(scale=0.05, size=(C, K, 2))
+    cov = np.broadcast_to(np.eye(2) * 0.05**2, (C, K, 2, 2)).copy()
+    cov *= rng.uniform(0.5, 2.0, size=(C, K, 1, 1))
+    views = rng.integers(0, C + 1, size=K)
+    for k in range(K):
+        uv[rng.permutation(C)[views[k]:], k] = np.nan
+    dragged = rng.random((C, K)) < 0.12
+    uv[dragged] += rng.choice([-1.0, 1.0], size=(dragged.sum(), 2)) * rng.uniform(0.5, 6.0, size=(dragged.sum(), 2))
+    precise = dragged & (rng.random((C, K)) < 0.5)
+    cov[precise] /= 100.0
+    cov[rng.random((C, K)) < 0.1] *= 100.0
+    start = X + rng.normal(scale=0.005, size=X.shape)
+    return X, uv, cov, start
+
+
+def test_robust_triangulation_is_the_numpy_one(rig, both):
+    rng = np.random.default_rng(21)
+    P = rig.projection_matrices()
+    for _ in range(5):
+        _, uv, cov, start = _scene(rng, P)
+        ref, got = both(robust_triangulate, P, uv, cov, start, 5.0, 0.3)
+        _same(ref, got)
+        seen = np.isfinite(uv[..., 0]).T
+        assert (seen & ~ref.used & np.isfinite(ref.X[:, :1])).any()  # some cameras were rejected ...
+        assert np.isnan(ref.X).any() and np.isfinite(ref.X).any()  # ... some points failed, most did not
+    # the same through views: the transposed layouts the tracker passes
+    ref, got = both(robust_triangulate, P, uv.swapaxes(0, 1).copy().swapaxes(0, 1), cov, start[:, :3], 6.0, 0.05, 2)
+    _same(ref, got)
+
+
+def test_robust_triangulation_edge_cases(rig, both):
+    rng = np.random.default_rng(22)
+    P = rig.projection_matrices()
+    P[0] = [[1000.0, 0.0, 512.0, 0.0], [0.0, 1000.0, 384.0, 0.0], [0.0, 0.0, 1.0, 0.0]]  # at the origin, looking up
+    X, uv, cov, start = _scene(rng, P, K=6)
+    _same(*both(robust_triangulate, P, uv[:, :0], cov[:, :0], start[:0], 5.0, 0.3))  # no tracks
+    one_camera = both(robust_triangulate, P[:1], uv[:1], cov[:1], start, 5.0, 0.3)  # one camera: no point
+    _same(*one_camera)
+    assert np.isnan(one_camera[1].X).all() and not one_camera[1].used.any()
+    uv[:, 0] = _projections(P, X[:1])[:, 0]
+    start[0] = 0.0  # a start at camera 0's centre: 0 / 0 there
+    singular = cov.copy()  # zero covariances: infinite weights
+    singular[:, 1] = 0.0
+    with np.errstate(invalid="ignore", divide="ignore"):  # (the numpy path computes 0 / 0 there)
+        ref, got = both(robust_triangulate, P, uv, singular, start, 5.0, 0.3)
+    _same(ref, got)
+    assert np.isnan(ref.X[:2]).all() and np.isfinite(ref.X[2:]).any()
+
+
+def test_gauss_newton_kernel_is_the_numpy_one(rig):
+    rng = np.random.default_rng(23)
+    P = rig.projection_matrices()
+    C = len(P)
+    for iterations in (1, 3):
+        X, uv, cov, start = _scene(rng, P, K=30)
+        mask = np.isfinite(uv[..., 0])
+        mask[:, :3] = False  # no camera, one camera: the identity stands in for the normal matrix
+        mask[0, 1] = True
+        uvz = np.where(mask[..., None], uv, 0.0)
+        Winv = np.linalg.inv(cov)
+        ref = _gauss_newton(P, uvz, Winv * mask[..., None, None], start, iterations)
+        K = len(X)
+        Xk = start.copy()
+        out = np.empty((K, 3, 3)), np.empty((C, K, 2)), np.empty((C, K, 2)), np.empty((C, K))
+        kernels.gauss_newton(P, uvz, Winv, mask, np.arange(K), Xk, iterations, 1e-6, *out)
+        _same(ref, (Xk, *out))
+
+
+def test_repick_is_the_numpy_one(rig, both):
+    rng = np.random.default_rng(24)
+    P = rig.projection_matrices()
+    C = len(P)
+    for _ in range(5):
+        X, uv, cov, start = _scene(rng, P, K=20)
+        tri = robust_triangulate(P, uv, cov, start, 5.0, 0.3)
+        near = tri.proj[:, rng.permutation(20)[:12]] + rng.normal(scale=0.6, size=(C, 12, 2))
+        D = np.concatenate([near, tri.proj[:, :2] + [0.5, 0.0], tri.proj[:, :2] - [0.5, 0.0],  # ties
+                            np.full((C, 3, 2), np.nan)], axis=1)
+        free = rng.random(D.shape[:2]) < 0.8
+        limit = rng.uniform(0.5, 2.0, size=D.shape[:2])
+        for lim in (1.0, limit):
+            ref, got = both(repick, tri, D, free, lim)
+            _same(ref, got)
+            assert (ref >= 0).any() and (ref < 0).any()
+    empty = Triangulated(np.zeros((0, 3)), np.zeros((0, 3, 3)), np.zeros(0), np.zeros((0, C), dtype=bool),
+                         np.zeros((C, 0, 2)), np.zeros((C, 0)))
+    _same(*both(repick, empty, D, free, 1.0))
+    _same(*both(repick, tri, D, np.zeros_like(free), 1.0))
+    # Contested: track 1 is nearer to the blob both want; track 0 then takes nothing (not its second choice).
+    proj = np.array([[[100.0, 100.0], [101.0, 100.0], [300.0, 300.0]]])  # (1, 3, 2)
+    tri = Triangulated(np.zeros((3, 3)), np.zeros((3, 3, 3)), np.zeros(3), np.array([[False], [False], [True]]),
+                       proj, np.ones((1, 3)))
+    D = np.array([[[100.6, 100.0], [99.3, 100.0], [300.0, 300.5]]])
+    ref, got = both(repick, tri, D, np.ones((1, 3), dtype=bool), 1.0)
+    assert ref[:, 0].tolist() == [-1, 0, -1]
+    _same(ref, got)
+
+
+@pytest.mark.parametrize("dims", [2, 3])
+def test_filter_prediction_and_update_are_the_numpy_ones(dims, both):
+    rng = np.random.default_rng(25 + dims)
+    n = 3 * dims
+    for damping in (0.0, 0.5, 1.0):
+        F, Q = ca_transition(1 / 100, dims, damping), ca_process_noise(1 / 100, dims, 40.0)
+        K = 30
+        A = rng.normal(size=(K, n, n))
+        P = A @ A.transpose(0, 2, 1) + np.eye(n)
+        x = rng.normal(size=(K, n))
+        Qk = Q * rng.uniform(1.0, 10.0, size=(K, 1, 1))
+        for q in (Q, Qk):
+            _same(*both(predict, x, P, F, q), rtol=1e-12)
+        z = rng.normal(size=(K, dims))
+        B = rng.normal(size=(K, dims, dims))
+        R = B @ B.transpose(0, 2, 1) * 1e-2 + np.eye(dims) * 1e-4
+        _same(*both(update_position, x, P, z, R), rtol=1e-10)
+        _same(*both(update_position, x, P, z, R[0]), rtol=1e-10)
+    _same(*both(predict, x[:0], P[:0], F, Q))
+    _same(*both(update_position, x[:0], P[:0], z[:0], R[:0]))
+
+
+def test_gate_and_epipolar_pruning_are_the_numpy_ones(rig, both):
+    rng = np.random.default_rng(27)
+    pairs = camera_pairs(rig)
+    P = rig.projection_matrices()
+    C = len(P)
+    X, uv, cov, _ = _scene(rng, P, K=25)
+    choice = uv.swapaxes(0, 1).copy()  # (K, C, 2)
+    sigma = rng.uniform(0.02, 0.5, size=choice.shape[:2])
+    for s in (None, sigma):
+        ref, got = both(epipolar_consistency, pairs, choice, 2.0, s, 4.0)
+        _same(ref, got)
+        assert (ref[1] & ~ref[0]).any() and ref[0].any()  # some choices fail their partners, most pass
+    _same(*both(epipolar_consistency, pairs, choice[:0], 2.0, sigma[:0], 4.0))
+    no_pairs = CameraPairs(np.zeros((0, 2), dtype=np.intp), np.zeros((0, 3, 3)), np.zeros(0), np.zeros(0),
+                           np.zeros(0, dtype=bool))
+    _same(*both(epipolar_consistency, no_pairs, choice, 2.0, sigma, 4.0))
+    D = np.concatenate([uv[:, :20] + rng.normal(scale=2.0, size=(C, 20, 2)), np.full((C, 4, 2), np.nan)], axis=1)
+    pred = choice.copy()
+    radius = rng.uniform(1.0, 5.0, size=pred.shape[:2])
+    q = both(gate, pred, radius, D)
+    _same(*q)
+    assert (q[0] < 1).any() and np.isinf(q[0]).any()
+    _same(*both(gate, pred[:0], radius[:0], D))
+    _same(*both(gate, pred, radius, D[:, :0]))
+
+
+def _random_tracker(rig, K: int, seed: int) -> Tracker:
+    """A tracker whose K live tracks have random, plausible states (the same for the same seed)."""
+    rng = np.random.default_rng(seed)
+    C = len(rig)
+    tracker = Tracker(rig, 100.0)
+    P = rig.projection_matrices()
+    X = rng.normal(scale=0.3, size=(K, 3)) + [0, 0, 1]
+    x3, P3 = init_state(X, np.broadcast_to(np.eye(3) * 1e-6, (K, 3, 3)), rng.normal(scale=1.0, size=(K, 3)), 1.0,
+                        30.0)
+    uv = _projections(P, X).swapaxes(0, 1)  # (K, C, 2)
+    vel2 = rng.normal(scale=300.0, size=(K, C, 2))
+    x2, P2 = init_state(uv.reshape(-1, 2) + 0.3, np.broadcast_to(np.eye(2) * 0.01, (K * C, 2, 2)), vel2.reshape(-1, 2),
+                        1e3, 1e5)
+    last_v = rng.normal(size=(K, 3))
+    last_v[rng.random(K) < 0.3] = np.nan
+    tracker._t = _Tracks(np.arange(K), np.where(rng.random(K) < 0.8, np.arange(K), -1), np.full(K, -1),
+                         rng.integers(1, 10, size=K), rng.choice([0, 1, 1, 1, 2, 5], size=K), x3, P3,
+                         rng.uniform(1e-4, 1e-2, size=(K, 3)), X + rng.normal(scale=0.003, size=(K, 3)), last_v,
+                         x2.reshape(K, C, 6), P2.reshape(K, C, 6, 6), rng.random((K, C)) < 0.7,
+                         rng.integers(0, 20, size=(K, C)), rng.uniform(0.05, 3.0, size=(K, C, 3)),
+                         uv - vel2 / 100.0, vel2 + rng.normal(scale=10.0, size=(K, C, 2)), np.zeros(K, dtype=bool),
+                         X.copy(), rng.uniform(1e-5, 1e-3, size=K))
+    if K:  # one track behind camera 0
+        tracker._t.x3[0, :3] = -np.linalg.solve(P[0, :, :3], P[0, :, 3]) - 0.5 * P[0, 2, :3]
+    return tracker
+
+
+@pytest.mark.parametrize("K", [0, 1, 30])
+def test_tracker_search_regions_crowding_and_update_are_the_numpy_ones(K, monkeypatch):
+    rig = ring_rig()
+    C = len(rig)
+    rng = np.random.default_rng(28 + K)
+    lock = rng.random((K, C)) < 0.6
+    play = rng.random(K) < 0.9
+    N = 2 * K + 3
+    D = rng.uniform([0, 0], [1024, 768], size=(C, N, 2))
+    D[:, N - 2:] = np.nan
+    A = rng.normal(size=(C, N, 2, 2))
+    S = A @ A.transpose(0, 1, 3, 2) * 0.01 + np.eye(2) * 1e-4
+    fr = _Frame(D, S, np.isfinite(D[..., 0]), np.zeros((C, N), dtype=bool), np.ones((C, N)), [N] * C)
+    asg = np.where(rng.random((K, C)) < 0.7, rng.integers(0, N, size=(K, C)), -1)
+    asg[:, -1] = -1  # one camera saw none of them
+    meas = _Measurements.empty(K, C)
+    meas.asg = asg
+    meas.X = rng.normal(scale=0.3, size=(K, 3)) + [0, 0, 1]
+    B = rng.normal(size=(K, 3, 3))
+    meas.cov = B @ B.transpose(0, 2, 1) * 1e-8 + np.eye(3) * 1e-10
+    idx = np.flatnonzero(rng.random(K) < 0.8)
+    results = []
+    for on in (False, True):
+        monkeypatch.setattr(kernels, "HAVE_NUMBA", on)
+        tracker = _random_tracker(rig, K, seed=K)
+        pred, radius, depth = tracker._search_regions(lock)
+        crowded = tracker._crowded(pred, play, depth, asg)
+        tracker._update(fr, copy.deepcopy(meas), idx)
+        results.append(((pred, radius, depth), crowded, tracker._t))
+    _same(*results, rtol=1e-10)
+    (pred, radius, depth), crowded, _ = results[0]
+    if K > 1:  # crowded tracks, a track behind a camera, image filters' and projected predictions
+        front = lock & (depth > 0)
+        x2 = _random_tracker(rig, K, seed=K)._t.x2
+        assert crowded.any() and np.isnan(pred[~(depth > 0)]).all() and (pred[front] == x2[front][:, :2]).all()
+
+
+def test_the_tracker_keeps_the_same_state_on_both_paths(monkeypatch):
+    """A marching body with ghosts, a camera black for a while and one broken throughout: after every frame
+    the same tracks (identities, counters, locks, filters, running errors) and the same output."""
+    take = body_take(frames=90, fps=120.0, markers=20, seed=3, settings=SynthSettings(seed=3, ghosts=4))
+    frames = [list(dets) for dets in take.frames]
+    for k, dets in enumerate(frames):
+        dets[5] = Detections.empty()
+        if 30 <= k < 50:
+            dets[2] = Detections.empty()
+    trackers = []
+    for on in (False, True):
+        monkeypatch.setattr(kernels, "HAVE_NUMBA", on)
+        trackers.append(Tracker(take.rig, take.truth.fps))
+    for k, dets in enumerate(frames):
+        out = []
+        for on, tracker in zip((False, True), trackers, strict=True):
+            monkeypatch.setattr(kernels, "HAVE_NUMBA", on)
+            out.append(tracker.step(k, dets))
+        _same(out[0], out[1], rtol=1e-9)
+        np.testing.assert_allclose(out[1].positions, out[0].positions, rtol=0, atol=1e-12)  # m
+        _same(trackers[0]._t, trackers[1]._t, rtol=1e-9)
+    assert len(trackers[0]._t) >= 20 and trackers[0].finish().n_markers == 20
