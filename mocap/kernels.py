@@ -60,9 +60,10 @@ def contiguous(a: np.ndarray, dtype: type = np.float64) -> np.ndarray:
 
 @functools.cache
 def announce() -> None:
-    """Log once which path the tracker runs (called when a tracker is made)."""
+    """Log once which path the tracker runs (called when a tracker is made): the compiled one quietly (debug),
+    the numpy one with how to get the other (info)."""
     if HAVE_NUMBA:
-        _log.info("tracking kernels: compiled (%s)", REASON)
+        _log.debug("tracking kernels: compiled (%s)", REASON)
     else:
         _log.info("tracking kernels: numpy (%s)", REASON)
 
