@@ -104,6 +104,7 @@ def gauss_newton(P, uv, Winv, mask, point, X, iterations, tol_m, cov, proj, res,
     J = np.empty((L, 2, C, 3))  # the last linearisation
     WJ = np.empty((2, C, 3))
     H = np.empty((3, 3))
+    g = np.empty(3)
     dx = np.zeros((L, 3))
     few = np.zeros(L, dtype=np.bool_)
     for lo in range(L):
@@ -130,31 +131,23 @@ def gauss_newton(P, uv, Winv, mask, point, X, iterations, tol_m, cov, proj, res,
                 for i in range(3):
                     WJ[0, c, i] = w00 * J[lo, 0, c, i] + w01 * J[lo, 1, c, i]
                     WJ[1, c, i] = w10 * J[lo, 0, c, i] + w11 * J[lo, 1, c, i]
-            h00 = h01 = h02 = h10 = h11 = h12 = h20 = h21 = h22 = g0 = g1 = g2 = 0.0
+            H[:] = 0.0
+            g[:] = 0.0
             for a in range(2):  # J^T W J and J^T W r, summed over (a, c) in numpy's order
                 for c in range(C):
-                    w0, w1, w2 = WJ[a, c, 0], WJ[a, c, 1], WJ[a, c, 2]
-                    j0, j1, j2, r = J[lo, a, c, 0], J[lo, a, c, 1], J[lo, a, c, 2], res[c, lo, a]
-                    h00 += w0 * j0
-                    h01 += w0 * j1
-                    h02 += w0 * j2
-                    h10 += w1 * j0
-                    h11 += w1 * j1
-                    h12 += w1 * j2
-                    h20 += w2 * j0
-                    h21 += w2 * j1
-                    h22 += w2 * j2
-                    g0 += w0 * r
-                    g1 += w1 * r
-                    g2 += w2 * r
+                    r = res[c, lo, a]
+                    for i in range(3):
+                        w = WJ[a, c, i]
+                        g[i] += w * r
+                        for j in range(3):
+                            H[i, j] += w * J[lo, a, c, j]
             if few[lo]:
-                h00, h01, h02, h10, h11, h12, h20, h21, h22 = 1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0
-            H[0, 0], H[0, 1], H[0, 2] = h00, h01, h02
-            H[1, 0], H[1, 1], H[1, 2] = h10, h11, h12
-            H[2, 0], H[2, 1], H[2, 2] = h20, h21, h22
+                H[:] = 0.0
+                for i in range(3):
+                    H[i, i] = 1.0
             _inv3x3(H, cov[lo])
             for i in range(3):
-                d = cov[lo, i, 0] * g0 + cov[lo, i, 1] * g1 + cov[lo, i, 2] * g2
+                d = cov[lo, i, 0] * g[0] + cov[lo, i, 1] * g[1] + cov[lo, i, 2] * g[2]
                 dx[lo, i] = d
                 X[lo, i] += d
                 converged &= abs(d) < tol_m
