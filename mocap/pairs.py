@@ -83,14 +83,14 @@ def volume_of_interest(rig: Rig) -> tuple[np.ndarray, float]:
     return centre, radius
 
 
-def _axis_crossings(rig: Rig, min_angle_deg: float) -> tuple[np.ndarray, np.ndarray]:
+def _axis_crossings(rig: Rig, centre: np.ndarray, min_angle_deg: float) -> tuple[np.ndarray, np.ndarray]:
     """Where the cameras' optical axes pass each other.
 
     Returns:
         distance: (C, C) distance along camera i's axis to its closest approach with camera j's axis, m
             (NaN where the axes cross at less than ``min_angle_deg`` or not in front of both cameras).
         working: (C,) each camera's working distance: the median of its row of ``distance``, or its
-            distance to the :func:`volume_of_interest` centre when the row is all NaN.
+            distance to the volume ``centre`` (3,) m when the row is all NaN.
     """
     centers = rig.centers()
     axes = np.stack([cam.R[2] for cam in rig.cameras])
@@ -106,7 +106,7 @@ def _axis_crossings(rig: Rig, min_angle_deg: float) -> tuple[np.ndarray, np.ndar
         u = (aj_g - cosine * ai_g) / det
     crossing = (np.degrees(np.arccos(cosine)) >= min_angle_deg) & (t > 0) & (u > 0) & ~np.eye(C, dtype=bool)
     distance = np.where(crossing, t, np.nan)
-    fallback = np.linalg.norm(centers - volume_of_interest(rig)[0], axis=1)
+    fallback = np.linalg.norm(centers - centre, axis=1)
     working = np.array([np.median(distance[i, crossing[i]]) if crossing[i].any() else fallback[i] for i in range(C)])
     return distance, working
 
@@ -151,7 +151,8 @@ def camera_pairs(rig: Rig, min_angle_deg: float = 15.0, max_angle_deg: float = 1
     C = len(rig)
     if C < 2:
         return CameraPairs(np.zeros((0, 2), int), np.zeros((0, 3, 3)), np.zeros(0), np.zeros(0), np.zeros(0, bool))
-    crossing, working = _axis_crossings(rig, min_angle_deg)
+    centre, _ = volume_of_interest(rig)
+    crossing, working = _axis_crossings(rig, centre, min_angle_deg)
     pts = _view_samples(rig, working, samples, seed)
     homogeneous = np.einsum("cij,nj->cni", rig.projection_matrices(), np.column_stack([pts, np.ones(len(pts))]))
     with np.errstate(divide="ignore", invalid="ignore"):
@@ -160,7 +161,6 @@ def camera_pairs(rig: Rig, min_angle_deg: float = 15.0, max_angle_deg: float = 1
     inside &= inside.sum(axis=0) >= 2  # (C, S): the volume is what two cameras see
     seen = inside.sum(axis=1)
     centers = rig.centers()
-    centre, _ = volume_of_interest(rig)
     rays = centers - centre
     azimuth = np.arctan2(rays[:, 1], rays[:, 0])
     order = np.argsort(azimuth)
