@@ -67,6 +67,8 @@ FIT_ITERATIONS = 2  # Gauss-Newton steps for a single disc (from the weighted ce
 SPLIT_ITERATIONS = 6  # ... for two or more discs fitted jointly (from the peaks)
 DAMPING = 1e-2  # Levenberg-style relative damping of every Gauss-Newton step but the last
 MAX_STEP = 1.0  # px: a centre moves at most this far per step
+FIT_VAGUE = 3.0  # a fit whose std exceeds this many times the weighted centroid's, or whose covariance is
+#   not positive semi-definite, is ill-posed: it falls back to the weighted centroid
 _SATURATED = 255
 _BRUTE_FORCE_NEIGHBOURS = 300  # blobs: up to this many, nearest neighbours from all pairwise distances
 # bounds of each disc's (cx, cy, A, r, s) after every step, and of the step itself
@@ -502,10 +504,13 @@ def _measure(image: np.ndarray, owners: _Owners, blobs: np.ndarray, k: int, radi
     offset = disc[:, :, :2] - start[:, 1:].reshape(n, k, 5)[:, :, :2]
     pos = 2 * np.arange(k)[:, None] + np.arange(2)  # (k, 2) covariance rows of each centre
     cov = pcov[np.arange(n)[:, None, None, None], pos[None, :, :, None], pos[None, :, None, :]] * sigma**2
-    bad = (~np.isfinite(offset).all(axis=2) | ~np.isfinite(cov).all(axis=(2, 3))
+    fallback_cov = stats.centroid_cov[blobs][:, None] * sigma**2 + np.eye(2) * (0.25 if k > 1 else 0.0)
+    a, b, d = cov[..., 0, 0], cov[..., 0, 1], cov[..., 1, 1]
+    with np.errstate(invalid="ignore"):  # (NaN covariances are caught by the finiteness test)
+        vague = (a < 0) | (a * d < b * b) | (a + d > FIT_VAGUE**2 * np.trace(fallback_cov, axis1=2, axis2=3))
+    bad = (~np.isfinite(offset).all(axis=2) | ~np.isfinite(cov).all(axis=(2, 3)) | vague
            | (np.hypot(*offset.transpose(2, 0, 1)) > np.maximum(1.5, disc[:, :, 3])))
     start_xy = start[:, 1:].reshape(n, k, 5)[:, :, :2] + origin[:, None]
-    fallback_cov = stats.centroid_cov[blobs][:, None] * sigma**2 + np.eye(2) * (0.25 if k > 1 else 0.0)
     return (start_xy + np.where(bad[:, :, None], 0.0, offset), np.where(bad[:, :, None, None], fallback_cov, cov))
 
 

@@ -224,3 +224,31 @@ def test_covariance_floor_keeps_weights_finite():
     assert np.allclose(out[2], np.eye(2) * Detections.DEFAULT_SIGMA_PX**2)
     assert np.allclose(floored_covariance(out), out, rtol=0, atol=1e-15)
     assert np.isfinite(np.linalg.inv(out)).all()
+
+
+def test_an_ill_posed_fit_falls_back_to_the_weighted_centroid():
+    """A 2-px ringing artefact beside a marker in an MPEG-4 (mp4v) encoded rendered frame: the disc fit on its two
+    pixels (19 and 16 grey, diagonal) is ill-posed and its covariance indefinite, which floored_covariance turned into
+    a 36 px std: a blob that fits every gate. The detector falls back to the weighted centroid and its covariance."""
+    patch = np.array([
+        [8, 8, 8, 8, 8, 8, 8, 8, 8, 8, 8, 8, 8],
+        [8, 8, 8, 8, 8, 8, 8, 8, 8, 8, 8, 8, 8],
+        [8, 8, 8, 12, 0, 13, 9, 6, 13, 51, 77, 34, 8],
+        [8, 8, 8, 10, 10, 0, 5, 15, 70, 208, 252, 198, 56],
+        [8, 8, 8, 12, 12, 10, 7, 13, 143, 254, 242, 240, 107],
+        [8, 8, 8, 8, 9, 2, 8, 15, 113, 250, 255, 254, 84],
+        [8, 8, 8, 1, 8, 1, 5, 10, 38, 129, 177, 112, 23],
+        [8, 8, 8, 2, 19, 8, 7, 12, 19, 26, 28, 16, 10],
+        [8, 8, 8, 5, 5, 16, 10, 12, 14, 7, 7, 2, 12],
+        [8, 8, 8, 6, 6, 2, 9, 1, 13, 1, 8, 6, 10],
+        [8, 8, 8, 8, 8, 8, 8, 8, 8, 8, 8, 8, 8],
+        [8, 8, 8, 8, 8, 8, 8, 8, 8, 8, 8, 8, 8],
+        [8, 8, 8, 8, 8, 8, 8, 8, 8, 8, 8, 8, 8]], dtype=np.uint8)
+    det = detect(patch, threshold=15, noise_sigma=0.35)  # the full frame's background level 8.0 and noise
+    assert len(det) == 2
+    assert (np.linalg.eigvalsh(det.cov)[:, 0] > 0).all()
+    std = np.sqrt(0.5 * (det.cov[:, 0, 0] + det.cov[:, 1, 1]))
+    assert (std < 0.05).all(), std
+    small = np.argmin(det.area)
+    x, y = det.xy[small]  # weighted centroid of its pixels (x, y) = (4, 7) and (5, 8): nearer the brighter one
+    assert 4.0 < x < 4.5 and abs((y - 7.0) - (x - 4.0)) < 1e-9
