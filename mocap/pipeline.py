@@ -173,7 +173,8 @@ def reconstruct(take: str | os.PathLike, options: ReconstructOptions | None = No
     traj = tracker.finish()
     if opts.relabel:
         stats = repair_identities(traj)
-        log.info("identity repair: %d swaps undone, %d identities re-linked", stats.swaps, stats.stitches)
+        log.info("identity repair: %d swaps undone, %d identities re-linked, %d rejoined their rigid cluster",
+                 stats.swaps, stats.stitches, stats.reunited)
     traj.camera_names = rig.names
     traj.metadata.update({"source": str(path), "software": f"mocap {__version__}", "cameras": len(rig)})
     if traj.n_markers == 0:

@@ -43,6 +43,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
+from mocap.reunite import reunite_clusters
 from mocap.trajectories import Trajectories
 
 __all__ = ["RelabelConfig", "RelabelStats", "relink_tracklets", "repair_identities", "repair_swaps"]
@@ -99,10 +100,11 @@ class RelabelConfig:
 
 @dataclass
 class RelabelStats:
-    """What the repair changed: tail permutations applied and fragments joined."""
+    """What the repair changed: tail permutations applied, fragments joined, cluster members reunited."""
 
     swaps: int = 0
     stitches: int = 0
+    reunited: int = 0
 
 
 def _permute_tails(traj: Trajectories, start: int, order: np.ndarray, columns: np.ndarray) -> None:
@@ -477,7 +479,8 @@ class _Linker:
 
 
 def repair_identities(traj: Trajectories, config: RelabelConfig | None = None) -> RelabelStats:
-    """Swap repair, then fragment stitching, in place; empty identity columns are dropped.
+    """Swap repair, fragment stitching, then the reunion of rigid clusters back after a long absence
+    (:mod:`mocap.reunite`), in place; empty identity columns are dropped.
 
     Labels of the remaining identities are renumbered ``M001``, ``M002`` ... in column order.
     """
@@ -486,4 +489,10 @@ def repair_identities(traj: Trajectories, config: RelabelConfig | None = None) -
         return stats
     stats.swaps = repair_swaps(traj, config)
     stats.stitches = relink_tracklets(traj, config)
+    stats.reunited = reunite_clusters(traj)
+    if stats.reunited:
+        keep = np.isfinite(traj.positions[..., 0]).any(axis=0)
+        traj.positions, traj.residuals, traj.camera_masks = (traj.positions[:, keep], traj.residuals[:, keep],
+                                                             traj.camera_masks[:, keep])
+        traj.labels = [f"M{k + 1:03d}" for k in range(int(keep.sum()))]
     return stats
