@@ -28,8 +28,8 @@ def _moving(local: np.ndarray, rng: np.random.Generator, offset: float) -> np.nd
 def _skin(n: int, rng: np.random.Generator) -> np.ndarray:
     """(F, n, 3) markers that move independently (no rigid pairs), never hidden."""
     t = np.arange(FRAMES)[:, None, None] / 100.0
-    base = np.c_[0.7 * t[:, 0, 0], np.zeros(FRAMES), np.ones(FRAMES)][:, None] + np.c_[np.zeros(n), 1.0 + 0.15 * np.arange(n),
-                                                                                   np.zeros(n)]
+    walk = np.c_[0.7 * t[:, 0, 0], np.zeros(FRAMES), np.ones(FRAMES)]  # (F, 3) beside the plates
+    base = walk[:, None] + np.c_[np.zeros(n), 1.0 + 0.15 * np.arange(n), np.zeros(n)]
     return base + 0.05 * np.sin(2 * np.pi * rng.uniform(0.2, 1.0, (1, n, 3)) * t + rng.uniform(0, 6, (1, n, 3)))
 
 
