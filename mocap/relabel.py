@@ -30,7 +30,10 @@ see and undo:
   back and its distances fit the identity's from before the gap clearly better (``usurp_margin_m``), it
   takes the identity back and the newcomer becomes an identity of its own.
 
-Both passes only move whole samples between identity columns (positions, residuals and camera
+A third pass, :mod:`mocap.reunite`, rejoins rigid clusters that come back after a long absence, far from
+every gate, by the distances between their markers.
+
+All passes only move whole samples between identity columns (positions, residuals and camera
 masks together); they never change a position.
 """
 

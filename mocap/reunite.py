@@ -9,13 +9,15 @@ On finished trajectories (after :mod:`mocap.relabel`), :func:`reunite_clusters`:
 
 1. measures every pair of identities over the frames both are seen in: the median distance and its
    robust spread (1.4826 MAD); pairs closer than ``reach_m`` that spread less than ``spread_m`` are rigid;
-2. groups identities joined by rigid pairs into clusters (at least ``min_members``);
-3. for two clusters, maps members of one to members of the other that are never seen together (one
-   identity ended before the other started), so that the distances within both agree: every injective map
-   is scored by the mean change of the distances it compares, and the best is taken when all of them
-   change less than ``tolerance_m``, at least ``min_members`` distances are compared, and no other map
-   (of these clusters or others) comes within ``margin_m``;
-4. joins each mapped pair into one identity, and repeats while anything was joined.
+2. maps identities that started later onto identities that ended before them (never seen together): a
+   seed is a rigid triangle of later identities whose three distances equal (``tolerance_m``) those of a
+   rigid triangle of earlier ones; it grows one identity at a time, each compared on two distances or
+   more, the best-fitting first unless another fits within ``margin_m``;
+3. takes the largest map, then the one whose distances changed least (``mean_tolerance_m`` at most, on
+   ``min_members`` distances at least), unless another map that sends one of its identities to another
+   marker fits within ``margin_m`` (a symmetric plate, two plates alike): all its candidates are then left
+   alone; and repeats on the identities left;
+4. joins each mapped pair into one identity.
 
 Only whole samples move between identity columns; positions are never changed.
 """
@@ -23,6 +25,7 @@ Only whole samples move between identity columns; positions are never changed.
 from __future__ import annotations
 
 import itertools
+import warnings
 from dataclasses import dataclass
 
 import numpy as np
@@ -31,20 +34,23 @@ from mocap.trajectories import Trajectories
 
 __all__ = ["ReuniteConfig", "reunite_clusters"]
 
+STATISTICS_FRAMES = 4096  # frames per chunk of the co-seen counts, and most frames the distances are taken over
+
+
 @dataclass(frozen=True)
 class ReuniteConfig:
     """Settings of the cluster reunion.
 
     Attributes:
-        reach_m: identities farther apart than this (median distance) are never one cluster, m.
+        reach_m: identities farther apart than this (median distance) are never rigid partners, m.
         spread_m: a pair whose distance's robust spread is below this is rigid, m.
         min_frames: frames two identities must be seen together for their pair to be judged.
-        min_members: smallest cluster, and fewest distances a map must compare.
-        tolerance_m: largest change of any compared distance in an accepted map, m.
+        min_members: fewest distances a map must compare.
+        tolerance_m: largest change of any compared distance in an accepted map, m ...
+        mean_tolerance_m: ... and largest mean change, m (a soft cluster, skin markers, fits no better than that).
         margin_m: the best map's mean change must beat every other's by this much, m ...
         fragment_ratio: ... unless the other map's identity lived less than this fraction of the best's (a short
             fragment of the same marker, or one that held it for a while).
-        rounds: most passes (each joins what the previous one made comparable).
     """
 
     reach_m: float = 1.0
@@ -52,17 +58,24 @@ class ReuniteConfig:
     min_frames: int = 30
     min_members: int = 3
     tolerance_m: float = 0.0025
+    mean_tolerance_m: float = 0.00125
     margin_m: float = 0.0005
     fragment_ratio: float = 0.25
-    rounds: int = 4
 
 
 def _pair_statistics(P: np.ndarray, min_frames: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(M, M) median distance m, robust spread m (NaN where seen together in fewer than ``min_frames``
-    frames) and co-seen frame count of every pair of identities in ``P`` (F, M, 3)."""
+    frames) and co-seen frame count of every pair of identities in ``P`` (F, M, 3).
+
+    The counts are exact; the medians of long takes are taken over every k-th frame (at most
+    ``STATISTICS_FRAMES``), which bounds time and memory.
+    """
     F, M = P.shape[:2]
-    seen = np.isfinite(P[..., 0])
-    count = seen.T.astype(np.int64) @ seen.astype(np.int64)
+    count = np.zeros((M, M), dtype=np.int64)
+    for start in range(0, F, STATISTICS_FRAMES):  # (frame chunks: the (F, M) product stays small)
+        seen = np.isfinite(P[start:start + STATISTICS_FRAMES, :, 0]).astype(np.float32)
+        count += np.rint(seen.T @ seen).astype(np.int64)
+    sample = P[:: max(1, -(-F // STATISTICS_FRAMES))]
     median = np.full((M, M), np.nan)
     spread = np.full((M, M), np.nan)
     for a in range(M):
@@ -70,9 +83,11 @@ def _pair_statistics(P: np.ndarray, min_frames: int) -> tuple[np.ndarray, np.nda
         others = others[others > a]
         if others.size == 0:
             continue
-        d = np.linalg.norm(P[:, others] - P[:, a, None], axis=2)  # (F, n), NaN where either is unseen
-        med = np.nanmedian(d, axis=0)
-        mad = 1.4826 * np.nanmedian(np.abs(d - med), axis=0)
+        with np.errstate(invalid="ignore"), warnings.catch_warnings():  # (a pair never seen in the sample: NaN)
+            warnings.simplefilter("ignore", RuntimeWarning)
+            d = np.linalg.norm(sample[:, others] - sample[:, a, None], axis=2)  # (F', n), NaN where either is unseen
+            med = np.nanmedian(d, axis=0)
+            mad = 1.4826 * np.nanmedian(np.abs(d - med), axis=0)
         median[a, others] = median[others, a] = med
         spread[a, others] = spread[others, a] = mad
     return median, spread, count
@@ -189,7 +204,7 @@ def reunite_clusters(traj: Trajectories, config: ReuniteConfig | None = None) ->
     joined: list[tuple[int, int]] = []
     while True:
         found = [matcher.grow(seed, free) for seed in matcher.seeds(free)]
-        found = [(m, c) for m, c in found if len(c) >= cfg.min_members]
+        found = [(m, c) for m, c in found if len(c) >= cfg.min_members and np.mean(c) < cfg.mean_tolerance_m]
         if not found:
             break
         found.sort(key=lambda mc: (-len(mc[1]), float(np.mean(mc[1]))))
