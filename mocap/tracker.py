@@ -45,7 +45,7 @@ from mocap.detect import MIN_SHAPE_AREA
 from mocap.detections import Detections, floored_covariance
 from mocap.ekf import RunningError, ca_process_noise, ca_transition, init_state, predict, update_position
 from mocap.errors import MocapError
-from mocap.fusion import NewPoints, new_points, reidentify, repick, robust_triangulate
+from mocap.fusion import NewPoints, Triangulated, new_points, reidentify, repick, robust_triangulate
 from mocap.geometry import project_ideal, reprojection_jacobians
 from mocap.pairs import camera_pairs
 from mocap.stereo import assign, dist2, epipolar_consistency, gate
@@ -119,6 +119,10 @@ class TrackerConfig:
             mispredicts alike. When the median prediction error of a track's measured neighbours (itself
             included) exceeds ``gate_floor_m``, its prediction is shifted by it and the frame is associated again.
         neighbour_min: measured neighbours (itself included) needed for that correction.
+        deblend: a merged blob of two markers, one of them measured by two clean cameras or more, gives the
+            other (when it has two clean cameras too) its mirror image about the first, checked against them (see
+            ``_deblend``) ...
+        deblend_px: ... with this std added, px (unequal blobs, a third marker's halo).
         noisy_point_m: a track whose last point's std exceeds this (m) gets proportionally more 3D process
             noise (up to 10x ``jerk_std_3d``): noisy points (small, far markers) must not make the filter lag.
     """
@@ -160,6 +164,8 @@ class TrackerConfig:
     neighbour_m: float = 0.2
     noisy_point_m: float = 0.0003
     neighbour_min: int = 2
+    deblend: bool = True
+    deblend_px: float = 0.1
 
     def __post_init__(self) -> None:
         for name in ("confirm_frames", "new_min_views"):
@@ -634,8 +640,9 @@ class Tracker:
                                     cfg.outlier_sigma, self._outlier_px)
             tri.X[more], tri.cov[more], tri.rms_px[more], tri.used[more] = t2.X, t2.cov, t2.rms_px, t2.used
             asg[~tri.used] = -1
+        split = self._deblend(fr, crowded, asg, tri) if cfg.deblend else np.zeros(asg.shape, dtype=bool)
         meas.ok = np.isfinite(tri.X).all(axis=1)
-        clean = tri.used & ~crowded & ~_gather(fr.merged, asg)
+        clean = tri.used & ((~crowded & ~_gather(fr.merged, asg)) | split)
         # A point leaning on a possibly merged blob is output only if it agrees with the prediction.
         t = self._t
         with np.errstate(invalid="ignore", divide="ignore"):  # the point's own noise, m
@@ -646,6 +653,78 @@ class Tracker:
                                                                       high)
         meas.out = meas.ok & ((clean.sum(axis=1) >= 2) | agree)
         meas.X, meas.cov, meas.rms_px = tri.X, tri.cov, tri.rms_px
+
+    def _deblend(self, fr: _Frame, crowded: np.ndarray, asg: np.ndarray, tri: Triangulated) -> np.ndarray:
+        """Two markers merged into one blob, one of them well measured elsewhere: the other's image is the blob's
+        mirror image about it, 2 u_blob - u_partner (the union of two equal discs is symmetric about their midpoint).
+
+        Where a track holds a shape-flagged merged blob in a camera and exactly one other track, with no blob of
+        its own there, projects within a marker's image diameter + ``merge_px`` of it, and both are measured by
+        two clean views or more, the one of them with exactly two clean views gets the mirrored position
+        (covariance 4x the blob's unscaled one + ``deblend_px``^2) as a clean view and is triangulated again.
+        The new point is kept only when its clean views and the mirrored one all stay in it and it lies in the
+        track's own 3D gate: a wrong mirror (unequal blobs, a third marker, one marker partly hidden) fits the
+        clean views badly. ``tri`` and ``asg`` are updated in place. Returns (K, C) bool: the views mirrored.
+        """
+        cfg = self._cfg
+        out = np.zeros(asg.shape, dtype=bool)
+        merged_view = _gather(fr.merged, asg)  # (crowded or not: a partner never seen there is not 'crowding')
+        if not merged_view.any():
+            return out
+        clean = tri.used & ~crowded & ~_gather(fr.merged, asg)
+        n_clean = clean.sum(axis=1)
+        good = np.isfinite(tri.X).all(axis=1) & (n_clean >= 2)
+        k_all, c_all = np.nonzero(merged_view & good[:, None])
+        if k_all.size == 0 or not (n_clean == 2).any():
+            return out
+        partners = np.flatnonzero(good)
+        uvp, depth = project_ideal(self._P, tri.X[partners])  # (C, P, 2), (C, P)
+        rows, blobs, new_uv, new_S = [], [], [], []
+        for k, c in zip(k_all, c_all, strict=True):
+            j = asg[k, c]
+            u = fr.D[c, j]
+            reach = self._focal[c] * cfg.marker_mm / 1000.0 / depth[c] + cfg.merge_px  # (P,) px
+            near = (np.linalg.norm(uvp[c] - u, axis=1) < reach) & (asg[partners, c] < 0) & (partners != k)
+            if near.sum() != 1:
+                continue
+            p = partners[np.flatnonzero(near)[0]]
+            for target, source in ((k, p), (p, k)):  # either may be the one with two clean views only
+                if n_clean[target] == 2 and good[source]:
+                    uv_source, _ = project_ideal(self._P[c : c + 1], tri.X[source : source + 1])
+                    rows.append((target, c))
+                    blobs.append(j)
+                    new_uv.append(2.0 * u - uv_source[0, 0])
+                    new_S.append(4.0 * fr.S[c, j] / cfg.merged_variance_scale + np.eye(2) * cfg.deblend_px**2)
+        if not rows:
+            return out
+        kk = np.array([k for k, _ in rows])
+        cc = np.array([c for _, c in rows])
+        todo = np.unique(kk)
+        uv = _gather(fr.D, asg[todo])  # (n, C, 2)
+        S = _gather(fr.S, asg[todo])
+        where = np.searchsorted(todo, kk)
+        uv[where, cc] = np.array(new_uv)
+        S[where, cc] = np.array(new_S)
+        still = crowded[todo].copy()  # (n, C) views still suspected of a merge: down-weighted as in _measure
+        still[where, cc] = False
+        inflate = np.where(still & ~_gather(fr.merged, asg[todo]), cfg.merged_variance_scale, 1.0)[..., None, None]
+        t2 = robust_triangulate(self._P, uv.swapaxes(0, 1), (S * inflate).swapaxes(0, 1), tri.X[todo],
+                                cfg.outlier_sigma, self._outlier_px)
+        # Kept only where every clean view and every mirrored one stay in the point (a wrong mirror, the blob being
+        # one marker partly hidden, fits the others badly) and the point stays in the track's own 3D gate.
+        mirrored_views = np.zeros((len(todo), self._C), dtype=bool)
+        mirrored_views[where, cc] = True
+        with np.errstate(invalid="ignore"):
+            ok = (np.isfinite(t2.X).all(axis=1) & ~((clean[todo] | mirrored_views) & ~t2.used).any(axis=1)
+                  & (np.linalg.norm(t2.X - self._t.x3[todo, :3], axis=1) < self._radius3(todo)))
+        todo = todo[ok]
+        tri.X[todo], tri.cov[todo], tri.rms_px[todo], tri.used[todo] = t2.X[ok], t2.cov[ok], t2.rms_px[ok], t2.used[ok]
+        tri.proj[:, todo], tri.depth[:, todo] = t2.proj[:, ok], t2.depth[:, ok]
+        keep = np.isin(kk, todo)
+        asg[kk[keep], cc[keep]] = np.array(blobs)[keep]  # (the partner's view of the shared blob is its own)
+        asg[todo] = np.where(tri.used[todo], asg[todo], -1)
+        out[kk[keep], cc[keep]] = True
+        return out
 
     def _follow_residual_level(self, fr: _Frame, meas: _Measurements) -> None:
         """Running average (``error_alpha``) of each frame's median reprojection RMS (px) over its points with
