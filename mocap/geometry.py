@@ -190,6 +190,15 @@ def reprojection_jacobians(projections: np.ndarray, X: np.ndarray) -> tuple[np.n
     return uv, J
 
 
+def _well_conditioned(H: np.ndarray) -> np.ndarray:
+    """(N,) bool: the (N, 3, 3) normal matrices ``H`` are finite and invertible to working precision."""
+    finite = np.isfinite(H).all(axis=(1, 2))
+    out = np.zeros(len(H), dtype=bool)
+    if finite.any():
+        out[finite] = np.linalg.cond(H[finite]) < 1e12
+    return out
+
+
 def triangulate_weighted(
     projections: np.ndarray,
     points: np.ndarray,
@@ -233,12 +242,14 @@ def triangulate_weighted(
         JtW = np.einsum("cnki,cnkl->cnil", J, W)  # (C, N, 3, 2)
         H = np.einsum("cnil,cnlj->nij", JtW, J)
         g = np.einsum("cnil,cnl->ni", JtW, r)
+        good &= _well_conditioned(H)  # (views with near-infinite covariances leave the depth undetermined)
         H[~good] = np.eye(3)
         g[~good] = 0.0
         Xg = Xg + np.linalg.solve(H, g[..., None])[..., 0]
     proj, J = reprojection_jacobians(P, Xg)
     JtW = np.einsum("cnki,cnkl->cnil", J, W)
     H = np.einsum("cnil,cnlj->nij", JtW, J)
+    good &= _well_conditioned(H)
     H[~good] = np.eye(3)
     cov3 = np.linalg.inv(H)
     r2 = np.where(seen, ((uvz - proj) ** 2).sum(axis=2), 0.0).sum(axis=0)

@@ -114,6 +114,8 @@ class TrackerConfig:
             by ``round_merged``, or by two tracks predicted that close). A point is output only when two cameras
             without such blobs support it, or it lies within ``suspect_m`` (clipped to ``gate_scale`` x the
             running position error) of its prediction; otherwise it only updates its filter.
+        vague_px: a blob whose centroid std (RMS of the two axes) exceeds this, px, is treated as merged too: a
+            blob cut by the image border (std 2 px there) is no clean view.
         suspect_m: (low, high) bounds of that distance, m (high grows to ``n_sigma`` x the point's noise).
         neighbour_m: tracks predicted this close are neighbours: markers of one body segment that fast motion
             mispredicts alike. When the median prediction error of a track's measured neighbours (itself
@@ -159,6 +161,7 @@ class TrackerConfig:
     hidden_frames: int = 10
     round_merged: float = 0.8
     merged_variance_scale: float = 100.0
+    vague_px: float = 0.5
     smear_fraction: float = 0.5
     suspect_m: tuple[float, float] = (0.001, 0.002)
     neighbour_m: float = 0.2
@@ -473,6 +476,7 @@ class Tracker:
         ray = (D - self._centre[:, None, :]) / self._focal_xy[:, None, :]
         tan2 = ray[..., 0] * ray[..., 0] + ray[..., 1] * ray[..., 1]  # (the sum over an axis of 2, ~3x faster)
         merged |= round_ < self._cfg.round_merged / np.sqrt(1.0 + tan2)
+        merged |= S[..., 0, 0] + S[..., 1, 1] > 2.0 * self._cfg.vague_px**2  # cut by the image border, or faint
         S[merged] *= self._cfg.merged_variance_scale
         return _Frame(D, S, valid, merged, round_, counts)
 

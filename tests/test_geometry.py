@@ -90,6 +90,19 @@ def test_weighted_triangulation_covariance_is_calibrated():
     assert np.all(rms > 0)
 
 
+def test_weighted_triangulation_of_views_with_no_information_is_nan_not_an_error():
+    """Two views, one with a covariance of 1e24 px^2 (a centroid that carries nothing): the depth is undetermined.
+    The point is NaN, its neighbour in the batch is unaffected, and nothing raises."""
+    X = np.array([[0.1, 0.2, 1.0], [0.0, 0.0, 1.5]])
+    uv = _ideal(RIG, X)
+    uv[2:, :] = np.nan  # both points seen by cameras 0 and 1 only
+    cov = np.broadcast_to(np.eye(2) * 1e-4, (6, 2, 2, 2)).copy()
+    cov[1, 0] = np.eye(2) * 1e24
+    got, cov3, rms = triangulate_weighted(RIG.projection_matrices(), uv, cov)
+    assert np.isnan(got[0]).all() and np.isnan(cov3[0]).all() and np.isnan(rms[0])
+    np.testing.assert_allclose(got[1], X[1], atol=1e-9)
+
+
 def test_reprojection_jacobians_match_opencv_and_finite_differences():
     """Ideal-pixel projections equal cv2.projectPoints without distortion, depths the camera-frame z; Jacobians
     equal central differences."""
