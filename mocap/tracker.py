@@ -675,7 +675,7 @@ class Tracker:
         merged_view = _gather(fr.merged, asg)  # (crowded or not: a partner never seen there is not 'crowding')
         if not merged_view.any():
             return out
-        clean = tri.used & ~crowded & ~_gather(fr.merged, asg)
+        clean = tri.used & ~crowded & ~merged_view
         n_clean = clean.sum(axis=1)
         good = np.isfinite(tri.X).all(axis=1) & (n_clean >= 2)
         k_all, c_all = np.nonzero(merged_view & good[:, None])
@@ -686,6 +686,8 @@ class Tracker:
         rows, blobs, new_uv, new_S = [], [], [], []
         for k, c in zip(k_all, c_all, strict=True):
             j = asg[k, c]
+            if fr.S[c, j, 0, 0] + fr.S[c, j, 1, 1] > 2.0 * cfg.vague_px**2 * cfg.merged_variance_scale:
+                continue  # a vague blob (cut by the border), not two markers' merge
             u = fr.D[c, j]
             reach = self._focal[c] * cfg.marker_mm / 1000.0 / depth[c] + cfg.merge_px  # (P,) px
             near = (np.linalg.norm(uvp[c] - u, axis=1) < reach) & (asg[partners, c] < 0) & (partners != k)
@@ -693,7 +695,7 @@ class Tracker:
                 continue
             p = partners[np.flatnonzero(near)[0]]
             for target, source in ((k, p), (p, k)):  # either may be the one with two clean views only
-                if n_clean[target] == 2 and good[source]:
+                if n_clean[target] == 2 and good[source] and (target, c) not in rows:
                     uv_source, _ = project_ideal(self._P[c : c + 1], tri.X[source : source + 1])
                     rows.append((target, c))
                     blobs.append(j)
