@@ -172,9 +172,11 @@ def reconstruct(take: str | os.PathLike, options: ReconstructOptions | None = No
             _warn_if_calibration_does_not_fit(rig, first_frames, path)
     traj = tracker.finish()
     if opts.relabel:
+        before = traj.n_markers
         stats = repair_identities(traj)
-        log.info("identity repair: %d swaps undone, %d identities re-linked, %d rejoined their rigid cluster",
-                 stats.swaps, stats.stitches, stats.reunited)
+        log.info("identity repair: %d swaps undone; %d identities -> %d (fragments re-linked, tracks cut where they "
+                 "jumped; %d joined by the shapes of rigid clusters)", stats.swaps, before, traj.n_markers,
+                 stats.reunited)
     traj.camera_names = rig.names
     traj.metadata.update({"source": str(path), "software": f"mocap {__version__}", "cameras": len(rig)})
     if traj.n_markers == 0:
