@@ -3,7 +3,8 @@
 Conventions (anipose / Pose2Sim, see DESIGN.md):
 
 * ``rotation`` is a Rodrigues vector and ``translation`` a vector in metres, both
-  mapping world to camera: ``X_cam = R @ X_world + t``.
+  mapping world to camera: ``X_cam = R @ X_world + t`` (a 3x3 rotation matrix is read too, and written
+  back as a vector).
 * ``matrix`` is the 3x3 intrinsic matrix K in pixels, ``distortions`` the OpenCV
   coefficients ``(k1, k2, p1, p2[, k3])`` (or ``(k1, k2, k3, k4)`` when ``fisheye``).
 * ``size`` is ``(width, height)`` in pixels.
@@ -352,10 +353,22 @@ def _camera_from_table(key: str, table: dict[str, Any], source: str) -> Camera:
         size=(int(size[0]), int(size[1])),
         matrix=matrix,
         distortions=array("distortions", sizes=(4, 5, 8)),
-        rotation=array("rotation", (3,)),
+        rotation=_rotation_vector(array("rotation"), where),
         translation=array("translation", (3,)),
         fisheye=fisheye,
     )
+
+
+def _rotation_vector(value: np.ndarray, where: str) -> np.ndarray:
+    """A calibration's ``rotation``: the (3,) Rodrigues vector, or a (3, 3) rotation matrix (converted)."""
+    if value.shape == (3,):
+        return value
+    if value.shape == (3, 3):
+        if np.abs(value @ value.T - np.eye(3)).max() > 1e-6 or np.linalg.det(value) < 0:
+            raise MocapError(f"{where}: field 'rotation' is a 3x3 matrix but not a rotation (orthonormal, det +1)")
+        return cv2.Rodrigues(value)[0].ravel()
+    raise MocapError(f"{where}: field 'rotation' must be a Rodrigues vector [rx, ry, rz] (or a 3x3 rotation matrix), "
+                     f"got shape {list(value.shape)}")
 
 
 def load_rig(path: str | os.PathLike) -> Rig:

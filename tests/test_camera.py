@@ -2,9 +2,12 @@
 
 from __future__ import annotations
 
+import tomllib
+
 import cv2
 import numpy as np
 import pytest
+import tomli_w
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
@@ -127,6 +130,24 @@ def test_malformed_calibration_names_file_and_field(tmp_path, rig, edit, expecte
     with pytest.raises(MocapError) as info:
         load_rig(path)
     assert str(path) in str(info.value) and expected in str(info.value)
+
+
+def test_a_rotation_matrix_is_read_as_well_as_a_rodrigues_vector(tmp_path, rig):
+    """Some tools write the 3x3 world -> camera matrix; it reads to the same camera (OpenCV's Rodrigues), and a
+    3x3 that is not a rotation is refused by name."""
+    path = tmp_path / "calibration.toml"
+    save_rig(rig, path)
+    data = tomllib.loads(path.read_text())
+    data["cam_1"]["rotation"] = rig.cameras[0].R.tolist()
+    path.write_text(tomli_w.dumps(data))
+    back = load_rig(path)
+    np.testing.assert_allclose(back.cameras[0].rotation, rig.cameras[0].rotation, atol=1e-12)
+    X = np.array([[0.1, -0.2, 1.1]])
+    np.testing.assert_allclose(back.cameras[0].project(X), rig.cameras[0].project(X), atol=1e-9)
+    data["cam_1"]["rotation"] = (2.0 * np.eye(3)).tolist()
+    path.write_text(tomli_w.dumps(data))
+    with pytest.raises(MocapError, match="not a rotation"):
+        load_rig(path)
 
 
 def test_missing_calibration_file(tmp_path):
