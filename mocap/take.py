@@ -70,13 +70,14 @@ class _Recording:
         self.path = path
         self.fps: float | None = None
         self._warned = 0
+        self._shift: int | None = None  # bits dropped from 16-bit PNGs (None: none seen yet)
         if path.is_dir():
             self._files = sorted((p for p in path.iterdir() if p.suffix.lower() == ".png" and p.is_file()),
                                  key=_natural_key)
             self.n_frames = len(self._files)
             first = self._read_png(0) if self._files else None
             if self._files and first is None:
-                raise MocapError(f"{self._files[0]}: cannot be read as an 8-bit PNG image; re-export the frames")
+                raise MocapError(f"{self._files[0]}: cannot be read as an 8- or 16-bit PNG image; re-export the frames")
         else:
             self._files = []
             cap = _open_video(path)
@@ -100,9 +101,20 @@ class _Recording:
 
     def _read_png(self, index: int) -> np.ndarray | None:
         image = cv2.imread(str(self._files[index]), cv2.IMREAD_UNCHANGED)
+        if image is not None and image.dtype == np.uint16:
+            image = self._to_8_bits(image)
         if image is None or image.dtype != np.uint8:
             return None
         return _to_grey(image)
+
+    def _to_8_bits(self, image: np.ndarray) -> np.ndarray:
+        """A 16-bit PNG (10-, 12- or 16-bit sensor data) scaled to 8 bits: the bit depth is taken from the
+        recording's first 16-bit frame (its brightest pixel), and brighter pixels later saturate."""
+        if self._shift is None:
+            bits = max(8, int(image.max()).bit_length())
+            self._shift = bits - 8
+            log.info("%s: 16-bit PNGs holding %d-bit values, scaled to 8 bits for detection", self.path, bits)
+        return np.minimum(image >> self._shift, 255).astype(np.uint8)
 
     def _bad_frame(self, index: int, what: str) -> None:
         self._warned += 1
@@ -118,7 +130,7 @@ class _Recording:
             for index in range(start, stop):
                 image = self._read_png(index)
                 if image is None:
-                    self._bad_frame(index, f"({self._files[index].name}) cannot be read as an 8-bit PNG")
+                    self._bad_frame(index, f"({self._files[index].name}) cannot be read as an 8- or 16-bit PNG")
                 elif (image.shape[1], image.shape[0]) != size:
                     raise MocapError(f"{self._files[index]}: image size {image.shape[1]}x{image.shape[0]} differs "
                                      f"from the calibration's {size[0]}x{size[1]}; all frames must have that size")

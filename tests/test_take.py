@@ -93,6 +93,24 @@ def test_png_natural_order(tmp_path):
         np.testing.assert_array_equal(a, b)
 
 
+@pytest.mark.parametrize("bits", [12, 16])
+def test_16_bit_pngs_are_scaled_to_8_bits_by_their_bit_depth(tmp_path, caplog, bits):
+    """A 12-bit sensor's frames in 16-bit PNGs (values up to 4095) and full 16-bit ones: both read as the 8-bit
+    frames they were made from (the low bits dropped), with one info line naming the depth."""
+    take = tmp_path / "take"
+    take.mkdir()
+    save_rig(ring_rig(1, size=SIZE), take / "calibration.toml")
+    frames = frames_for(0, 4)
+    frames[0][0, 0] = 255  # the first frame's brightest pixel sets the depth
+    wide = [f.astype(np.uint16) << (bits - 8) | 3 for f in frames]  # (low bits: noise below 8-bit resolution)
+    write_pngs(take / "cam1", wide)
+    with caplog.at_level(logging.INFO, logger="mocap.take"):
+        got = [im[0] for _, im in open_take(take, fps=10).images()]
+    for a, b in zip(got, frames, strict=True):
+        np.testing.assert_array_equal(a, b)
+    assert f"{bits}-bit values" in caplog.text
+
+
 def test_camera_without_recording(tmp_path):
     folder = make_take(tmp_path, "mkv")
     (folder / "cam2.mkv").unlink()
