@@ -49,8 +49,10 @@ class ReuniteConfig:
         tolerance_m: largest change of any compared distance in an accepted map, m ...
         mean_tolerance_m: ... and largest mean change, m (a soft cluster, skin markers, fits no better than that).
         margin_m: the best map's mean change must beat every other's by this much, m ...
-        fragment_ratio: ... unless the other map's identity lived less than this fraction of the best's (a short
-            fragment of the same marker, or one that held it for a while).
+        fragment_ratio: ... unless the other map's identity was never seen with the best's (pieces of one marker's
+            track) or lived less than this fraction of its life (a fragment that held that marker for a while).
+        gap_cost_m: among maps that fit alike, the one across the shorter time wins: each second between two
+            identities counts as this much change, m.
     """
 
     reach_m: float = 1.0
@@ -61,6 +63,7 @@ class ReuniteConfig:
     mean_tolerance_m: float = 0.00125
     margin_m: float = 0.0005
     fragment_ratio: float = 0.25
+    gap_cost_m: float = 0.0001
 
 
 def _pair_statistics(P: np.ndarray, min_frames: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -108,12 +111,16 @@ class _Matcher:
     the rigid distances among the new ones equal those among their images."""
 
     def __init__(self, median: np.ndarray, rigid: np.ndarray, after: np.ndarray, size: np.ndarray,
-                 cfg: ReuniteConfig) -> None:
+                 together: np.ndarray, gap_cost: np.ndarray, cfg: ReuniteConfig) -> None:
         self.median, self.rigid, self.after, self.size, self.cfg = median, rigid, after, size, cfg
+        self.together = together  # (M, M) bool: seen in one frame at least once
+        self.gap_cost = gap_cost  # (M, M) m: what joining b after a costs for the time between them
 
     def rivals(self, x: int, y: int) -> bool:
-        """Identity ``y`` is a real alternative to ``x``, not a short fragment (``fragment_ratio``) of its life."""
-        return bool(self.size[y] >= self.cfg.fragment_ratio * self.size[x])
+        """Identity ``y`` is a real alternative to ``x``: another marker (the two were seen together), and not a
+        short fragment (``fragment_ratio``) of ``x``'s life (one that held that marker for a while). Two identities
+        never seen together may be pieces of one marker's track: either is right."""
+        return bool(self.together[x, y] and self.size[y] >= self.cfg.fragment_ratio * self.size[x])
 
     def seeds(self, free: np.ndarray) -> list[dict[int, int]]:
         """Triangle-to-triangle maps (new -> old) whose three distances agree within ``tolerance_m``."""
@@ -154,10 +161,10 @@ class _Matcher:
                         continue
                     change = np.abs(np.subtract(*np.array(pairs).T))
                     if change.max() < cfg.tolerance_m:
-                        options.append((float(change.mean()), b, a))
+                        options.append((float(change.mean()) + self.gap_cost[b, a], float(change.mean()), b, a))
             options.sort()
-            for k, (best, b, a) in enumerate(options):  # the best-fitting pair that no rival comes close to
-                if not any(c < best + cfg.margin_m for c, ob, oa in options[:k] + options[k + 1:]
+            for k, (_, best, b, a) in enumerate(options):  # the best-fitting pair that no rival comes close to
+                if not any(c < best + cfg.margin_m for _, c, ob, oa in options[:k] + options[k + 1:]
                            if (ob == b and self.rivals(a, oa)) or (oa == a and self.rivals(b, ob))):
                     mapping[b] = a
                     break
@@ -199,7 +206,8 @@ def reunite_clusters(traj: Trajectories, config: ReuniteConfig | None = None) ->
     median, spread, count = _pair_statistics(traj.positions, cfg.min_frames)
     rigid = (spread < cfg.spread_m) & (median < cfg.reach_m)  # (NaN compares False)
     after = first[:, None] > last[None, :]  # (M, M): identity b started after identity a ended
-    matcher = _Matcher(median, rigid, after, seen.sum(axis=0), cfg)
+    gap_cost = cfg.gap_cost_m * np.maximum(first[:, None] - last[None, :], 0) / traj.fps
+    matcher = _Matcher(median, rigid, after, seen.sum(axis=0), count > 0, gap_cost, cfg)
     free = np.ones(traj.n_markers, dtype=bool)
     joined: list[tuple[int, int]] = []
     while True:
@@ -207,7 +215,8 @@ def reunite_clusters(traj: Trajectories, config: ReuniteConfig | None = None) ->
         found = [(m, c) for m, c in found if len(c) >= cfg.min_members and np.mean(c) < cfg.mean_tolerance_m]
         if not found:
             break
-        found.sort(key=lambda mc: (-len(mc[1]), float(np.mean(mc[1]))))
+        found.sort(key=lambda mc: (-len(mc[1]), float(np.mean(mc[1])) + np.mean([gap_cost[b, a] for b, a in
+                                                                                mc[0].items()])))
         mapping, changes = found[0]
         inverse = {a: b for b, a in mapping.items()}
         rivals = [m for m, c in found[1:] if len(c) == len(changes)
