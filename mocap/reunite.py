@@ -12,12 +12,14 @@ On finished trajectories (after :mod:`mocap.relabel`), :func:`reunite_clusters`:
 2. maps identities that started later onto identities that ended before them (never seen together): a
    seed is a rigid triangle of later identities whose three distances equal (``tolerance_m``) those of a
    rigid triangle of earlier ones; it grows one identity at a time, each compared on two distances or
-   more, the best-fitting first unless another fits within ``margin_m``;
-3. takes the largest map, then the one whose distances changed least (``mean_tolerance_m`` at most, on
-   ``min_members`` distances at least), unless another map that sends one of its identities to another
-   marker fits within ``margin_m`` (a symmetric plate, two plates alike): all its candidates are then left
-   alone; and repeats on the identities left;
-4. joins each mapped pair into one identity.
+   more, the best-fitting first (the shorter time apart breaks near-ties, ``gap_cost_m``) unless another
+   fits within ``margin_m``;
+3. goes through the maps, largest first, then by how little their distances changed (``mean_tolerance_m``
+   at most, on ``min_members`` distances at least), and takes each whose identities are still free, unless
+   another map that sends one of its identities to another marker fits within ``margin_m`` (a symmetric
+   plate, two plates alike): all their candidates are then left alone;
+4. joins each mapped pair into one identity, and repeats (``rounds``) so that a cluster away several
+   times chains up.
 
 Only whole samples move between identity columns; positions are never changed.
 """
@@ -53,6 +55,7 @@ class ReuniteConfig:
             track) or lived less than this fraction of its life (a fragment that held that marker for a while).
         gap_cost_m: among maps that fit alike, the one across the shorter time wins: each second between two
             identities counts as this much change, m.
+        rounds: most passes; each joins identities once, so a cluster away n times needs log2(n + 1) passes.
     """
 
     reach_m: float = 1.0
@@ -64,6 +67,7 @@ class ReuniteConfig:
     margin_m: float = 0.0005
     fragment_ratio: float = 0.25
     gap_cost_m: float = 0.0001
+    rounds: int = 8
 
 
 def _pair_statistics(P: np.ndarray, min_frames: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -96,14 +100,20 @@ def _pair_statistics(P: np.ndarray, min_frames: int) -> tuple[np.ndarray, np.nda
     return median, spread, count
 
 
-def _rigid_triangles(rigid: np.ndarray, among: np.ndarray) -> list[tuple[int, int, int]]:
-    """Triples of identities in ``among`` whose three pairs are all rigid."""
-    out = []
-    for x in among:
-        ys = among[(among > x) & rigid[x, among]]
-        for i, y in enumerate(ys):
-            out += [(x, y, z) for z in ys[i + 1:] if rigid[y, z]]
-    return out
+def _rigid_triangles(rigid: np.ndarray, among: np.ndarray) -> np.ndarray:
+    """(T, 3) triples (ascending) of identities in ``among`` whose three pairs are all rigid."""
+    sub = rigid[np.ix_(among, among)]
+    i, j = np.nonzero(np.triu(sub, 1))
+    if i.size == 0:
+        return np.zeros((0, 3), dtype=np.intp)
+    third = sub[i] & sub[j]  # (pairs, n): rigid with both
+    third &= np.arange(len(among))[None, :] > j[:, None]
+    p, k = np.nonzero(third)
+    return among[np.stack([i[p], j[p], k], axis=1)]
+
+
+_PERMUTATIONS = np.array(list(itertools.permutations(range(3))))  # (6, 3)
+_PAIRS = np.array([[0, 1], [0, 2], [1, 2]])  # a triangle's three distances
 
 
 class _Matcher:
@@ -122,47 +132,48 @@ class _Matcher:
         never seen together may be pieces of one marker's track: either is right."""
         return bool(self.together[x, y] and self.size[y] >= self.cfg.fragment_ratio * self.size[x])
 
-    def seeds(self, free: np.ndarray) -> list[dict[int, int]]:
+    def seeds(self) -> list[dict[int, int]]:
         """Triangle-to-triangle maps (new -> old) whose three distances agree within ``tolerance_m``."""
-        M, tol = self.median, self.cfg.tolerance_m
-        news = np.flatnonzero(free & self.after.any(axis=1))
-        olds = np.flatnonzero(free & self.after.any(axis=0))
-        old_triangles = _rigid_triangles(self.rigid, olds)
-        out = []
-        for tb in _rigid_triangles(self.rigid, news):
-            db = np.array([M[tb[0], tb[1]], M[tb[0], tb[2]], M[tb[1], tb[2]]])
-            for ta in old_triangles:
-                for pa in itertools.permutations(ta):
-                    if not all(self.after[b, a] for b, a in zip(tb, pa, strict=True)):
-                        continue
-                    da = np.array([M[pa[0], pa[1]], M[pa[0], pa[2]], M[pa[1], pa[2]]])
-                    if np.abs(db - da).max() < tol:
-                        out.append(dict(zip(tb, pa, strict=True)))
-        return out
+        M = self.median
+        new_t = _rigid_triangles(self.rigid, np.flatnonzero(self.after.any(axis=1)))  # (Tb, 3)
+        old_t = _rigid_triangles(self.rigid, np.flatnonzero(self.after.any(axis=0)))  # (Ta, 3)
+        if len(new_t) == 0 or len(old_t) == 0:
+            return []
+        db = M[new_t[:, _PAIRS[:, 0]], new_t[:, _PAIRS[:, 1]]]  # (Tb, 3)
+        perm = old_t[:, _PERMUTATIONS]  # (Ta, 6, 3): every order of each old triangle
+        da = M[perm[..., _PAIRS[:, 0]], perm[..., _PAIRS[:, 1]]]  # (Ta, 6, 3)
+        fit = np.abs(db[:, None, None, :] - da[None]).max(axis=3) < self.cfg.tolerance_m  # (Tb, Ta, 6)
+        fit &= self.after[new_t[:, None, None, :], perm[None]].all(axis=3)
+        t, u, q = np.nonzero(fit)
+        return [dict(zip(b, a, strict=True)) for b, a in zip(new_t[t].tolist(), perm[u, q].tolist(), strict=True)]
 
-    def grow(self, seed: dict[int, int], free: np.ndarray) -> tuple[dict[int, int], list[float]]:
+    def grow(self, seed: dict[int, int]) -> tuple[dict[int, int], list[float]]:
         """Extend ``seed`` one identity at a time (the best-fitting pair, when no rival comes within
         ``margin_m``); returns the map and the changes of every distance it compares, m."""
         M, R, cfg = self.median, self.rigid, self.cfg
         mapping = dict(seed)
         while True:
-            news = [b for b in np.flatnonzero(free & self.after.any(axis=1)) if b not in mapping]
-            taken = set(mapping.values())
-            options = []  # (mean change, b, a)
-            for b in news:
-                ref = [x for x in mapping if R[b, x]]
-                if len(ref) < 2:
-                    continue
-                for a in np.flatnonzero(free & self.after[b]):
-                    if a in taken:
-                        continue
-                    pairs = [(M[b, x], M[a, mapping[x]]) for x in ref if R[a, mapping[x]]]
-                    if len(pairs) < 2:
-                        continue
-                    change = np.abs(np.subtract(*np.array(pairs).T))
-                    if change.max() < cfg.tolerance_m:
-                        options.append((float(change.mean()) + self.gap_cost[b, a], float(change.mean()), b, a))
-            options.sort()
+            keys = np.array(list(mapping))
+            images = np.array([mapping[k] for k in keys])
+            news = np.flatnonzero(R[:, keys].sum(axis=1) >= 2)  # (rigid with two mapped ones at least)
+            news = news[~np.isin(news, keys)]
+            olds = np.flatnonzero(R[:, images].sum(axis=1) >= 2)
+            olds = olds[~np.isin(olds, images)]
+            if news.size == 0 or olds.size == 0:
+                break
+            # (b, a, key): distance b-key against a-image(key), where both pairs are rigid
+            both = R[news][:, None, keys] & R[olds][None, :, images]
+            change = np.where(both, np.abs(M[news][:, None, keys] - M[olds][None, :, images]), np.nan)
+            n = both.sum(axis=2)
+            with np.errstate(invalid="ignore"), warnings.catch_warnings():
+                warnings.simplefilter("ignore", RuntimeWarning)  # (all-NaN rows: no comparison)
+                ok = (n >= 2) & (np.nanmax(change, axis=2) < cfg.tolerance_m) & self.after[np.ix_(news, olds)]
+                mean = np.nanmean(change, axis=2)
+            bi, ai = np.nonzero(ok)
+            if bi.size == 0:
+                break
+            options = sorted(zip((mean[bi, ai] + self.gap_cost[news[bi], olds[ai]]).tolist(), mean[bi, ai].tolist(),
+                                 news[bi].tolist(), olds[ai].tolist(), strict=True))
             for k, (_, best, b, a) in enumerate(options):  # the best-fitting pair that no rival comes close to
                 if not any(c < best + cfg.margin_m for _, c, ob, oa in options[:k] + options[k + 1:]
                            if (ob == b and self.rivals(a, oa)) or (oa == a and self.rivals(b, ob))):
@@ -181,51 +192,78 @@ class _Matcher:
 
 
 def _join(traj: Trajectories, pairs: list[tuple[int, int]]) -> None:
-    """Move every sample of identity ``b`` into identity ``a`` for each ``(b, a)``; ``b`` is left empty."""
-    for b, a in pairs:
-        got = np.isfinite(traj.positions[:, b, 0])
-        for array in (traj.positions, traj.residuals, traj.camera_masks):
-            array[got, a] = array[got, b]
+    """Move every sample of identity ``b`` into identity ``a`` for each ``(b, a)`` (following chains: ``c`` joined
+    to ``b`` joined to ``a`` all end in ``a``); the joined columns are left empty."""
+    parent = dict(pairs)
+
+    def root(x: int) -> int:
+        while x in parent:
+            x = parent[x]
+        return x
+
+    arrays = (traj.positions, traj.residuals, traj.camera_masks)
+    moves = [(b, root(b), np.isfinite(traj.positions[:, b, 0])) for b in parent]
+    taken = [(b, got, tuple(array[got, b].copy() for array in arrays)) for b, _, got in moves]
+    for b, got, _ in taken:
         traj.positions[got, b] = np.nan
         traj.residuals[got, b] = np.nan
         traj.camera_masks[got, b] = 0
+    for (_, a, _), (_, got, values) in zip(moves, taken, strict=True):
+        for array, value in zip(arrays, values, strict=True):
+            array[got, a] = value
 
 
-def reunite_clusters(traj: Trajectories, config: ReuniteConfig | None = None) -> int:
-    """Join identities of rigid clusters seen apart in time (see the module docstring), in place.
-
-    Returns the number of identities joined into others (their columns are left empty: the caller drops them).
-    """
-    cfg = config or ReuniteConfig()
-    seen = np.isfinite(traj.positions[..., 0])
-    if traj.n_markers < 2 * cfg.min_members or not seen.any():
-        return 0
-    F = traj.n_frames
+def _matches(P: np.ndarray, fps: float, cfg: ReuniteConfig) -> list[tuple[int, int]]:
+    """(later, earlier) pairs of identities of ``P`` (F, M, 3) that the shapes join (steps 1-3 above)."""
+    seen = np.isfinite(P[..., 0])
+    F = len(P)
     first = np.where(seen.any(axis=0), np.argmax(seen, axis=0), F)
     last = np.where(seen.any(axis=0), F - 1 - np.argmax(seen[::-1], axis=0), -1)
-    median, spread, count = _pair_statistics(traj.positions, cfg.min_frames)
+    median, spread, count = _pair_statistics(P, cfg.min_frames)
     rigid = (spread < cfg.spread_m) & (median < cfg.reach_m)  # (NaN compares False)
     after = first[:, None] > last[None, :]  # (M, M): identity b started after identity a ended
-    gap_cost = cfg.gap_cost_m * np.maximum(first[:, None] - last[None, :], 0) / traj.fps
+    gap_cost = cfg.gap_cost_m * np.maximum(first[:, None] - last[None, :], 0) / fps
     matcher = _Matcher(median, rigid, after, seen.sum(axis=0), count > 0, gap_cost, cfg)
-    free = np.ones(traj.n_markers, dtype=bool)
+    later_free = np.ones(P.shape[1], dtype=bool)  # identities not yet joined after another ...
+    earlier_free = later_free.copy()  # ... and not yet followed by another
+    found: list[tuple[dict[int, int], list[float]]] = []
+    for seed in matcher.seeds():  # (a seed inside a map already grown grows into that map)
+        if not any(seed.items() <= m.items() for m, _ in found):
+            found.append(matcher.grow(seed))
+    found = [(m, c) for m, c in found if len(c) >= cfg.min_members and np.mean(c) < cfg.mean_tolerance_m]
+    found.sort(key=lambda mc: (-len(mc[1]), float(np.mean(mc[1])) + np.mean([gap_cost[b, a] for b, a in
+                                                                            mc[0].items()])))
     joined: list[tuple[int, int]] = []
-    while True:
-        found = [matcher.grow(seed, free) for seed in matcher.seeds(free)]
-        found = [(m, c) for m, c in found if len(c) >= cfg.min_members and np.mean(c) < cfg.mean_tolerance_m]
-        if not found:
-            break
-        found.sort(key=lambda mc: (-len(mc[1]), float(np.mean(mc[1])) + np.mean([gap_cost[b, a] for b, a in
-                                                                                mc[0].items()])))
-        mapping, changes = found[0]
+    for k, (mapping, changes) in enumerate(found):
+        if not (later_free[list(mapping)].all() and earlier_free[list(mapping.values())].all()):
+            continue
         inverse = {a: b for b, a in mapping.items()}
-        rivals = [m for m, c in found[1:] if len(c) == len(changes)
+        rivals = [m for m, c in found[k + 1:] if len(c) == len(changes)
                   and float(np.mean(c)) < float(np.mean(changes)) + cfg.margin_m and any(
                       (b in mapping and mapping[b] != a and matcher.rivals(mapping[b], a))
                       or (a in inverse and inverse[a] != b and matcher.rivals(inverse[a], b)) for b, a in m.items())]
         for m in [mapping, *rivals]:  # an ambiguous shape (symmetric, or two alike): all its candidates are left alone
-            free[list(m) + list(m.values())] = False
+            later_free[list(m)] = False
+            earlier_free[list(m.values())] = False
         if not rivals:
             joined += list(mapping.items())
-    _join(traj, joined)
-    return len(joined)
+    return joined
+
+
+def reunite_clusters(traj: Trajectories, config: ReuniteConfig | None = None) -> int:
+    """Join identities of rigid clusters seen apart in time (see the module docstring), in place; repeated
+    (``rounds``) so that a cluster away several times chains up.
+
+    Returns the number of identities joined into others (their columns are left empty: the caller drops them).
+    """
+    cfg = config or ReuniteConfig()
+    if traj.n_markers < 2 * cfg.min_members or not np.isfinite(traj.positions[..., 0]).any():
+        return 0
+    joined = 0
+    for _ in range(cfg.rounds):
+        pairs = _matches(traj.positions, traj.fps, cfg)
+        if not pairs:
+            break
+        _join(traj, pairs)
+        joined += len(pairs)
+    return joined

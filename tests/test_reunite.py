@@ -99,3 +99,20 @@ def test_plates_that_never_left_are_untouched():
     traj = Trajectories([f"M{k + 1:03d}" for k in range(10)], 100.0, truth.copy())
     assert reunite_clusters(traj) == 0
     np.testing.assert_array_equal(traj.positions, truth)
+
+
+def test_a_plate_away_four_times_chains_up_into_one_identity_per_marker():
+    """The plate and the triangle each leave and come back three times (four stints of 120 frames, gaps of 30):
+    every stint started new identities. Repeated passes chain them: one identity per marker for the whole take."""
+    rng = np.random.default_rng(8)
+    truth = np.concatenate([_moving(PLATE, rng, 0.0), _moving(TRIANGLE, rng, 0.6), _skin(3, rng)], axis=1)
+    columns = [truth[:, 7:]]  # the skin markers, never away
+    for start in range(0, FRAMES, 150):
+        stint = np.full((FRAMES, 7, 3), np.nan)
+        stint[start:start + 120] = truth[start:start + 120, :7]
+        columns.append(stint)
+    P = np.concatenate(columns, axis=1)
+    traj = Trajectories([f"M{k + 1:03d}" for k in range(P.shape[1])], 100.0, P)
+    skin = [int(np.argmin(np.linalg.norm(truth[0] - P[0, k], axis=1))) for k in range(3)]
+    assert reunite_clusters(traj) == 21  # 7 markers x 3 joins
+    assert sorted(_columns_follow(traj, truth)) == sorted(list(range(7)) + skin)
