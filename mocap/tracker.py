@@ -114,8 +114,8 @@ class TrackerConfig:
             by ``round_merged``, or by two tracks predicted that close). A point is output only when two cameras
             without such blobs support it, or it lies within ``suspect_m`` (clipped to ``gate_scale`` x the
             running position error) of its prediction; otherwise it only updates its filter.
-        vague_px: a blob whose centroid std (RMS of the two axes) exceeds this, px, is treated as merged too: a
-            blob cut by the image border (std 2 px there) is no clean view.
+        vague_px: a blob whose centroid std (RMS of the two axes) exceeds this, px, and 10x the frame's median
+            std, is treated as merged too: a blob cut by the image border (std 2 px there) is no clean view.
         suspect_m: (low, high) bounds of that distance, m (high grows to ``n_sigma`` x the point's noise).
         neighbour_m: tracks predicted this close are neighbours: markers of one body segment that fast motion
             mispredicts alike. When the median prediction error of a track's measured neighbours (itself
@@ -209,6 +209,7 @@ class FrameResult:
 # the running errors, so these only set the first gains.
 _IMAGE_VELOCITY_STD = 1e3
 _IMAGE_ACCEL_STD = 1e5
+_VAGUE_TYPICAL = 10.0  # a vague blob's std is also over this many times the frame's median (see vague_px)
 
 
 class _Records:
@@ -476,7 +477,10 @@ class Tracker:
         ray = (D - self._centre[:, None, :]) / self._focal_xy[:, None, :]
         tan2 = ray[..., 0] * ray[..., 0] + ray[..., 1] * ray[..., 1]  # (the sum over an axis of 2, ~3x faster)
         merged |= round_ < self._cfg.round_merged / np.sqrt(1.0 + tan2)
-        merged |= S[..., 0, 0] + S[..., 1, 1] > 2.0 * self._cfg.vague_px**2  # cut by the image border, or faint
+        var = 0.5 * (S[..., 0, 0] + S[..., 1, 1])  # (C, N) px^2; vague: cut by the image border, or faint
+        if valid.any():
+            typical = float(np.median(var[valid]))  # (centroid files may state one large std for every blob)
+            merged |= var > max(self._cfg.vague_px**2, _VAGUE_TYPICAL**2 * typical)
         S[merged] *= self._cfg.merged_variance_scale
         return _Frame(D, S, valid, merged, round_, counts)
 

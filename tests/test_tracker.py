@@ -450,6 +450,19 @@ def test_a_blob_cut_by_the_image_border_is_no_clean_view(rig):
     assert made[1][0] >= 1 and made[1][1] > 0.002  # the old behaviour, for contrast: a marker millimetres off
 
 
+def test_centroids_that_all_state_a_cautious_std_are_still_clean_views():
+    """A centroid file may give every blob the same cautious 0.6 px std, above ``vague_px``. Only blobs far vaguer
+    than the frame's others count as vague (taken for merged), so the markers are still tracked from clean views;
+    the absolute threshold alone made every blob vague and nothing was tracked."""
+    take = body_take(frames=120, fps=120.0, markers=40, seed=3)
+    cov = np.eye(2) * 0.6**2
+    frames = [[Detections(d.xy, d.area, d.roundness, np.tile(cov, (len(d), 1, 1)), d.merged) for d in dets]
+              for dets in take.frames]
+    traj = _run(Tracker(take.rig, take.truth.fps), dataclasses.replace(take, frames=frames))[0]
+    report = evaluate(traj, take.truth)
+    assert report.completeness > 0.95 and report.switches == 0 and report.ghosts == 0
+
+
 def test_predicted_rois_cover_the_next_detections(body):
     tracker = Tracker(body.rig, body.truth.fps)
     for k, dets in enumerate(body.frames[:60]):
