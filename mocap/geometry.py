@@ -191,12 +191,11 @@ def reprojection_jacobians(projections: np.ndarray, X: np.ndarray) -> tuple[np.n
 
 
 def _well_conditioned(H: np.ndarray) -> np.ndarray:
-    """(N,) bool: the (N, 3, 3) normal matrices ``H`` are finite and invertible to working precision."""
-    finite = np.isfinite(H).all(axis=(1, 2))
-    out = np.zeros(len(H), dtype=bool)
-    if finite.any():
-        out[finite] = np.linalg.cond(H[finite]) < 1e12
-    return out
+    """(N,) bool: the (N, 3, 3) symmetric positive semi-definite normal matrices ``H`` are finite and invertible
+    to working precision: det(H) (the product of the eigenvalues) above 1e-12 x (trace / 3)^3 (no SVD per point)."""
+    with np.errstate(invalid="ignore", over="ignore"):
+        scale = (np.trace(H, axis1=1, axis2=2) / 3.0) ** 3
+        return np.isfinite(H).all(axis=(1, 2)) & (np.linalg.det(H) > 1e-12 * scale) & (scale > 0)
 
 
 def triangulate_weighted(

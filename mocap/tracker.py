@@ -700,10 +700,9 @@ class Tracker:
             p = partners[np.flatnonzero(near)[0]]
             for target, source in ((k, p), (p, k)):  # either may be the one with two clean views only
                 if n_clean[target] == 2 and good[source] and (target, c) not in rows:
-                    uv_source, _ = project_ideal(self._P[c : c + 1], tri.X[source : source + 1])
                     rows.append((target, c))
                     blobs.append(j)
-                    new_uv.append(2.0 * u - uv_source[0, 0])
+                    new_uv.append(2.0 * u - uvp[c, np.searchsorted(partners, source)])  # (source is good: a partner)
                     new_S.append(4.0 * fr.S[c, j] / cfg.merged_variance_scale + np.eye(2) * cfg.deblend_px**2)
         if not rows:
             return out
