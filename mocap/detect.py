@@ -70,17 +70,35 @@ MAX_STEP = 1.0  # px: a centre moves at most this far per step
 FIT_VAGUE = 3.0  # a fit whose std exceeds this many times the weighted centroid's, or whose covariance is
 #   not positive semi-definite, is ill-posed: it falls back to the weighted centroid
 _SATURATED = 255
+_START_BLUR = 0.5  # px: the edge blur a fit starts from
+# a saturated disc of height A: the gap between its half-full-scale and saturated edges, in units of the blur,
+# is ndtri(F / A) - ndtri(F / 2A) (F = full scale above the background); tabulated against F / A
+_HALF_RATIO = np.linspace(0.2, 0.999, 256)  # (a start at most 5x full scale: pixel counts are coarse)
+_HALF_GAP = special.ndtri(_HALF_RATIO) - special.ndtri(0.5 * _HALF_RATIO)
 _BRUTE_FORCE_NEIGHBOURS = 300  # blobs: up to this many, nearest neighbours from all pairwise distances
 # bounds of each disc's (cx, cy, A, r, s) after every step, and of the step itself
-_PARAM_LOW = np.array([-np.inf, -np.inf, 1.0, 0.2, 0.25], np.float32)
+_PARAM_LOW = np.array([-np.inf, -np.inf, 1.0, 0.2, 0.15], np.float32)
 _PARAM_HIGH = np.array([np.inf, np.inf, np.inf, 100.0, 5.0], np.float32)
 _STEP_BOUND = np.array([MAX_STEP, MAX_STEP, np.inf, np.inf, np.inf], np.float32)
-# the disc edge Phi(-z) and its slope phi(z), tabulated at z = -8 ... 8 in steps of 1/_Z_RES
+# The disc edge seen by a square pixel: a straight edge blurred by a Gaussian of std s, integrated over the
+# pixel, whose footprint across the edge (normal (a, b) = |cos|, |sin| of its direction) is the trapezoid
+# box(a) * box(b). With d = r - rho the pixel centre's depth inside the edge and p, q = (a + b) / 2, |a - b| / 2:
+#     E(d) = [d > 0] + s^2 / (a b) * sum_i sign_i T(z_i),   z_i = (d + p, d + q, d - q, d - p) / s, signs + - - +
+# where T is H(z) = ((z^2 + 1) Phi(z) + z phi(z)) / 2 (the second antiderivative of the Gaussian CDF) outside
+# the edge and H(z) - (z^2 + 1) / 2 inside it (the same second difference, small numbers on both sides).
+# Both halves are tabulated at z = -_Z_MAX ... _Z_MAX and read with linear interpolation; T' (the slope)
+# is the table's difference quotient.
 _Z_RES = 1024
-_Z_TABLE = np.arange(-8 * _Z_RES, 8 * _Z_RES + 1) / _Z_RES
-_EDGE = special.ndtr(-_Z_TABLE).astype(np.float32)
-_EDGE_SLOPE = (np.exp(-0.5 * _Z_TABLE**2) / math.sqrt(2.0 * math.pi)).astype(np.float32)
-_Z_ORIGIN = 8 * _Z_RES + 0.5  # table index of z = 0, + 0.5 so that truncation rounds
+_Z_MAX = 13.0  # >= 8 + max(p) / _PARAM_LOW[s]: a pixel's four z values never leave the table's live part
+_Z_TABLE = np.arange(-_Z_MAX * _Z_RES, _Z_MAX * _Z_RES + 1) / _Z_RES
+_H = 0.5 * ((_Z_TABLE**2 + 1) * special.ndtr(_Z_TABLE) + _Z_TABLE * np.exp(-0.5 * _Z_TABLE**2) / math.sqrt(2 * math.pi))
+_EDGE_TABLES = np.concatenate([_H, _H - 0.5 * (_Z_TABLE**2 + 1)])  # outside, inside halves
+_EDGE_STEPS = np.append(np.diff(_EDGE_TABLES), 0.0)  # T[i + 1] - T[i]
+_EDGE_TABLES, _EDGE_STEPS = (np.where(np.abs(t) < 1e-12, 0.0, t).astype(np.float32)  # no float32 denormals: they
+                             for t in (_EDGE_TABLES, _EDGE_STEPS))  # slow down every product they enter 100-fold
+_Z_ORIGIN = _Z_MAX * _Z_RES  # table index of z = 0
+_Z_LAST = 2 * _Z_ORIGIN - 0.01  # highest interpolation position inside one half
+_MIN_FOOTPRINT = 0.1  # px: a and b are at least this (a box this narrow changes the edge by < 1e-3 px^2)
 _ROW_KERNEL = np.ones((1, CELL), np.uint8)
 _WINDOW_HALVES = 6 * 2 ** np.arange(12)  # sizes of the cached window templates, px
 
@@ -247,25 +265,48 @@ def _fit_discs(values: np.ndarray, ox: np.ndarray, oy: np.ndarray, seg: np.ndarr
     rows = jac[1:].reshape(n_discs, 5, len(seg))  # (K, 5, T) view: d model / d (cx, cy, A, r, s)
     jac[0] = 1.0
     upper, symmetric = _normal_index(n_par)
+    half = len(_EDGE_TABLES) // 2
+    pos = np.empty((4, n_discs, len(seg)), np.float32)
     for step_no in range(iterations):
         cx, cy, amp, r, s = disc.transpose(2, 1, 0)  # (K, N) each
-        inv_s = 1.0 / s
-        z_scale = _Z_RES * inv_s
-        per_blob = np.concatenate([params[:, :1].T, cx, cy, amp, z_scale, _Z_ORIGIN - r * z_scale, amp * inv_s, inv_s,
-                                   r * inv_s])  # (1 + 8K, N): what the pixels need, gathered in one go
+        per_blob = np.concatenate([params[:, :1].T, cx, cy, amp, r, s])  # (1 + 5K, N): gathered in one go
         per_pixel = per_blob.take(seg, axis=1)
-        cx, cy, amp, z_scale, z_origin, amp_s, inv_s, r_s = per_pixel[1:].reshape(8, n_discs, len(seg))
+        cx, cy, amp, r, s = per_pixel[1:].reshape(5, n_discs, len(seg))
         dx, dy = ox - cx, oy - cy
         rho = np.sqrt(dx * dx + dy * dy)
-        index = (rho * z_scale + z_origin).astype(np.intp)  # truncation rounds: the origin has +0.5
-        f = _EDGE.take(index, mode="clip")
+        inv_rho = 1.0 / np.maximum(rho, 1e-6)
+        a = np.maximum(np.abs(dx) * inv_rho, _MIN_FOOTPRINT)  # the pixel's footprint across the edge
+        b = np.maximum(np.abs(dy) * inv_rho, _MIN_FOOTPRINT)
+        inv_s = 1.0 / s
+        depth = r - rho
+        inside = depth > 0
+        centre = depth * (_Z_RES * inv_s) + _Z_ORIGIN  # table position of z = depth / s
+        half_sum, half_diff = (a + b) * (0.5 * _Z_RES * inv_s), np.abs(a - b) * (0.5 * _Z_RES * inv_s)
+        np.add(centre, half_sum, out=pos[0])  # z_i = (d + p, d + q, d - q, d - p) / s, as table positions
+        np.add(centre, half_diff, out=pos[1])
+        np.subtract(centre, half_diff, out=pos[2])
+        np.subtract(centre, half_sum, out=pos[3])
+        np.minimum(np.maximum(pos, 0.0, out=pos), _Z_LAST, out=pos)
+        cell = np.floor(pos)
+        index = cell.astype(np.intp)
+        index += inside * half
+        pos -= cell  # the fraction within the cell
+        t = _EDGE_TABLES.take(index)
+        dt = _EDGE_STEPS.take(index)  # T'(z) / _Z_RES
+        t += pos * dt
+        pos += cell
+        pos -= _Z_ORIGIN  # z * _Z_RES
+        pos *= dt  # z T'(z)
+        sum_t = (t[0] + t[3]) - (t[1] + t[2])
+        scale = s / (a * b)
+        f = sum_t * scale * s + inside
+        slope = ((dt[0] + dt[3]) - (dt[1] + dt[2])) * (scale * _Z_RES)  # dE / d depth
         resid = values - per_pixel[0] - (amp * f).sum(axis=0)
-        slope = _EDGE_SLOPE.take(index, mode="clip")
-        slope *= amp_s  # -d model / d rho
         rows[:, 2] = f
+        rows[:, 4] = amp * scale * (2.0 * sum_t - ((pos[0] + pos[3]) - (pos[1] + pos[2])))  # d model / d s
+        slope *= amp
         rows[:, 3] = slope
-        np.multiply(slope, rho * inv_s - r_s, out=rows[:, 4])
-        slope /= np.maximum(rho, 1e-9)
+        slope *= inv_rho
         np.multiply(slope, dx, out=rows[:, 0])
         np.multiply(slope, dy, out=rows[:, 1])
         jtj = np.add.reduceat(jac[upper[0]] * jac[upper[1]], starts, axis=1).T[:, symmetric].astype(np.float64)
@@ -362,7 +403,7 @@ class _Blobs:
         area: (N,) pixel count; centroid: (N, 2) intensity-weighted, px; second: (N, 2, 2) weighted
         second moments, px^2; centroid_cov: (N, 2, 2) noise covariance of that centroid per unit noise
         variance; peak: (N,) highest grey level; radius: (N,) radius of the area above half the peak, px;
-        reach: (N,) farthest pixel from the centroid, px.
+        reach: (N,) farthest pixel from the centroid, px; saturated_radius: (N,) radius of the saturated area, px.
     """
 
     def __init__(self, pixels: _Pixels, level: float) -> None:
@@ -381,6 +422,7 @@ class _Blobs:
         self.peak = np.maximum.reduceat(pixels.grey, starts).astype(np.float64)
         half_max = np.add.reduceat((pixels.grey - level > 0.5 * (self.peak - level)[b]).astype(np.float64), starts)
         self.radius = np.sqrt(half_max / np.pi)
+        self.saturated_radius = np.sqrt(np.add.reduceat((pixels.grey >= _SATURATED).astype(np.float64), starts) / np.pi)
         self.reach = np.sqrt(np.maximum.reduceat(dx * dx + dy * dy, starts))
 
 
@@ -462,7 +504,7 @@ def _disc_offsets(half: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 def _disc_starts(blobs: np.ndarray, k: int, origin: np.ndarray, peaks: tuple[np.ndarray, np.ndarray, np.ndarray],
                  stats: _Blobs, level: float) -> np.ndarray:
     """(N, 1 + 5k) starting parameters: offset 0; per disc: centre (relative to ``origin`` (N, 2)), height,
-    radius, blur 0.6 px."""
+    radius, blur 0.5 px."""
     n = len(blobs)
     start = np.zeros((n, 1 + 5 * k))
     disc = start[:, 1:].reshape(n, k, 5)
@@ -473,10 +515,16 @@ def _disc_starts(blobs: np.ndarray, k: int, origin: np.ndarray, peaks: tuple[np.
         take = np.searchsorted(pk_blob, blobs)[:, None] + np.arange(k)
         disc[:, :, 0] = pk_x[take] - origin[:, :1]
         disc[:, :, 1] = pk_y[take] - origin[:, 1:]
-    height = stats.peak[blobs] - level
-    disc[:, :, 2] = np.where(stats.peak[blobs] >= _SATURATED, 1.3 * height, np.maximum(height, 1.0))[:, None]
-    disc[:, :, 3] = np.maximum(stats.radius[blobs] / math.sqrt(k), 0.5)[:, None]
-    disc[:, :, 4] = 0.6
+    height = np.maximum(stats.peak[blobs] - level, 1.0)
+    radius = stats.radius[blobs]
+    saturated = stats.peak[blobs] >= _SATURATED
+    if k == 1 and saturated.any():  # the height and radius that put the saturated and half-height edges where they are
+        ratio = np.interp((radius - stats.saturated_radius[blobs]) / _START_BLUR, _HALF_GAP, _HALF_RATIO)
+        height = np.where(saturated, height / ratio, height)
+        radius = np.where(saturated, radius + _START_BLUR * special.ndtri(0.5 * ratio), radius)
+    disc[:, :, 2] = np.where(saturated & (k > 1), 1.3 * height, height)[:, None]
+    disc[:, :, 3] = np.maximum(radius / math.sqrt(k), 0.5)[:, None]
+    disc[:, :, 4] = _START_BLUR
     return start
 
 
