@@ -116,7 +116,8 @@ class TrackerConfig:
             running position error) of its prediction; otherwise it only updates its filter.
         vague_px: a blob whose centroid std (RMS of the two axes) exceeds this, px, and 10x the frame's median
             std, is treated as merged too: a blob cut by the image border (std 2 px there) is no clean view.
-        suspect_m: (low, high) bounds of that distance, m (high grows to ``n_sigma`` x the point's noise).
+        suspect_m: (low, high) bounds of that distance, m (high grows to ``n_sigma`` x the point's noise as its clean
+            views give it).
         neighbour_m: tracks predicted this close are neighbours: markers of one body segment that fast motion
             mispredicts alike. When the median prediction error of a track's measured neighbours (itself
             included) exceeds ``gate_floor_m``, its prediction is shifted by it and the frame is associated again.
@@ -651,11 +652,13 @@ class Tracker:
         split = self._deblend(fr, crowded, asg, tri) if cfg.deblend else np.zeros(asg.shape, dtype=bool)
         meas.ok = np.isfinite(tri.X).all(axis=1)
         clean = tri.used & ((~crowded & ~_gather(fr.merged, asg)) | split)
-        # A point leaning on a possibly merged blob is output only if it agrees with the prediction.
+        # A point leaning on a possibly merged blob is output only if it agrees with the prediction, within its
+        # noise as its clean views give it: a merged blob's own (large) std must not widen the gate it is judged by.
         t = self._t
+        views = np.where(clean.any(axis=1)[:, None], clean, tri.used)
         with np.errstate(invalid="ignore", divide="ignore"):  # the point's own noise, m
-            noise = (np.where(tri.used, _gather(sigma, asg) * tri.depth.T / self._focal, 0.0).sum(axis=1)
-                     / tri.used.sum(axis=1))
+            noise = (np.where(views, _gather(sigma, asg) * tri.depth.T / self._focal, 0.0).sum(axis=1)
+                     / views.sum(axis=1))
         high = np.fmax(cfg.suspect_m[1], cfg.n_sigma * noise)
         agree = np.linalg.norm(tri.X - t.x3[:, :3], axis=1) < np.clip(cfg.gate_scale * t.e3[:, 0], cfg.suspect_m[0],
                                                                       high)
