@@ -63,8 +63,8 @@ class RelabelConfig:
             so that noise-level differences never relabel anything.
         max_gap: longest gap, frames, a fragment may be stitched across.
         stitch_gate_m: extrapolation disagreement allowed for a one-frame gap, metres.
-        stitch_acc_m: extra disagreement allowed per squared frame of gap (unmodelled acceleration),
-            m/frame^2; half the speed times the gap is allowed too.
+        stitch_acc_mps2: extra disagreement allowed per squared second of gap (unmodelled acceleration),
+            m/s^2; half the speed times the gap is allowed too.
         own_link_weight: the tracker's own link (same identity before and after) costs this fraction
             of its disagreement, and is kept across any gap (the tracker re-identified it).
         split_acc_m: a track is cut where its acceleration exceeds this on two consecutive samples,
@@ -87,7 +87,7 @@ class RelabelConfig:
     swap_margin_m: float = 0.01
     max_gap: int = 12
     stitch_gate_m: float = 0.02
-    stitch_acc_m: float = 0.01
+    stitch_acc_mps2: float = 25.0
     own_link_weight: float = 0.5
     split_acc_m: float = 0.06
     shape_window: int = 6
@@ -229,7 +229,7 @@ def relink_tracklets(traj: Trajectories, config: RelabelConfig | None = None) ->
     if not runs:
         return 0
     runs.sort(key=lambda r: int(r[0, 0]))
-    linker = _Linker(traj.positions, max(int(round(cfg.shape_max_s * traj.fps)), cfg.max_gap), cfg)
+    linker = _Linker(traj.positions, max(int(round(cfg.shape_max_s * traj.fps)), cfg.max_gap), cfg, traj.fps)
     i = 0
     while i < len(runs):
         start = int(runs[i][0, 0])
@@ -275,8 +275,9 @@ class _Linker:
             tracklet it starts, the memory before it, how much the distances changed (m), the frame.
     """
 
-    def __init__(self, P: np.ndarray, shape_max: int, cfg: RelabelConfig) -> None:
+    def __init__(self, P: np.ndarray, shape_max: int, cfg: RelabelConfig, fps: float) -> None:
         self.P, self.shape_max, self.cfg = P, shape_max, cfg
+        self.acc_per_frame2 = cfg.stitch_acc_mps2 / (fps * fps)  # m/frame^2
         self.chains: list[list[np.ndarray]] = []
         self.ends: list[tuple[int, np.ndarray, np.ndarray]] = []
         self.memory: list[dict[int, np.ndarray]] = []
@@ -361,7 +362,7 @@ class _Linker:
                         continue
                 miss = 0.5 * (np.linalg.norm(pe + ve * gap - p0) + np.linalg.norm(p0 - v0 * gap - pe))
                 speed = 0.5 * (np.linalg.norm(ve) + np.linalg.norm(v0))
-                gate = cfg.stitch_gate_m + speed * 0.5 * gap + cfg.stitch_acc_m * gap * gap
+                gate = cfg.stitch_gate_m + speed * 0.5 * gap + self.acc_per_frame2 * gap * gap
                 if same:
                     cost[g, j] = cfg.own_link_weight * miss if gap > cfg.max_gap or miss < gate else np.inf
                 elif gap <= cfg.max_gap and miss < gate:

@@ -63,6 +63,24 @@ def test_fragment_is_relinked_and_swap_through_a_gap_undone():
     assert _same_identities(traj, P)
 
 
+def test_stitch_gate_allows_an_acceleration_in_real_time_not_per_frame():
+    """At 120 Hz a 10-frame gap is 83 ms: a marker back on its path is stitched, a newcomer 0.4 m away is not.
+    The gate's acceleration term was per squared frame, tuned at 50 Hz, so at 120 Hz it allowed 144 m/s^2 (1 m
+    over this gap) and newcomers took the identities of markers lost nearby (the whole sprint: plates coming
+    back after the recording's gap joined to forearm markers)."""
+    t = np.arange(200)[:, None] / 120.0
+    A = np.hstack([0.6 * t, 0.2 * np.sin(3 * t), np.ones_like(t)])  # 5 mm/frame, gently curving
+    P = np.full((200, 3, 3), np.nan)
+    P[:60, 0] = A[:60]  # marker A, lost at frame 60 ...
+    P[70:120, 1] = A[70:120]  # ... back on its path 10 frames later, then gone for good
+    P[130:, 2] = A[130:] + [0.0, 0.4, 0.0]  # a newcomer 10 frames later, 0.4 m from A's path
+    traj = Trajectories(["M001", "M002", "M003"], 120.0, P.copy())
+    relink_tracklets(traj)
+    owner = {k: int(np.flatnonzero(np.isfinite(traj.positions[k, :, 0]))[0]) for k in (10, 100, 150)}
+    assert owner[10] == owner[100]  # A's two pieces are one identity
+    assert owner[150] != owner[10]  # the newcomer did not take it
+
+
 def test_tracker_link_across_a_long_gap_is_kept():
     P = _scene()
     gappy = P.copy()
