@@ -417,27 +417,30 @@ def test_a_merged_blob_gives_the_hidden_half_its_mirror_image(rig):
     assert rmse_on <= 1.02 * rmse_off
 
 
+def _circling_marker(rig: Rig, n_frames: int, seed: int, blob) -> tuple[np.ndarray, list[list[Detections]]]:
+    """One marker on a 0.3 m circle at 100 Hz (6 mm/frame): its path (F, 3) m and each frame's detections, where
+    ``blob(k, c)`` gives camera c's blob at frame k as (offset px, stated std px, merged) or None (no blob)."""
+    rng = np.random.default_rng(seed)
+    t = np.arange(n_frames) / 100.0
+    marker = np.stack([0.3 * np.cos(2 * t), 0.3 * np.sin(2 * t), np.full_like(t, 1.2)], axis=1)
+    frames = []
+    for k in range(n_frames):
+        dets = []
+        for c, cam in enumerate(rig.cameras):
+            xy = cam.project(marker[k : k + 1]) + rng.normal(0.0, 0.02, (1, 2))
+            spec = blob(k, c)
+            dets.append(Detections.empty() if spec is None else
+                        Detections(xy + spec[0], cov=np.eye(2)[None] * spec[1] ** 2, merged=np.array([spec[2]])))
+        frames.append(dets)
+    return marker, frames
+
+
 def test_a_blob_cut_by_the_image_border_is_no_clean_view(rig):
     """A marker seen cleanly by one camera only; a second camera has it cut by the image border (centroid std 2 px,
     1 px off) and a third merged with a neighbour. Counting the border blob as clean made a marker of these three
     views, up to 18 mm off (the whole sprint, frame 1717); it is treated like a merged blob, so none is made."""
-    rng = np.random.default_rng(12)
-    t = np.arange(150) / 100.0
-    marker = np.stack([0.3 * np.cos(2 * t), 0.3 * np.sin(2 * t), np.full_like(t, 1.2)], axis=1)  # 6 mm/frame
-    frames = []
-    for k in range(len(t)):
-        dets = []
-        for c, cam in enumerate(rig.cameras):
-            xy = cam.project(marker[k : k + 1]) + rng.normal(0.0, 0.02, (1, 2))
-            if c == 0:
-                dets.append(Detections(xy, cov=np.eye(2)[None] * 0.02**2, merged=np.array([False])))
-            elif c == 1:
-                dets.append(Detections(xy + [1.0, 0.0], cov=np.eye(2)[None] * 2.0**2, merged=np.array([False])))
-            elif c == 2:
-                dets.append(Detections(xy + [1.5, 0.0], cov=np.eye(2)[None] * 0.02**2, merged=np.array([True])))
-            else:
-                dets.append(Detections.empty())
-        frames.append(dets)
+    blobs = {0: ([0.0, 0.0], 0.02, False), 1: ([1.0, 0.0], 2.0, False), 2: ([1.5, 0.0], 0.02, True)}
+    marker, frames = _circling_marker(rig, 150, 12, lambda k, c: blobs.get(c))
     made = []
     for config in (TrackerConfig(), TrackerConfig(vague_px=1e6)):
         tracker = Tracker(rig, 100.0, config)
@@ -456,22 +459,14 @@ def test_merged_blobs_do_not_widen_the_gate_that_judges_them(rig):
     Such a point is output only while it agrees with the prediction within the point's noise; that noise came
     from all its views, so the merged blobs' own std let every one through (the whole sprint, seed 0: points
     13 mm off after the recording's gap). From the clean views alone it stops them within a few frames."""
-    rng = np.random.default_rng(5)
-    t = np.arange(160) / 100.0
-    marker = np.stack([0.3 * np.cos(2 * t), 0.3 * np.sin(2 * t), np.full_like(t, 1.2)], axis=1)  # 6 mm/frame
-    frames = []
-    for k in range(len(t)):
-        dets = []
-        for c, cam in enumerate(rig.cameras):
-            xy = cam.project(marker[k : k + 1]) + rng.normal(0.0, 0.02, (1, 2))
-            if (k < 50 and c < 3) or (70 <= k < 72 and c in (0, 3)) or (k >= 72 and c == 0):
-                dets.append(Detections(xy, cov=np.eye(2)[None] * 0.02**2, merged=np.array([False])))
-            elif k >= 72 and c in (1, 2):
-                dets.append(Detections(xy + [2.0 if c == 1 else -1.5, 1.0], cov=np.eye(2)[None] * 0.5**2,
-                                       merged=np.array([True])))
-            else:
-                dets.append(Detections.empty())
-        frames.append(dets)
+    def blob(k, c):
+        if (k < 50 and c < 3) or (70 <= k < 72 and c in (0, 3)) or (k >= 72 and c == 0):
+            return [0.0, 0.0], 0.02, False
+        if k >= 72 and c in (1, 2):
+            return [2.0 if c == 1 else -1.5, 1.0], 0.5, True
+        return None
+
+    marker, frames = _circling_marker(rig, 160, 5, blob)
     tracker = Tracker(rig, 100.0)
     for k, dets in enumerate(frames):
         tracker.step(k, dets)
