@@ -22,7 +22,6 @@ from __future__ import annotations
 
 import argparse
 import importlib
-import math
 import sys
 
 import numpy as np
@@ -42,46 +41,31 @@ class OtherSensor(render.Sensor):
 
     model = "hard"
 
-    def _signal(self, dx: np.ndarray, dy: np.ndarray, radius: np.ndarray, amplitude: np.ndarray) -> np.ndarray:
-        """(N, P, P) grey levels above the background of blobs at pixel offsets ``dx, dy`` (N, P, P) px."""
+    def _reach(self, radius: np.ndarray) -> float:
+        return {"hard": 1.0, "gauss": 2.0 * float(radius.max()), "bloom": 4 * _HALO[1],
+                "shot": 4 * self.sigma}[self.model]
+
+    def _signal(self, x: np.ndarray, y: np.ndarray, uv: np.ndarray, rho: np.ndarray, radius: np.ndarray,
+                amplitude: np.ndarray) -> np.ndarray:
         if self.model == "hard":
-            inside = np.zeros(dx.shape)
+            dx, dy = x - uv[:, 0, None, None], y - uv[:, 1, None, None]
+            inside = np.zeros(rho.shape)
             for sx in _SAMPLES:
                 for sy in _SAMPLES:
                     inside += np.hypot(dx + sx, dy + sy) <= radius
             return amplitude * inside / len(_SAMPLES) ** 2
         if self.model == "gauss":
             spread = np.maximum(0.7, radius / 1.5)
-            return amplitude * np.exp(-(dx * dx + dy * dy) / (2 * spread * spread))
-        rho = np.hypot(dx, dy)
-        signal = amplitude * render.disc_profile(rho, radius, self.sigma)
+            return amplitude * np.exp(-rho * rho / (2 * spread * spread))
+        signal = super()._signal(x, y, uv, rho, radius, amplitude)
         if self.model == "bloom":
             signal += amplitude * _HALO[0] * np.exp(-rho * rho / (2 * _HALO[1] ** 2))
         return signal
 
-    def draw(self, image: np.ndarray, uv: np.ndarray, radius: np.ndarray, amplitude: np.ndarray,
-             rng: np.random.Generator) -> None:
-        """Draw blobs into a background frame, in place (overlapping blobs add up), with fresh noise."""
-        uv = np.asarray(uv, dtype=np.float64).reshape(-1, 2)
-        if len(uv) == 0:
-            return
-        radius = np.asarray(radius, dtype=np.float64).reshape(-1)
-        amplitude = np.asarray(amplitude, dtype=np.float64).reshape(-1)
-        h, w = image.shape
-        reach = {"hard": 1.0, "gauss": 2.0 * float(radius.max()), "bloom": 4 * _HALO[1], "shot": 4 * self.sigma}
-        half = int(math.ceil(float(radius.max()) + reach[self.model]))
-        offsets = np.arange(-half, half + 1)
-        x = np.rint(uv[:, 0]).astype(np.int64)[:, None, None] + offsets[None, None, :]
-        y = np.rint(uv[:, 1]).astype(np.int64)[:, None, None] + offsets[None, :, None]
-        x, y = np.broadcast_arrays(x, y)
-        signal = self._signal(x - uv[:, 0, None, None], y - uv[:, 1, None, None], radius[:, None, None],
-                              amplitude[:, None, None])
-        inside = (x >= 0) & (x < w) & (y >= 0) & (y < h)
-        pixels, inverse = np.unique((y * w + x)[inside], return_inverse=True)
-        signal = np.bincount(inverse, weights=signal[inside], minlength=len(pixels))
-        variance = self.noise**2 + (np.maximum(signal, 0.0) / 4.0 if self.model == "shot" else 0.0)
-        level = self.background + signal + np.sqrt(variance) * rng.standard_normal(len(pixels))
-        image.reshape(-1)[pixels] = np.clip(np.rint(level), 0, render.FULL_SCALE).astype(np.uint8)
+    def _noise_std(self, signal: np.ndarray) -> float | np.ndarray:
+        if self.model == "shot":
+            return np.sqrt(self.noise**2 + np.maximum(signal, 0.0) / 4.0)
+        return self.noise
 
 
 def main() -> int:

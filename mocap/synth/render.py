@@ -90,9 +90,25 @@ class Sensor:
         index = np.frombuffer(rng.bytes(2 * h * w), dtype=np.uint16)
         return _noise_lut(float(self.background), float(self.noise))[index].reshape(h, w)
 
-    def _patches(self, uv: np.ndarray, radius: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Integer pixel grids around blobs: x, y (N, P, P) int64 and rho (N, P, P) px from each centre."""
-        half = int(math.ceil(float(radius.max()) + _SUPPORT_SIGMAS * self.sigma))
+    def _reach(self, radius: np.ndarray) -> float:
+        """How far beyond the largest disc edge a drawn blob's patch reaches, px."""
+        return _SUPPORT_SIGMAS * self.sigma
+
+    def _signal(self, x: np.ndarray, y: np.ndarray, uv: np.ndarray, rho: np.ndarray, radius: np.ndarray,
+                amplitude: np.ndarray) -> np.ndarray:
+        """(N, P, P) grey levels above the background of blobs centred ``uv`` (N, 2) at pixels ``x, y`` (N, P, P),
+        ``rho`` px from their centres (``radius``, ``amplitude``: (N, 1, 1)). Other image models override it."""
+        return amplitude * disc_profile(rho, radius, self.sigma)
+
+    def _noise_std(self, signal: np.ndarray) -> float | np.ndarray:
+        """Noise std of pixels holding ``signal`` (grey levels above the background): the sensor's, everywhere."""
+        return self.noise
+
+    def _patches(self, uv: np.ndarray, radius: np.ndarray, reach: float | None = None
+                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Integer pixel grids around blobs: x, y (N, P, P) int64 and rho (N, P, P) px from each centre; they reach
+        ``reach`` px (default ``_SUPPORT_SIGMAS`` profile sigmas) beyond the largest radius."""
+        half = int(math.ceil(float(radius.max()) + (_SUPPORT_SIGMAS * self.sigma if reach is None else reach)))
         offsets = np.arange(-half, half + 1)
         cx = np.rint(uv[:, 0]).astype(np.int64)
         cy = np.rint(uv[:, 1]).astype(np.int64)
@@ -123,13 +139,14 @@ class Sensor:
         radius = np.asarray(radius, dtype=np.float64).reshape(-1)
         amplitude = np.asarray(amplitude, dtype=np.float64).reshape(-1)
         h, w = image.shape
-        x, y, rho = self._patches(uv, radius)
-        signal = amplitude[:, None, None] * disc_profile(rho, radius[:, None, None], self.sigma)
+        x, y, rho = self._patches(uv, radius, self._reach(radius))
+        signal = self._signal(x, y, uv, rho, radius[:, None, None], amplitude[:, None, None])
         inside = (x >= 0) & (x < w) & (y >= 0) & (y < h)
         pixels, inverse = np.unique((y * w + x)[inside], return_inverse=True)
-        level = self.background + np.bincount(inverse, weights=signal[inside], minlength=len(pixels))
+        summed = np.bincount(inverse, weights=signal[inside], minlength=len(pixels))
+        level = self.background + summed
         if self.noise > 0:
-            level += self.noise * rng.standard_normal(len(pixels))
+            level += self._noise_std(summed) * rng.standard_normal(len(pixels))
         image.reshape(-1)[pixels] = np.clip(np.rint(level), 0, FULL_SCALE).astype(np.uint8)
 
     def profile(self, uv: np.ndarray, radius: np.ndarray, amplitude: np.ndarray
