@@ -31,7 +31,8 @@ see and undo:
   takes the identity back and the newcomer becomes an identity of its own.
 
 A third pass, :mod:`mocap.reunite`, rejoins rigid clusters that come back after a long absence, far from
-every gate, by the distances between their markers.
+every gate, by the distances between their markers; a fourth, :mod:`mocap.plates`, labels the markers of
+rigid plates frame by frame by the plate's shape.
 
 All passes only move whole samples between identity columns (positions, residuals and camera
 masks together); they never change a position.
@@ -46,6 +47,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
+from mocap.plates import label_plates
 from mocap.reunite import reunite_clusters
 from mocap.trajectories import Trajectories
 
@@ -103,11 +105,13 @@ class RelabelConfig:
 
 @dataclass
 class RelabelStats:
-    """What the repair changed: tail permutations applied, fragments joined, cluster members reunited."""
+    """What the repair changed: tail permutations applied, fragments joined, cluster members reunited, samples
+    moved to the plate member their shape names."""
 
     swaps: int = 0
     stitches: int = 0
     reunited: int = 0
+    plate_samples: int = 0
 
 
 def _permute_tails(traj: Trajectories, start: int, order: np.ndarray, columns: np.ndarray) -> None:
@@ -483,8 +487,9 @@ class _Linker:
 
 
 def repair_identities(traj: Trajectories, config: RelabelConfig | None = None) -> RelabelStats:
-    """Swap repair, fragment stitching, then the reunion of rigid clusters back after a long absence
-    (:mod:`mocap.reunite`), in place; empty identity columns are dropped.
+    """Swap repair, fragment stitching, the reunion of rigid clusters back after a long absence
+    (:mod:`mocap.reunite`), then the labelling of rigid plates by their shape (:mod:`mocap.plates`), in place;
+    empty identity columns are dropped.
 
     Labels of the remaining identities are renumbered ``M001``, ``M002`` ... in column order.
     """
@@ -494,7 +499,8 @@ def repair_identities(traj: Trajectories, config: RelabelConfig | None = None) -
     stats.swaps = repair_swaps(traj, config)
     stats.stitches = relink_tracklets(traj, config)
     stats.reunited = reunite_clusters(traj)
-    if stats.reunited:
+    stats.plate_samples = label_plates(traj)
+    if stats.reunited or stats.plate_samples:
         keep = np.isfinite(traj.positions[..., 0]).any(axis=0)
         traj.positions, traj.residuals, traj.camera_masks = (traj.positions[:, keep], traj.residuals[:, keep],
                                                              traj.camera_masks[:, keep])

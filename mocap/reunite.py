@@ -32,11 +32,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from mocap.rigid import PAIRS, PERMUTATIONS, pair_statistics, rigid_triangles
 from mocap.trajectories import Trajectories
 
 __all__ = ["ReuniteConfig", "reunite_clusters"]
 
-STATISTICS_FRAMES = 4096  # frames per chunk of the co-seen counts, and most frames the distances are taken over
 
 
 @dataclass(frozen=True)
@@ -70,52 +70,6 @@ class ReuniteConfig:
     rounds: int = 8
 
 
-def _pair_statistics(P: np.ndarray, min_frames: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(M, M) median distance m, robust spread m (NaN where seen together in fewer than ``min_frames``
-    frames) and co-seen frame count of every pair of identities in ``P`` (F, M, 3).
-
-    The counts are exact; the medians of long takes are taken over every k-th frame (at most
-    ``STATISTICS_FRAMES``), which bounds time and memory.
-    """
-    F, M = P.shape[:2]
-    count = np.zeros((M, M), dtype=np.int64)
-    for start in range(0, F, STATISTICS_FRAMES):  # (frame chunks: the (F, M) product stays small)
-        seen = np.isfinite(P[start:start + STATISTICS_FRAMES, :, 0]).astype(np.float32)
-        count += np.rint(seen.T @ seen).astype(np.int64)
-    sample = P[:: max(1, -(-F // STATISTICS_FRAMES))]
-    median = np.full((M, M), np.nan)
-    spread = np.full((M, M), np.nan)
-    for a in range(M):
-        others = np.flatnonzero(count[a] >= min_frames)
-        others = others[others > a]
-        if others.size == 0:
-            continue
-        with np.errstate(invalid="ignore"), warnings.catch_warnings():  # (a pair never seen in the sample: NaN)
-            warnings.simplefilter("ignore", RuntimeWarning)
-            d = np.linalg.norm(sample[:, others] - sample[:, a, None], axis=2)  # (F', n), NaN where either is unseen
-            med = np.nanmedian(d, axis=0)
-            mad = 1.4826 * np.nanmedian(np.abs(d - med), axis=0)
-        median[a, others] = median[others, a] = med
-        spread[a, others] = spread[others, a] = mad
-    return median, spread, count
-
-
-def _rigid_triangles(rigid: np.ndarray, among: np.ndarray) -> np.ndarray:
-    """(T, 3) triples (ascending) of identities in ``among`` whose three pairs are all rigid."""
-    sub = rigid[np.ix_(among, among)]
-    i, j = np.nonzero(np.triu(sub, 1))
-    if i.size == 0:
-        return np.zeros((0, 3), dtype=np.intp)
-    third = sub[i] & sub[j]  # (pairs, n): rigid with both
-    third &= np.arange(len(among))[None, :] > j[:, None]
-    p, k = np.nonzero(third)
-    return among[np.stack([i[p], j[p], k], axis=1)]
-
-
-_PERMUTATIONS = np.array(list(itertools.permutations(range(3))))  # (6, 3)
-_PAIRS = np.array([[0, 1], [0, 2], [1, 2]])  # a triangle's three distances
-
-
 class _Matcher:
     """Maps identities that started later ("new") onto identities that ended before them ("old") so that
     the rigid distances among the new ones equal those among their images."""
@@ -135,13 +89,13 @@ class _Matcher:
     def seeds(self) -> list[dict[int, int]]:
         """Triangle-to-triangle maps (new -> old) whose three distances agree within ``tolerance_m``."""
         M = self.median
-        new_t = _rigid_triangles(self.rigid, np.flatnonzero(self.after.any(axis=1)))  # (Tb, 3)
-        old_t = _rigid_triangles(self.rigid, np.flatnonzero(self.after.any(axis=0)))  # (Ta, 3)
+        new_t = rigid_triangles(self.rigid, np.flatnonzero(self.after.any(axis=1)))  # (Tb, 3)
+        old_t = rigid_triangles(self.rigid, np.flatnonzero(self.after.any(axis=0)))  # (Ta, 3)
         if len(new_t) == 0 or len(old_t) == 0:
             return []
-        db = M[new_t[:, _PAIRS[:, 0]], new_t[:, _PAIRS[:, 1]]]  # (Tb, 3)
-        perm = old_t[:, _PERMUTATIONS]  # (Ta, 6, 3): every order of each old triangle
-        da = M[perm[..., _PAIRS[:, 0]], perm[..., _PAIRS[:, 1]]]  # (Ta, 6, 3)
+        db = M[new_t[:, PAIRS[:, 0]], new_t[:, PAIRS[:, 1]]]  # (Tb, 3)
+        perm = old_t[:, PERMUTATIONS]  # (Ta, 6, 3): every order of each old triangle
+        da = M[perm[..., PAIRS[:, 0]], perm[..., PAIRS[:, 1]]]  # (Ta, 6, 3)
         fit = np.abs(db[:, None, None, :] - da[None]).max(axis=3) < self.cfg.tolerance_m  # (Tb, Ta, 6)
         fit &= self.after[new_t[:, None, None, :], perm[None]].all(axis=3)
         t, u, q = np.nonzero(fit)
@@ -219,7 +173,7 @@ def _matches(P: np.ndarray, fps: float, cfg: ReuniteConfig) -> list[tuple[int, i
     F = len(P)
     first = np.where(seen.any(axis=0), np.argmax(seen, axis=0), F)
     last = np.where(seen.any(axis=0), F - 1 - np.argmax(seen[::-1], axis=0), -1)
-    median, spread, count = _pair_statistics(P, cfg.min_frames)
+    median, spread, count = pair_statistics(P, cfg.min_frames)
     rigid = (spread < cfg.spread_m) & (median < cfg.reach_m)  # (NaN compares False)
     after = first[:, None] > last[None, :]  # (M, M): identity b started after identity a ended
     gap_cost = cfg.gap_cost_m * np.maximum(first[:, None] - last[None, :], 0) / fps

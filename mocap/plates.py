@@ -1,0 +1,278 @@
+"""Markers of rigid plates are labelled by the plate's shape (offline, the identity repair's last pass).
+
+A plate of three or more markers (an arm cluster, a steering wheel) that is hidden and comes back in pieces
+is where frame-to-frame tracking mixes identities up: every returning marker is near every lost one, and
+re-identification by the nearest prediction rotates them. The plate's shape does not, when its distances
+differ: a triangle of sides 47, 53 and 72 mm has one labelling only.
+
+On finished trajectories (after :mod:`mocap.relabel` and :mod:`mocap.reunite`), :func:`label_plates`:
+
+1. learns the plates: the largest cliques (three or more identities) of rigid pairs, whose distance's robust
+   spread (1.4826 MAD) is below ``spread_m`` over ``min_frames`` frames seen together at least; a plate
+   whose shape maps onto itself under another labelling (within ``2 x tolerance_m``) is not used, and of
+   plates of one shape (the same plate under other identities after a long absence) the one seen longest
+   is; a triangle of it that another rigid structure seen with it matches (a twin plate) is not searched;
+2. finds, in every frame, the points whose distances match a plate triangle's (``tolerance_m``), and the
+   other members whose distances to those three fit: votes, sample -> plate member; a sample voted for two
+   members, or a member voted to two samples in one frame, has none;
+3. cuts every identity into tracklets (runs of consecutive samples, also cut where the votes change) and
+   gives a tracklet whose votes all name one member (``min_votes``, and ``vote_fraction`` of its samples) to
+   that member; a tracklet without votes goes with the nearest voted tracklet of its identity (the
+   tracker followed one marker through it), unless the nearest before and after disagree;
+4. moves each tracklet given to a member into that member's identity where it is free over those frames,
+   longest first.
+
+Only whole samples move between identity columns; positions are never changed.
+"""
+
+from __future__ import annotations
+
+import itertools
+from dataclasses import dataclass
+
+import numpy as np
+
+from mocap.rigid import PAIRS, PERMUTATIONS, pair_statistics, rigid_triangles
+from mocap.trajectories import Trajectories
+
+__all__ = ["PlateConfig", "label_plates"]
+
+CHUNK_ENTRIES = 1 << 22  # frames x identities^2 searched at a time (the distance arrays stay near 32 MB)
+TWIN_FRAMES = 10  # frames two structures of one shape must be seen together to be two structures
+
+
+@dataclass(frozen=True)
+class PlateConfig:
+    """Settings of the plate labelling.
+
+    Attributes:
+        spread_m: pairs of identities whose distance's robust spread is below this are rigid, m.
+        reach_m: pairs farther apart than this (median) are never on one plate, m.
+        min_frames: frames two identities must be seen together for their pair to be judged.
+        tolerance_m: points match a plate when each of their distances is within this of the plate's, m.
+        min_votes: fewest votes a tracklet needs to be given to a member ...
+        vote_fraction: ... and fewest, as a fraction of its samples.
+    """
+
+    spread_m: float = 0.0025
+    reach_m: float = 0.3
+    min_frames: int = 100
+    tolerance_m: float = 0.003
+    min_votes: int = 3
+    vote_fraction: float = 0.5
+
+
+def _cliques(adjacent: np.ndarray) -> list[list[int]]:
+    """Maximal cliques of the graph ``adjacent`` (n, n) bool (Bron-Kerbosch with pivoting)."""
+    near = [set(np.flatnonzero(row).tolist()) for row in adjacent]
+    found: list[list[int]] = []
+
+    def grow(r: list[int], p: set[int], x: set[int]) -> None:
+        if not p and not x:
+            found.append(r)
+            return
+        pivot = max(p | x, key=lambda u: len(p & near[u]))
+        for v in list(p - near[pivot]):
+            grow(r + [v], p & near[v], x & near[v])
+            p.remove(v)
+            x.add(v)
+
+    grow([], {v for v, n in enumerate(near) if n}, set())
+    return found
+
+
+def _sides(D: np.ndarray, tri: tuple[int, ...]) -> np.ndarray:
+    """(3,) distances a-b, a-c, b-c of the triangle ``tri`` = (a, b, c) in the distance matrix ``D``."""
+    a, b, c = tri
+    return np.array([D[a, b], D[a, c], D[b, c]])
+
+
+def _fits_into(D: np.ndarray, E: np.ndarray, tol: float) -> bool:
+    """The shape ``D`` (n, n) is that of ``n`` members of the shape ``E`` (m, m), in some order (within ``2 tol``)."""
+    n = len(D)
+    off = ~np.eye(n, dtype=bool)
+    return n <= len(E) and any(np.abs(E[np.ix_(q, q)] - D)[off].max() < 2 * tol
+                               for q in itertools.permutations(range(len(E)), n))
+
+
+def _twinned(tri: np.ndarray, median: np.ndarray, others: np.ndarray, seen: np.ndarray, tol: float) -> bool:
+    """A rigid triangle of other identities, ``others`` (T, 3), has the shape of ``tri`` (3,) and is seen in the
+    same frames as it (``TWIN_FRAMES``): another structure alike. (Never seen with it, it may be the same markers
+    under other identities.)"""
+    if len(others) == 0:
+        return False
+    orders = others[:, PERMUTATIONS]  # (T, 6, 3)
+    sides = median[orders[..., PAIRS[:, 0]], orders[..., PAIRS[:, 1]]]  # (T, 6, 3)
+    alike = (np.abs(sides - _sides(median, tuple(tri))) < 2 * tol).all(axis=2).any(axis=1)
+    both = seen[:, tri].all(axis=1)
+    return any((both & seen[:, t].all(axis=1)).sum() >= TWIN_FRAMES for t in others[alike])
+
+
+def _plates(median: np.ndarray, rigid: np.ndarray, seen: np.ndarray, tol: float
+            ) -> list[tuple[np.ndarray, list[tuple[int, int, int]]]]:
+    """The plates (step 1 of the module docstring): member identities (n,), and the triangles (indices into
+    the members) searched for."""
+    candidates, used = [], set()
+    for clique in sorted(_cliques(rigid), key=len, reverse=True):
+        members = np.array(sorted(set(clique) - used))
+        if members.size < 3 or members.size < len(clique):
+            continue
+        D = median[np.ix_(members, members)]
+        n = members.size
+        if any(np.abs(D[np.ix_(q, q)] - D).max() < 2 * tol for q in itertools.permutations(range(n))
+               if q != tuple(range(n))):
+            continue  # a symmetric shape: its labelling is ambiguous
+        candidates.append(members)
+        used.update(members.tolist())
+    rigid_ids = np.flatnonzero(rigid.any(axis=1))
+    structures = rigid_triangles(rigid, rigid_ids)  # (T, 3)
+    plates: list[tuple[np.ndarray, list[tuple[int, int, int]]]] = []
+    for i in np.argsort([-seen[:, m].sum() for m in candidates], kind="stable"):
+        members = candidates[i]
+        if any(_fits_into(median[np.ix_(members, members)], median[np.ix_(p, p)], tol) for p, _ in plates):
+            continue  # the shape of a plate seen longer
+        others = structures[~np.isin(structures, members).any(axis=1)]
+        triangles = [t for t in itertools.combinations(range(members.size), 3)
+                     if not _twinned(members[list(t)], median, others, seen, tol)]
+        if triangles:
+            plates.append((members, triangles))
+    return plates
+
+
+def _votes(P: np.ndarray, shape: np.ndarray, triangles: list[tuple[int, int, int]], tol: float
+           ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Step 2 for one plate over frames ``P`` (F, M, 3): (frame, column, member) of every vote, unresolved."""
+    D = np.linalg.norm(P[:, :, None] - P[:, None], axis=3)  # (F, M, M), NaN where either is unseen
+    n = len(shape)
+    out = []
+    with np.errstate(invalid="ignore"):
+        for a, b, c in triangles:
+            f, i, j = np.nonzero(np.abs(D - shape[a, b]) < tol)
+            fit = (np.abs(D[f, i] - shape[a, c]) < tol) & (np.abs(D[f, j] - shape[b, c]) < tol)
+            r, k = np.nonzero(fit)
+            f, i, j = f[r], i[r], j[r]
+            ok = (k != i) & (k != j)
+            f, got = f[ok], np.stack([i[ok], j[ok], k[ok]], axis=1)  # (m,) frames, (m, 3) columns
+            out += [(f, got[:, q], np.full(f.size, member)) for q, member in enumerate((a, b, c))]
+            for member in set(range(n)) - {a, b, c}:
+                near = np.ones((f.size, P.shape[1]), dtype=bool)
+                for q, corner in enumerate((a, b, c)):
+                    near &= np.abs(D[f, got[:, q]] - shape[corner, member]) < tol
+                near[np.arange(f.size)[:, None], got] = False
+                one = near.sum(axis=1) == 1
+                out.append((f[one], np.argmax(near[one], axis=1), np.full(int(one.sum()), member)))
+    return tuple(np.concatenate(x) for x in zip(*out, strict=True)) if out else (np.zeros(0, np.intp),) * 3
+
+
+def _resolve(frame: np.ndarray, col: np.ndarray, member: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
+    """(F, M) the member each sample is voted for, -1 where none or more than one (also where a member is
+    voted to two samples of one frame)."""
+    keys = np.unique(np.stack([frame, col, member], axis=1), axis=0)  # distinct votes
+    F, M = shape
+    sample = keys[:, 0] * M + keys[:, 1]
+    once = np.bincount(sample, minlength=F * M)[sample] == 1  # one member per sample
+    slot = keys[:, 0] * (keys[:, 2].max() + 1 if keys.size else 1) + keys[:, 2]
+    alone = np.bincount(slot[once], minlength=slot.max() + 1 if slot.size else 0)[slot] == 1  # one sample
+    vote = np.full((F, M), -1, dtype=np.intp)
+    good = once & alone
+    vote[keys[good, 0], keys[good, 1]] = keys[good, 2]
+    return vote
+
+
+def _tracklets(seen: np.ndarray, vote: np.ndarray) -> list[tuple[int, np.ndarray]]:
+    """(column, frames) runs of every identity, in time order: consecutive samples, cut again where the votes
+    inside such a run change (at the first sample of the new vote)."""
+    runs = []
+    for col in range(seen.shape[1]):
+        frames = np.flatnonzero(seen[:, col])
+        for run in np.split(frames, np.flatnonzero(np.diff(frames) > 1) + 1) if frames.size else []:
+            v = vote[run, col]
+            voted = np.flatnonzero(v >= 0)
+            change = voted[1:][v[voted[1:]] != v[voted[:-1]]]
+            runs += [(col, piece) for piece in np.split(run, change)]
+    return runs
+
+
+def _destinations(runs: list[tuple[int, np.ndarray]], vote: np.ndarray, cfg: PlateConfig) -> list[int]:
+    """Step 3: the identity each tracklet is given (-1: none)."""
+    dest = []
+    for col, run in runs:
+        v = vote[run, col]
+        named = np.unique(v[v >= 0])
+        enough = (v >= 0).sum() >= max(cfg.min_votes, cfg.vote_fraction * run.size)
+        dest.append(int(named[0]) if named.size == 1 and enough else -1)
+    voted = list(dest)
+    by_column: dict[int, list[int]] = {}
+    for i, (col, _) in enumerate(runs):  # (runs come column by column, in time order)
+        by_column.setdefault(col, []).append(i)
+    for idx in by_column.values():
+        named = [voted[i] for i in idx]
+        for k, i in enumerate(idx):
+            if named[k] >= 0:
+                continue
+            sides = [x for x in named[:k] if x >= 0][-1:] + [x for x in named[k + 1:] if x >= 0][:1]
+            if sides and all(x == sides[0] for x in sides):
+                dest[i] = sides[0]
+    return dest
+
+
+def _settle(runs: list[tuple[int, np.ndarray]], dest: list[int], shape: tuple[int, int]) -> list[int]:
+    """Step 4: the identity every tracklet ends in. A tracklet moves to its destination unless that collides
+    there with a tracklet that stays or with a longer one moving in (then it stays, which may make others
+    collide with it in turn: repeated until nothing collides). Rotations of identities resolve together."""
+    final = [d if d >= 0 else col for (col, _), d in zip(runs, dest, strict=True)]
+    order = sorted(range(len(runs)), key=lambda i: -runs[i][1].size)
+    while True:
+        owner = np.full(shape, -1, dtype=np.intp)
+        for i in order:  # stayers first, then movers longest first
+            if final[i] == runs[i][0]:
+                owner[runs[i][1], final[i]] = i
+        collided = False
+        for i in order:
+            col, run = runs[i]
+            if final[i] == col:
+                continue
+            if (owner[run, final[i]] >= 0).any():
+                final[i] = col
+                collided = True
+                break
+            owner[run, final[i]] = i
+        if not collided:
+            return final
+
+
+def label_plates(traj: Trajectories, config: PlateConfig | None = None) -> int:
+    """Label the markers of rigid plates by their shape (see the module docstring), in place.
+
+    Returns the number of samples moved to another identity.
+    """
+    cfg = config or PlateConfig()
+    P = traj.positions
+    F, M = P.shape[:2]
+    if M < 3 or not np.isfinite(P[..., 0]).any():
+        return 0
+    median, spread, _ = pair_statistics(P, cfg.min_frames)
+    seen = np.isfinite(P[..., 0])
+    plates = _plates(median, (spread < cfg.spread_m) & (median < cfg.reach_m), seen, cfg.tolerance_m)
+    if not plates:
+        return 0
+    found = []  # (frame, column, member identity) of every vote
+    for members, triangles in plates:
+        shape = median[np.ix_(members, members)]
+        step = max(1, CHUNK_ENTRIES // (M * M))
+        for start in range(0, F, step):
+            f, col, m = _votes(P[start:start + step], shape, triangles, cfg.tolerance_m)
+            found.append((f + start, col, members[m]))
+    vote = _resolve(*(np.concatenate(x) for x in zip(*found, strict=True)), shape=(F, M))
+    runs = _tracklets(seen, vote)
+    dest = _destinations(runs, vote, cfg)
+    final = _settle(runs, dest, (F, M))
+    movers = [(run, col, target) for (col, run), target in zip(runs, final, strict=True) if target != col]
+    for array in (traj.positions, traj.residuals, traj.camera_masks):
+        source = array.copy()
+        for run, col, _ in movers:
+            array[run, col] = np.nan if array.dtype.kind == "f" else 0
+        for run, col, target in movers:
+            array[run, target] = source[run, col]
+    moved = sum(run.size for run, _, _ in movers)
+    return moved

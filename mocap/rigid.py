@@ -1,0 +1,63 @@
+"""Distances between identities of finished trajectories, and the rigid structures they show.
+
+Shared by the identity repair's shape passes (:mod:`mocap.reunite`, :mod:`mocap.plates`): markers on one
+rigid body keep their distances, so the median distance of two identities over the frames both are seen in,
+and its robust spread, tell which identities move together.
+"""
+
+from __future__ import annotations
+
+import itertools
+import warnings
+
+import numpy as np
+
+__all__ = ["PAIRS", "PERMUTATIONS", "pair_statistics", "rigid_triangles"]
+
+STATISTICS_FRAMES = 4096  # frames per chunk of the co-seen counts, and most frames the distances are taken over
+
+
+def pair_statistics(P: np.ndarray, min_frames: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(M, M) median distance m, robust spread m (NaN where seen together in fewer than ``min_frames``
+    frames) and co-seen frame count of every pair of identities in ``P`` (F, M, 3).
+
+    The counts are exact; the medians of long takes are taken over every k-th frame (at most
+    ``STATISTICS_FRAMES``), which bounds time and memory.
+    """
+    F, M = P.shape[:2]
+    count = np.zeros((M, M), dtype=np.int64)
+    for start in range(0, F, STATISTICS_FRAMES):  # (frame chunks: the (F, M) product stays small)
+        seen = np.isfinite(P[start:start + STATISTICS_FRAMES, :, 0]).astype(np.float32)
+        count += np.rint(seen.T @ seen).astype(np.int64)
+    sample = P[:: max(1, -(-F // STATISTICS_FRAMES))]
+    median = np.full((M, M), np.nan)
+    spread = np.full((M, M), np.nan)
+    for a in range(M):
+        others = np.flatnonzero(count[a] >= min_frames)
+        others = others[others > a]
+        if others.size == 0:
+            continue
+        with np.errstate(invalid="ignore"), warnings.catch_warnings():  # (a pair never seen in the sample: NaN)
+            warnings.simplefilter("ignore", RuntimeWarning)
+            d = np.linalg.norm(sample[:, others] - sample[:, a, None], axis=2)  # (F', n), NaN where either is unseen
+            med = np.nanmedian(d, axis=0)
+            mad = 1.4826 * np.nanmedian(np.abs(d - med), axis=0)
+        median[a, others] = median[others, a] = med
+        spread[a, others] = spread[others, a] = mad
+    return median, spread, count
+
+
+def rigid_triangles(rigid: np.ndarray, among: np.ndarray) -> np.ndarray:
+    """(T, 3) triples (ascending) of identities in ``among`` whose three pairs are all rigid."""
+    sub = rigid[np.ix_(among, among)]
+    i, j = np.nonzero(np.triu(sub, 1))
+    if i.size == 0:
+        return np.zeros((0, 3), dtype=np.intp)
+    third = sub[i] & sub[j]  # (pairs, n): rigid with both
+    third &= np.arange(len(among))[None, :] > j[:, None]
+    p, k = np.nonzero(third)
+    return among[np.stack([i[p], j[p], k], axis=1)]
+
+
+PERMUTATIONS = np.array(list(itertools.permutations(range(3))))  # (6, 3)
+PAIRS = np.array([[0, 1], [0, 2], [1, 2]])  # a triangle's three distances

@@ -1,0 +1,73 @@
+"""Markers of a rigid plate are labelled by its shape: identities rotated after a gap come back; symmetric
+plates, twin plates and skin markers are left alone."""
+
+from __future__ import annotations
+
+import numpy as np
+from test_reunite import PLATE, SQUARE, TRIANGLE, _columns_follow, _moving, _skin
+
+from mocap.plates import label_plates
+from mocap.relabel import repair_identities
+from mocap.trajectories import Trajectories
+
+HIDDEN, BACK = 360, 400  # the plate is hidden from frame 360 and comes back, a marker every 5 frames, from 400
+
+
+def _rotated_after_the_gap(truth: np.ndarray, plate: np.ndarray, order: np.ndarray) -> Trajectories:
+    """The tracker's output: the ``plate`` markers' columns are empty from HIDDEN, and after the gap column
+    ``plate[order[k]]`` holds marker ``plate[k]`` (each returning marker re-identified as a neighbour)."""
+    P = truth.copy()
+    P[HIDDEN:, plate] = np.nan
+    for k, marker in enumerate(plate):
+        back = BACK + 5 * k
+        P[back:, plate[order[k]]] = truth[back:, marker]
+    return Trajectories([f"M{k + 1:03d}" for k in range(P.shape[1])], 100.0, P)
+
+
+def _samples_per_frame(traj: Trajectories) -> list[np.ndarray]:
+    """Every frame's measured positions, sorted (what a relabelling must keep)."""
+    return [np.sort(row[np.isfinite(row[:, 0])], axis=0) for row in traj.positions]
+
+
+def test_a_plate_back_from_a_gap_with_its_identities_rotated_is_labelled_by_its_shape():
+    rng = np.random.default_rng(11)
+    truth = np.concatenate([_moving(PLATE, rng, 0.0), _moving(TRIANGLE, rng, 0.6), _skin(3, rng)], axis=1)
+    traj = _rotated_after_the_gap(truth, np.arange(4), np.array([1, 2, 3, 0]))
+    before = _samples_per_frame(traj)
+    assert label_plates(traj) == 4 * 200 - 5 * (0 + 1 + 2 + 3)  # every sample after the gap
+    assert _columns_follow(traj, truth)[:4] == [0, 1, 2, 3]
+    after = _samples_per_frame(traj)
+    assert all(np.array_equal(a, b) for a, b in zip(before, after, strict=True))  # samples moved, none changed
+
+
+def test_the_identity_repair_labels_plates_last():
+    rng = np.random.default_rng(12)
+    truth = np.concatenate([_moving(PLATE, rng, 0.0), _skin(3, rng)], axis=1)
+    traj = _rotated_after_the_gap(truth, np.arange(4), np.array([3, 0, 1, 2]))
+    stats = repair_identities(traj)
+    assert stats.plate_samples > 0
+    assert sorted(_columns_follow(traj, truth)) == list(range(7))  # one column per marker, whole take
+
+
+def test_a_square_plate_is_left_alone():
+    """Its four rotations fit alike: the shape names no marker."""
+    rng = np.random.default_rng(13)
+    truth = np.concatenate([_moving(SQUARE, rng, 0.0), _skin(3, rng)], axis=1)
+    traj = _rotated_after_the_gap(truth, np.arange(4), np.array([1, 2, 3, 0]))
+    assert label_plates(traj) == 0
+
+
+def test_two_plates_of_one_design_seen_together_are_left_alone():
+    """A left and a right cluster alike: the shape cannot tell which plate a marker is on."""
+    rng = np.random.default_rng(14)
+    truth = np.concatenate([_moving(PLATE, rng, 0.0), _moving(PLATE, rng, 0.6), _skin(3, rng)], axis=1)
+    traj = _rotated_after_the_gap(truth, np.arange(4), np.array([1, 2, 3, 0]))
+    assert label_plates(traj) == 0
+
+
+def test_skin_markers_form_no_plate():
+    rng = np.random.default_rng(15)
+    truth = _skin(6, rng)
+    traj = Trajectories([f"M{k + 1:03d}" for k in range(6)], 100.0, truth.copy())
+    traj.positions[300:, [0, 1]] = traj.positions[300:, [1, 0]]
+    assert label_plates(traj) == 0
