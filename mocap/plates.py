@@ -269,10 +269,10 @@ def label_plates(traj: Trajectories, config: PlateConfig | None = None) -> int:
     final = _settle(runs, dest, (F, M))
     movers = [(run, col, target) for (col, run), target in zip(runs, final, strict=True) if target != col]
     for array in (traj.positions, traj.residuals, traj.camera_masks):
-        source = array.copy()
+        values = [array[run, col] for run, col, _ in movers]  # (copies: fancy indexing)
         for run, col, _ in movers:
             array[run, col] = np.nan if array.dtype.kind == "f" else 0
-        for run, col, target in movers:
-            array[run, target] = source[run, col]
+        for (run, _, target), value in zip(movers, values, strict=True):
+            array[run, target] = value
     moved = sum(run.size for run, _, _ in movers)
     return moved
