@@ -8,8 +8,9 @@ differ: a triangle of sides 47, 53 and 72 mm has one labelling only.
 On finished trajectories (after :mod:`mocap.relabel` and :mod:`mocap.reunite`), :func:`label_plates`:
 
 1. learns the plates: the largest cliques (three or more identities) of rigid pairs, whose distance's robust
-   spread (1.4826 MAD) is below ``spread_m`` over ``min_frames`` frames seen together at least; a plate
-   whose shape maps onto itself under another labelling (within ``2 x tolerance_m``) is not used, and of
+   spread (1.4826 MAD) is below ``spread_m`` over ``min_frames`` frames seen together at least, of at most
+   ``MAX_MEMBERS``; a plate with two members at the same distances from the others (within ``2 x
+   tolerance_m``: a square, an isosceles triangle, which the shape cannot label) is not used, and of
    plates of one shape (the same plate under other identities after a long absence) the one seen longest
    is; a triangle of it that another rigid structure seen with it matches (a twin plate) is not searched;
 2. finds, in every frame, the points whose distances match a plate triangle's (``tolerance_m``), and the
@@ -38,6 +39,7 @@ from mocap.trajectories import Trajectories
 __all__ = ["PlateConfig", "label_plates"]
 
 CHUNK_ENTRIES = 1 << 22  # frames x identities^2 searched at a time (the distance arrays stay near 32 MB)
+MAX_MEMBERS = 8  # larger cliques of rigid pairs are not taken for plates
 TWIN_FRAMES = 10  # frames two structures of one shape must be seen together to be two structures
 
 
@@ -87,6 +89,14 @@ def _sides(D: np.ndarray, tri: tuple[int, ...]) -> np.ndarray:
     return np.array([D[a, b], D[a, c], D[b, c]])
 
 
+def _symmetric(D: np.ndarray, tol: float) -> bool:
+    """Two members of the shape ``D`` (n, n) have the same distances to the others (sorted, within ``2 tol``), as
+    any labelling of it other than its own that keeps the distances would need (a square, an isosceles triangle)."""
+    profile = np.sort(np.where(np.eye(len(D), dtype=bool), np.inf, D), axis=1)[:, :-1]  # (n, n - 1)
+    alike = np.abs(profile[:, None] - profile[None]).max(axis=2) < 2 * tol
+    return bool(alike[np.triu_indices(len(D), 1)].any())
+
+
 def _fits_into(D: np.ndarray, E: np.ndarray, tol: float) -> bool:
     """The shape ``D`` (n, n) is that of ``n`` members of the shape ``E`` (m, m), in some order (within ``2 tol``)."""
     n = len(D)
@@ -117,11 +127,8 @@ def _plates(median: np.ndarray, rigid: np.ndarray, seen: np.ndarray, tol: float
         members = np.array(sorted(set(clique) - used))
         if members.size < 3 or members.size < len(clique):
             continue
-        D = median[np.ix_(members, members)]
-        n = members.size
-        if any(np.abs(D[np.ix_(q, q)] - D).max() < 2 * tol for q in itertools.permutations(range(n))
-               if q != tuple(range(n))):
-            continue  # a symmetric shape: its labelling is ambiguous
+        if members.size > MAX_MEMBERS or _symmetric(median[np.ix_(members, members)], tol):
+            continue  # too many to be one plate (a subject standing still), or a labelling the shape cannot tell
         candidates.append(members)
         used.update(members.tolist())
     rigid_ids = np.flatnonzero(rigid.any(axis=1))

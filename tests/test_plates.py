@@ -71,3 +71,4 @@ def test_skin_markers_form_no_plate():
     traj = Trajectories([f"M{k + 1:03d}" for k in range(6)], 100.0, truth.copy())
     traj.positions[300:, [0, 1]] = traj.positions[300:, [1, 0]]
     assert label_plates(traj) == 0
+
