@@ -173,7 +173,7 @@ def reconstruct(take: str | os.PathLike, options: ReconstructOptions | None = No
     traj = tracker.finish()
     if opts.relabel:
         before = traj.n_markers
-        stats = repair_identities(traj)
+        stats = repair_identities(traj, unconfirmed=tracker.unconfirmed())
         log.info("identity repair: %d swaps undone; %d identities -> %d (fragments re-linked, tracks cut where they "
                  "jumped; %d joined by the shapes of rigid clusters); %d samples labelled by rigid plates' shapes",
                  stats.swaps, before, traj.n_markers, stats.reunited, stats.plate_samples)

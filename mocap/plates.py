@@ -21,7 +21,10 @@ On finished trajectories (after :mod:`mocap.relabel` and :mod:`mocap.reunite`), 
    that member; a tracklet without votes goes with the nearest voted tracklet of its identity (the
    tracker followed one marker through it), unless the nearest before and after disagree;
 4. moves each tracklet given to a member into that member's identity where it is free over those frames,
-   longest first.
+   longest first;
+5. gives the tracker's unconfirmed points (:meth:`mocap.tracker.Tracker.unconfirmed`: a marker the recording
+   has only every other frame never makes the tracker's confirmation), voted alongside in step 2, to the
+   member they were voted for, where its identity has no sample.
 
 Only whole samples move between identity columns; positions are never changed.
 """
@@ -34,7 +37,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from mocap.rigid import PAIRS, PERMUTATIONS, pair_statistics, rigid_triangles
-from mocap.trajectories import Trajectories
+from mocap.trajectories import Trajectories, UnconfirmedPoints
 
 __all__ = ["PlateConfig", "label_plates"]
 
@@ -248,10 +251,35 @@ def _settle(runs: list[tuple[int, np.ndarray]], dest: list[int], shape: tuple[in
             return final
 
 
-def label_plates(traj: Trajectories, config: PlateConfig | None = None) -> int:
+def _as_columns(extra: UnconfirmedPoints, P: np.ndarray, apart_m: float) -> tuple[np.ndarray, np.ndarray]:
+    """Unconfirmed points laid out as extra columns (F, K, 3) beside ``P`` (F, M, 3), leaving out any within
+    ``apart_m`` of a sample of ``P`` (a second measurement of a marker already there); and each point's
+    (row, column) slot, (n, 2), -1 where left out."""
+    F = len(P)
+    rows = extra.rows
+    inside = (rows >= 0) & (rows < F)
+    near = np.ones(len(rows), dtype=bool)
+    with np.errstate(invalid="ignore"):
+        near[inside] = (np.linalg.norm(P[rows[inside]] - extra.positions[inside, None], axis=2) < apart_m).any(axis=1)
+    keep = np.flatnonzero(~near)
+    order = keep[np.argsort(rows[keep], kind="stable")]
+    r = rows[order]
+    rank = np.arange(r.size) - np.searchsorted(r, r)  # 0, 1, ... among the kept points of one frame
+    E = np.full((F, int(rank.max()) + 1 if r.size else 0, 3), np.nan)
+    E[r, rank] = extra.positions[order]
+    slot = np.full((len(rows), 2), -1, dtype=np.intp)
+    slot[order] = np.stack([r, rank], axis=1)
+    return E, slot
+
+
+def label_plates(traj: Trajectories, config: PlateConfig | None = None, extra: UnconfirmedPoints | None = None
+                 ) -> int:
     """Label the markers of rigid plates by their shape (see the module docstring), in place.
 
-    Returns the number of samples moved to another identity.
+    ``extra``: the tracker's unconfirmed points; one voted for a plate member joins that member's identity
+    where it has no sample (step 5).
+
+    Returns the number of samples moved to another identity or added.
     """
     cfg = config or PlateConfig()
     P = traj.positions
@@ -263,23 +291,46 @@ def label_plates(traj: Trajectories, config: PlateConfig | None = None) -> int:
     plates = _plates(median, (spread < cfg.spread_m) & (median < cfg.reach_m), seen, cfg.tolerance_m)
     if not plates:
         return 0
+    E, slot = _as_columns(extra, P, cfg.tolerance_m) if extra is not None and len(extra.rows) else (
+        np.zeros((F, 0, 3)), np.zeros((0, 2), dtype=np.intp))
+    everything = np.concatenate([P, E], axis=1)
+    N = everything.shape[1]
     found = []  # (frame, column, member identity) of every vote
     for members, triangles in plates:
         shape = median[np.ix_(members, members)]
-        step = max(1, CHUNK_ENTRIES // (M * M))
+        step = max(1, CHUNK_ENTRIES // (N * N))
         for start in range(0, F, step):
-            f, col, m = _votes(P[start:start + step], shape, triangles, cfg.tolerance_m)
+            f, col, m = _votes(everything[start:start + step], shape, triangles, cfg.tolerance_m)
             found.append((f + start, col, members[m]))
-    vote = _resolve(*(np.concatenate(x) for x in zip(*found, strict=True)), shape=(F, M))
+    v_frame, v_col, v_member = (np.concatenate(x) for x in zip(*found, strict=True))
+    mine = v_col < M  # the identities' own samples are resolved first: an unconfirmed point never takes their votes
+    vote = _resolve(v_frame[mine], v_col[mine], v_member[mine], shape=(F, M))
     runs = _tracklets(seen, vote)
     dest = _destinations(runs, vote, cfg)
     final = _settle(runs, dest, (F, M))
     movers = [(run, col, target) for (col, run), target in zip(runs, final, strict=True) if target != col]
-    for array in (traj.positions, traj.residuals, traj.camera_masks):
+    held = vote.copy()  # the member each sample is voted for, moved along with the samples
+    for array in (traj.positions, traj.residuals, traj.camera_masks, held):
         values = [array[run, col] for run, col, _ in movers]  # (copies: fancy indexing)
         for run, col, _ in movers:
-            array[run, col] = np.nan if array.dtype.kind == "f" else 0
+            array[run, col] = np.nan if array.dtype.kind == "f" else (-1 if array is held else 0)
         for (run, _, target), value in zip(movers, values, strict=True):
             array[run, target] = value
-    moved = sum(run.size for run, _, _ in movers)
-    return moved
+    added = 0
+    if len(slot):  # step 5: unconfirmed points voted for a member, where its identity has no sample
+        loose = _resolve(v_frame[~mine], v_col[~mine] - M, v_member[~mine], shape=(F, E.shape[1]))
+        k = np.flatnonzero(slot[:, 0] >= 0)
+        member = loose[slot[k, 0], slot[k, 1]]
+        k, member = k[member >= 0], member[member >= 0]
+        rows = extra.rows[k]
+        free = ~np.isfinite(traj.positions[rows, member, 0])
+        for step in (-1, 0, 1):  # another identity holds that member's marker next to it: it would interleave
+            near = np.clip(rows + step, 0, F - 1)
+            other = (held[near] == member[:, None]) & (np.arange(M)[None, :] != member[:, None])
+            free &= ~other.any(axis=1)
+        k, member = k[free], member[free]
+        traj.positions[extra.rows[k], member] = extra.positions[k]
+        traj.residuals[extra.rows[k], member] = extra.residuals[k]
+        traj.camera_masks[extra.rows[k], member] = extra.camera_masks[k]
+        added = k.size
+    return sum(run.size for run, _, _ in movers) + added

@@ -49,7 +49,7 @@ from scipy.optimize import linear_sum_assignment
 
 from mocap.plates import label_plates
 from mocap.reunite import reunite_clusters
-from mocap.trajectories import Trajectories
+from mocap.trajectories import Trajectories, UnconfirmedPoints
 
 __all__ = ["RelabelConfig", "RelabelStats", "relink_tracklets", "repair_identities", "repair_swaps"]
 
@@ -486,10 +486,12 @@ class _Linker:
             assigned[g] = c
 
 
-def repair_identities(traj: Trajectories, config: RelabelConfig | None = None) -> RelabelStats:
+def repair_identities(traj: Trajectories, config: RelabelConfig | None = None,
+                      unconfirmed: UnconfirmedPoints | None = None) -> RelabelStats:
     """Swap repair, fragment stitching, the reunion of rigid clusters back after a long absence
     (:mod:`mocap.reunite`), then the labelling of rigid plates by their shape (:mod:`mocap.plates`), in place;
-    empty identity columns are dropped.
+    empty identity columns are dropped. ``unconfirmed``: the tracker's points without identity
+    (:meth:`mocap.tracker.Tracker.unconfirmed`), which the plate labelling may give one.
 
     Labels of the remaining identities are renumbered ``M001``, ``M002`` ... in column order.
     """
@@ -499,7 +501,7 @@ def repair_identities(traj: Trajectories, config: RelabelConfig | None = None) -
     stats.swaps = repair_swaps(traj, config)
     stats.stitches = relink_tracklets(traj, config)
     stats.reunited = reunite_clusters(traj)
-    stats.plate_samples = label_plates(traj)
+    stats.plate_samples = label_plates(traj, extra=unconfirmed)
     if stats.reunited or stats.plate_samples:
         keep = np.isfinite(traj.positions[..., 0]).any(axis=0)
         traj.positions, traj.residuals, traj.camera_masks = (traj.positions[:, keep], traj.residuals[:, keep],

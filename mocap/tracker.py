@@ -49,7 +49,7 @@ from mocap.fusion import NewPoints, Triangulated, new_points, reidentify, repick
 from mocap.geometry import project_ideal, reprojection_jacobians
 from mocap.pairs import camera_pairs
 from mocap.stereo import assign, dist2, epipolar_consistency, gate
-from mocap.trajectories import Trajectories
+from mocap.trajectories import Trajectories, UnconfirmedPoints
 
 __all__ = ["TrackerConfig", "FrameResult", "Tracker"]
 
@@ -372,6 +372,7 @@ class Tracker:
         self._n_ident = 0
         self._records = _Records()
         self._result: Trajectories | None = None
+        self._unconfirmed: UnconfirmedPoints | None = None
         self._clutter: deque[np.ndarray] = deque(maxlen=max(cfg.clutter_frames, 1))  # recent free detections
         self._first: int | None = None
         self._last = -1
@@ -428,6 +429,12 @@ class Tracker:
             out.append(np.clip(np.round(box), 0, [w - 1, h - 1, w - 1, h - 1]).astype(np.int64))
         return out
 
+    def unconfirmed(self) -> UnconfirmedPoints:
+        """The points measured by tentative tracks that never got an identity, after :meth:`finish`."""
+        if self._result is None:
+            raise MocapError("Tracker.unconfirmed() is available after finish()")
+        return self._unconfirmed
+
     def finish(self) -> Trajectories:
         """All frames stepped so far as :class:`Trajectories` (one column per confirmed identity).
 
@@ -442,6 +449,7 @@ class Tracker:
         pos = np.full((F, M, 3), np.nan)
         res = np.full((F, M), np.nan)
         mask = np.zeros((F, M), dtype=np.uint32)
+        loose: list[dict[str, np.ndarray]] = []
         for rec in self._records.drain():
             ident = self._uid_ident[rec["uid"]]
             ok = ident >= 0
@@ -449,6 +457,12 @@ class Tracker:
             pos[rows, cols] = rec["pos"][ok]
             res[rows, cols] = rec["res"][ok]
             mask[rows, cols] = rec["mask"][ok]
+            loose.append({name: column[~ok] for name, column in rec.items()})
+        self._unconfirmed = UnconfirmedPoints(
+            *(np.concatenate([rec[name] for rec in loose]) if loose else np.zeros((0,) + shape, dtype)
+              for name, shape, dtype in (("frame", (), np.int64), ("pos", (3,), np.float64), ("res", (), np.float64),
+                                         ("mask", (), np.uint32))))
+        self._unconfirmed.rows = self._unconfirmed.rows - first
         seen = np.flatnonzero(np.isfinite(pos[:, :, 0]).any(axis=0))  # identities withdrawn as reflections: none
         labels = [f"M{i + 1:03d}" for i in seen]  # the identities' live names (FrameResult, MCAP log)
         self._result = Trajectories(labels, self._fps, pos[:, seen], res[:, seen], mask[:, seen], self._rig.names,

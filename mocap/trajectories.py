@@ -7,7 +7,7 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["Trajectories"]
+__all__ = ["Trajectories", "UnconfirmedPoints"]
 
 
 @dataclass(eq=False)
@@ -69,3 +69,21 @@ class Trajectories:
     def times(self) -> np.ndarray:
         """(F,) capture time of each frame, seconds from the take's first frame."""
         return (np.arange(self.n_frames) + self.first_frame) / self.fps
+
+
+@dataclass
+class UnconfirmedPoints:
+    """Points the tracker measured but never gave an identity (tentative tracks shorter than its confirmation:
+    a marker the recording has only every other frame, say), for the offline identity repair.
+
+    Attributes:
+        rows: (n,) frame index into the trajectories.
+        positions: (n, 3) m.
+        residuals: (n,) mm.
+        camera_masks: (n,) uint32.
+    """
+
+    rows: np.ndarray
+    positions: np.ndarray
+    residuals: np.ndarray
+    camera_masks: np.ndarray

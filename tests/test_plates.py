@@ -4,10 +4,16 @@ plates, twin plates and skin markers are left alone."""
 from __future__ import annotations
 
 import numpy as np
-from test_reunite import PLATE, SQUARE, TRIANGLE, _columns_follow, _moving, _skin
+import pytest
+from helpers_engine import scripted_motion, simulate
+from test_reunite import FRAMES, PLATE, SQUARE, TRIANGLE, _columns_follow, _moving, _skin
 
+from mocap.errors import MocapError
+from mocap.evaluate import evaluate
 from mocap.plates import label_plates
 from mocap.relabel import repair_identities
+from mocap.synth import SynthSettings, ring_rig
+from mocap.tracker import Tracker
 from mocap.trajectories import Trajectories
 
 HIDDEN, BACK = 360, 400  # the plate is hidden from frame 360 and comes back, a marker every 5 frames, from 400
@@ -72,3 +78,35 @@ def test_skin_markers_form_no_plate():
     traj.positions[300:, [0, 1]] = traj.positions[300:, [1, 0]]
     assert label_plates(traj) == 0
 
+
+
+def test_a_plate_marker_back_flickering_is_given_its_points_the_tracker_never_confirmed():
+    """A plate marker hidden for a second comes back in every other frame only: each of its returns is a
+    one-frame tentative track, never confirmed. Its plate's shape names those points."""
+    rng = np.random.default_rng(17)
+    positions = np.concatenate([_moving(PLATE, rng, 0.0), _skin(2, rng)], axis=1)
+    hidden = np.zeros((FRAMES, 6, positions.shape[1]), dtype=bool)
+    hidden[100:180, :, 3] = True  # (the ring sees the plate from all six cameras until frame ~270)
+    hidden[181:260:2, :, 3] = True
+    take = simulate("flicker", ring_rig(seed=5), scripted_motion(positions, 100.0), SynthSettings(seed=5, ghosts=0),
+                    hidden=hidden, seed=5)
+    tracker = Tracker(take.rig, 100.0)
+    with pytest.raises(MocapError):
+        tracker.unconfirmed()
+    for k, frame in enumerate(take.frames):
+        tracker.step(k, frame)
+    traj = tracker.finish()
+    unconfirmed = tracker.unconfirmed()
+    assert ((unconfirmed.rows >= 180) & (unconfirmed.rows < 260) & (unconfirmed.rows % 2 == 0)).sum() >= 30
+    without = Trajectories(traj.labels, traj.fps, traj.positions.copy(), traj.residuals.copy(),
+                           traj.camera_masks.copy())
+    repair_identities(without)
+    stats = repair_identities(traj, unconfirmed=unconfirmed)
+    before, after = evaluate(without, take.truth), evaluate(traj, take.truth)
+    flicker = np.arange(180, 260, 2)  # the frames it is in view while flickering
+    found = [int((np.linalg.norm(t.positions[flicker] - positions[flicker, None, 3], axis=2) < 0.002).any(axis=1)
+                 .sum()) for t in (without, traj)]
+    print(f"flickering marker output in {found[0]} -> {found[1]} of {flicker.size} frames; switches "
+          f"{before.switches} -> {after.switches}, IDF1 {before.idf1:.4f} -> {after.idf1:.4f}")
+    assert found[0] <= 5 and found[1] >= 35 and stats.plate_samples >= 35
+    assert after.switches <= before.switches and after.idf1 > before.idf1 and after.ghost_rate == 0
