@@ -229,7 +229,7 @@ def _destinations(runs: list[tuple[int, np.ndarray]], vote: np.ndarray, cfg: Pla
 def _settle(runs: list[tuple[int, np.ndarray]], dest: list[int], shape: tuple[int, int]) -> list[int]:
     """Step 4: the identity every tracklet ends in. A tracklet moves to its destination unless that collides
     there with a tracklet that stays or with a longer one moving in (then it stays, which may make others
-    collide with it in turn: repeated until nothing collides). Rotations of identities resolve together."""
+    collide with it in turn: passes repeated until nothing collides). Rotations of identities resolve together."""
     final = [d if d >= 0 else col for (col, _), d in zip(runs, dest, strict=True)]
     order = sorted(range(len(runs)), key=lambda i: -runs[i][1].size)
     while True:
@@ -243,10 +243,10 @@ def _settle(runs: list[tuple[int, np.ndarray]], dest: list[int], shape: tuple[in
             if final[i] == col:
                 continue
             if (owner[run, final[i]] >= 0).any():
-                final[i] = col
+                final[i] = col  # (its staying may block a mover already placed: the next pass sees to it)
                 collided = True
-                break
-            owner[run, final[i]] = i
+            else:
+                owner[run, final[i]] = i
         if not collided:
             return final
 
