@@ -211,19 +211,26 @@ def _destinations(runs: list[tuple[int, np.ndarray]], vote: np.ndarray, cfg: Pla
         named = np.unique(v[v >= 0])
         enough = (v >= 0).sum() >= max(cfg.min_votes, cfg.vote_fraction * run.size)
         dest.append(int(named[0]) if named.size == 1 and enough else -1)
-    voted = list(dest)
-    by_column: dict[int, list[int]] = {}
-    for i, (col, _) in enumerate(runs):  # (runs come column by column, in time order)
-        by_column.setdefault(col, []).append(i)
-    for idx in by_column.values():
-        named = [voted[i] for i in idx]
-        for k, i in enumerate(idx):
-            if named[k] >= 0:
-                continue
-            sides = [x for x in named[:k] if x >= 0][-1:] + [x for x in named[k + 1:] if x >= 0][:1]
-            if sides and all(x == sides[0] for x in sides):
-                dest[i] = sides[0]
-    return dest
+    out = []
+    for d, *sides in zip(dest, _nearest_voted(runs, dest, True), _nearest_voted(runs, dest, False), strict=True):
+        named = {x for x in sides if x >= 0}  # the nearest voted before and after: none, one, or two alike
+        out.append(d if d >= 0 or len(named) != 1 else named.pop())
+    return out
+
+
+def _nearest_voted(runs: list[tuple[int, np.ndarray]], dest: list[int], forward: bool) -> list[int]:
+    """Per tracklet, the destination of the nearest tracklet of its identity given one, before it (``forward``)
+    or after it; -1 for none. (``runs`` come identity by identity, in time order.)"""
+    out = [-1] * len(runs)
+    order = range(len(runs)) if forward else range(len(runs) - 1, -1, -1)
+    column, last = None, -1
+    for i in order:
+        if runs[i][0] != column:
+            column, last = runs[i][0], -1
+        out[i] = last
+        if dest[i] >= 0:
+            last = dest[i]
+    return out
 
 
 def _settle(runs: list[tuple[int, np.ndarray]], dest: list[int], shape: tuple[int, int]) -> list[int]:
@@ -310,10 +317,10 @@ def label_plates(traj: Trajectories, config: PlateConfig | None = None, extra: U
     final = _settle(runs, dest, (F, M))
     movers = [(run, col, target) for (col, run), target in zip(runs, final, strict=True) if target != col]
     held = vote.copy()  # the member each sample is voted for, moved along with the samples
-    for array in (traj.positions, traj.residuals, traj.camera_masks, held):
+    for array, empty in ((traj.positions, np.nan), (traj.residuals, np.nan), (traj.camera_masks, 0), (held, -1)):
         values = [array[run, col] for run, col, _ in movers]  # (copies: fancy indexing)
         for run, col, _ in movers:
-            array[run, col] = np.nan if array.dtype.kind == "f" else (-1 if array is held else 0)
+            array[run, col] = empty
         for (run, _, target), value in zip(movers, values, strict=True):
             array[run, target] = value
     added = 0

@@ -458,11 +458,12 @@ class Tracker:
             res[rows, cols] = rec["res"][ok]
             mask[rows, cols] = rec["mask"][ok]
             loose.append({name: column[~ok] for name, column in rec.items()})
-        self._unconfirmed = UnconfirmedPoints(
-            *(np.concatenate([rec[name] for rec in loose]) if loose else np.zeros((0,) + shape, dtype)
-              for name, shape, dtype in (("frame", (), np.int64), ("pos", (3,), np.float64), ("res", (), np.float64),
-                                         ("mask", (), np.uint32))))
-        self._unconfirmed.rows = self._unconfirmed.rows - first
+        def joined(name: str, shape: tuple[int, ...], dtype: type) -> np.ndarray:
+            return np.concatenate([rec[name] for rec in loose]).astype(dtype) if loose else np.zeros(shape, dtype)
+
+        self._unconfirmed = UnconfirmedPoints(joined("frame", (0,), np.int64) - first,
+                                              joined("pos", (0, 3), np.float64), joined("res", (0,), np.float64),
+                                              joined("mask", (0,), np.uint32))
         seen = np.flatnonzero(np.isfinite(pos[:, :, 0]).any(axis=0))  # identities withdrawn as reflections: none
         labels = [f"M{i + 1:03d}" for i in seen]  # the identities' live names (FrameResult, MCAP log)
         self._result = Trajectories(labels, self._fps, pos[:, seen], res[:, seen], mask[:, seen], self._rig.names,

@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 from helpers_engine import scripted_motion, simulate
-from test_reunite import FRAMES, PLATE, SQUARE, TRIANGLE, _columns_follow, _moving, _skin
+from helpers_rigid import FRAMES, PLATE, SQUARE, TRIANGLE, columns_follow, moving, skin
 
 from mocap.errors import MocapError
 from mocap.evaluate import evaluate
@@ -37,28 +37,28 @@ def _samples_per_frame(traj: Trajectories) -> list[np.ndarray]:
 
 def test_a_plate_back_from_a_gap_with_its_identities_rotated_is_labelled_by_its_shape():
     rng = np.random.default_rng(11)
-    truth = np.concatenate([_moving(PLATE, rng, 0.0), _moving(TRIANGLE, rng, 0.6), _skin(3, rng)], axis=1)
+    truth = np.concatenate([moving(PLATE, rng, 0.0), moving(TRIANGLE, rng, 0.6), skin(3, rng)], axis=1)
     traj = _rotated_after_the_gap(truth, np.arange(4), np.array([1, 2, 3, 0]))
     before = _samples_per_frame(traj)
     assert label_plates(traj) == 4 * 200 - 5 * (0 + 1 + 2 + 3)  # every sample after the gap
-    assert _columns_follow(traj, truth)[:4] == [0, 1, 2, 3]
+    assert columns_follow(traj, truth)[:4] == [0, 1, 2, 3]
     after = _samples_per_frame(traj)
     assert all(np.array_equal(a, b) for a, b in zip(before, after, strict=True))  # samples moved, none changed
 
 
 def test_the_identity_repair_labels_plates_last():
     rng = np.random.default_rng(12)
-    truth = np.concatenate([_moving(PLATE, rng, 0.0), _skin(3, rng)], axis=1)
+    truth = np.concatenate([moving(PLATE, rng, 0.0), skin(3, rng)], axis=1)
     traj = _rotated_after_the_gap(truth, np.arange(4), np.array([3, 0, 1, 2]))
     stats = repair_identities(traj)
     assert stats.plate_samples > 0
-    assert sorted(_columns_follow(traj, truth)) == list(range(7))  # one column per marker, whole take
+    assert sorted(columns_follow(traj, truth)) == list(range(7))  # one column per marker, whole take
 
 
 def test_a_square_plate_is_left_alone():
     """Its four rotations fit alike: the shape names no marker."""
     rng = np.random.default_rng(13)
-    truth = np.concatenate([_moving(SQUARE, rng, 0.0), _skin(3, rng)], axis=1)
+    truth = np.concatenate([moving(SQUARE, rng, 0.0), skin(3, rng)], axis=1)
     traj = _rotated_after_the_gap(truth, np.arange(4), np.array([1, 2, 3, 0]))
     assert label_plates(traj) == 0
 
@@ -66,14 +66,14 @@ def test_a_square_plate_is_left_alone():
 def test_two_plates_of_one_design_seen_together_are_left_alone():
     """A left and a right cluster alike: the shape cannot tell which plate a marker is on."""
     rng = np.random.default_rng(14)
-    truth = np.concatenate([_moving(PLATE, rng, 0.0), _moving(PLATE, rng, 0.6), _skin(3, rng)], axis=1)
+    truth = np.concatenate([moving(PLATE, rng, 0.0), moving(PLATE, rng, 0.6), skin(3, rng)], axis=1)
     traj = _rotated_after_the_gap(truth, np.arange(4), np.array([1, 2, 3, 0]))
     assert label_plates(traj) == 0
 
 
 def test_skin_markers_form_no_plate():
     rng = np.random.default_rng(15)
-    truth = _skin(6, rng)
+    truth = skin(6, rng)
     traj = Trajectories([f"M{k + 1:03d}" for k in range(6)], 100.0, truth.copy())
     traj.positions[300:, [0, 1]] = traj.positions[300:, [1, 0]]
     assert label_plates(traj) == 0
@@ -84,7 +84,7 @@ def test_a_plate_marker_back_flickering_is_given_its_points_the_tracker_never_co
     """A plate marker hidden for a second comes back in every other frame only: each of its returns is a
     one-frame tentative track, never confirmed. Its plate's shape names those points."""
     rng = np.random.default_rng(17)
-    positions = np.concatenate([_moving(PLATE, rng, 0.0), _skin(2, rng)], axis=1)
+    positions = np.concatenate([moving(PLATE, rng, 0.0), skin(2, rng)], axis=1)
     hidden = np.zeros((FRAMES, 6, positions.shape[1]), dtype=bool)
     hidden[100:180, :, 3] = True  # (the ring sees the plate from all six cameras until frame ~270)
     hidden[181:260:2, :, 3] = True
