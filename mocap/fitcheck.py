@@ -24,7 +24,7 @@ from mocap.geometry import (
     triangulate_dlt,
 )
 
-__all__ = ["FitReport", "check_calibration_fit"]
+__all__ = ["FitMonitor", "FitReport", "check_calibration_fit"]
 
 
 @dataclass
@@ -62,6 +62,74 @@ class FitReport:
             return []
         limit = np.maximum(relative * float(np.nanmedian(s)), over_chance * np.nan_to_num(self.chance) + margin)
         return [name for name, v, lim in zip(rig.names, s, limit, strict=True) if np.isfinite(v) and v < lim]
+
+    def judged_cameras(self, rig: Rig, few: float = 0.25) -> list[str]:
+        """Names of the cameras :meth:`poor_cameras` judges (enough blobs)."""
+        return [name for name, n, v in zip(rig.names, self.blobs, self.support, strict=True)
+                if n >= few * self.blobs.max(initial=0) and np.isfinite(v)]
+
+
+class FitMonitor:
+    """The calibration-fit check over a few windows of frames spread over the start of a take.
+
+    One window can lack the power to judge a camera: along a walkway, a camera far from the subject may see
+    markers that no second camera sees in those frames (no three-view support, and chance none either), and
+    it looked like a camera at fault. A camera is named only if it is poor in every window in which it was
+    judged: ``windows`` windows of ``frames`` frames holding detections, each starting ``spacing`` frames
+    after the previous one started (fewer when the take is shorter). A camera at fault stays poor in all.
+
+    Feed every frame's detections to :meth:`offer`; it returns the report and the names once decided (then
+    None forever); :meth:`finish` decides with what was seen if the take ended first.
+    """
+
+    def __init__(self, rig: Rig, frames: int, spacing: int, windows: int = 4) -> None:
+        self.rig, self.frames, self.spacing, self.windows = rig, frames, max(spacing, frames), windows
+        self._window: list[list[Detections]] = []
+        self._start: int | None = None  # frame index the current window started at
+        self._suspects: set[str] | None = None  # named so far in every window that judged them
+        self._first: FitReport | None = None
+        self._done = 0
+        self._decided = False
+
+    def offer(self, frame_index: int, detections: list[Detections]) -> tuple[FitReport, list[str]] | None:
+        if self._decided:
+            return None
+        if self._start is not None and len(self._window) == 0 and frame_index < self._start:
+            return None  # waiting for the next window
+        if sum(len(d) > 0 for d in detections) < 2:
+            return None
+        if not self._window:
+            self._start = frame_index
+        self._window.append(detections)
+        if len(self._window) < self.frames:
+            return None
+        self._close_window()
+        if not self._suspects or self._done >= self.windows:
+            return self._decide()
+        self._start = self._start + self.spacing  # (the next window starts no earlier than this)
+        return None
+
+    def finish(self) -> tuple[FitReport, list[str]] | None:
+        """The decision from the windows seen, if :meth:`offer` has not given it."""
+        if self._decided:
+            return None
+        if self._window:
+            self._close_window()
+        return self._decide() if self._first is not None else None
+
+    def _close_window(self) -> None:
+        report = check_calibration_fit(self.rig, self._window)
+        poor, judged = set(report.poor_cameras(self.rig)), set(report.judged_cameras(self.rig))
+        if self._first is None:
+            self._first, self._suspects = report, poor
+        else:
+            self._suspects -= judged - poor  # judged fine once: not at fault
+        self._window = []
+        self._done += 1
+
+    def _decide(self) -> tuple[FitReport, list[str]]:
+        self._decided = True
+        return self._first, [name for name in self.rig.names if name in self._suspects]
 
 
 def check_calibration_fit(rig: Rig, frames: list[list[Detections]], tolerance_px: float = 3.0) -> FitReport:

@@ -26,7 +26,7 @@ from mocap.camera import Rig, rig_to_toml
 from mocap.detect import detect
 from mocap.detections import Detections
 from mocap.errors import MocapError
-from mocap.fitcheck import check_calibration_fit
+from mocap.fitcheck import FitMonitor, FitReport
 from mocap.relabel import repair_identities
 from mocap.tracker import Tracker, TrackerConfig
 from mocap.trajectories import Trajectories
@@ -35,7 +35,8 @@ __all__ = ["ReconstructOptions", "reconstruct", "write_outputs"]
 
 log = logging.getLogger(__name__)
 
-FIT_CHECK_FRAMES = 10
+FIT_CHECK_FRAMES = 10  # frames holding detections per window of the calibration-fit check ...
+FIT_CHECK_SPACING_S = 1.0  # ... whose windows start this far apart (a camera is named if poor in all)
 
 
 @dataclass
@@ -105,21 +106,20 @@ def _detection_frames(source: Any, kind: str, tracker: Tracker, opts: Reconstruc
         yield frame_index, dets
 
 
-def _warn_if_calibration_does_not_fit(rig: Rig, frames: list[list[Detections]], where: Path) -> None:
-    report = check_calibration_fit(rig, frames)
-    poor = report.poor_cameras(rig)
-    examined = int(report.blobs.sum())
-    if examined == 0:
+def _report_calibration_fit(rig: Rig, verdict: tuple[FitReport, list[str]], where: Path, spacing_s: float) -> None:
+    """Warn about the cameras :class:`mocap.fitcheck.FitMonitor` named (support shown from its first window)."""
+    report, poor = verdict
+    if int(report.blobs.sum()) == 0:
         return
     if poor:
         pct = ", ".join(f"{n} {100 * s:.0f} %" for n, s in zip(rig.names, report.support, strict=True)
                         if n in poor)
         log.warning(
             "%s: the calibration does not seem to fit the images: few blobs of camera(s) %s have a partner on "
-            "their epipolar line in another camera (%s, tolerance %.0f px, first %d frames). Check that "
-            "calibration.toml belongs to this take, that camera names match their recordings, and that no "
-            "camera moved since calibration; re-run 'mocap calibrate' if in doubt.",
-            where, ", ".join(poor), pct, report.tolerance_px, len(frames),
+            "their epipolar line in another camera (%s in the first %d frames, tolerance %.0f px; as few in "
+            "windows of frames %.0f s apart). Check that calibration.toml belongs to this take, that camera names "
+            "match their recordings, and that no camera moved since calibration; re-run 'mocap calibrate' if in "
+            "doubt.", where, ", ".join(poor), pct, FIT_CHECK_FRAMES, report.tolerance_px, spacing_s,
         )
     else:
         log.debug("calibration fit: epipolar support per camera %s", np.round(report.support, 3))
@@ -148,8 +148,7 @@ def reconstruct(take: str | os.PathLike, options: ReconstructOptions | None = No
         raise MocapError(f"{path}: frame range {opts.start}:{stop} is empty; the take has {source.n_frames} frames")
     tracker = Tracker(rig, fps, opts.tracker)
     logger = _open_mcap_logger(mcap, rig, fps, path) if mcap is not None else contextlib.nullcontext()
-    first_frames: list[list[Detections]] = []
-    fit_checked = False
+    fit = FitMonitor(rig, FIT_CHECK_FRAMES, spacing=max(1, int(round(FIT_CHECK_SPACING_S * fps))))
     # OpenCV on one thread while streaming: detection's OpenCV calls are small (a dilation, labelling of small
     # images) and a second OpenCV thread mostly waits for a core that the take reader's decoders hold
     # (labelling 0.08 ms per call on one thread, 0.3-3 ms on two on the shared 2-core machine).
@@ -158,18 +157,16 @@ def reconstruct(take: str | os.PathLike, options: ReconstructOptions | None = No
         bar = tqdm(frames, total=stop - opts.start, unit="frame", desc="reconstruct",
                    disable=None if opts.progress else True, leave=False)
         for frame_index, dets in bar:
-            if not fit_checked:
-                if sum(len(d) > 0 for d in dets) >= 2:
-                    first_frames.append(dets)
-                if len(first_frames) >= FIT_CHECK_FRAMES:
-                    _warn_if_calibration_does_not_fit(rig, first_frames, path)
-                    fit_checked = True
+            verdict = fit.offer(frame_index, dets)
+            if verdict is not None:
+                _report_calibration_fit(rig, verdict, path, FIT_CHECK_SPACING_S)
             result = tracker.step(frame_index, dets)
             if mcap is not None:
                 logger.log_frame(frame_index, dets, result.ids, result.positions, result.residuals_mm,
                                  result.camera_masks)
-        if not fit_checked and first_frames:
-            _warn_if_calibration_does_not_fit(rig, first_frames, path)
+        verdict = fit.finish()
+        if verdict is not None:
+            _report_calibration_fit(rig, verdict, path, FIT_CHECK_SPACING_S)
     traj = tracker.finish()
     if opts.relabel:
         before = traj.n_markers

@@ -6,7 +6,7 @@ import numpy as np
 
 from mocap.camera import Rig
 from mocap.detections import Detections
-from mocap.fitcheck import check_calibration_fit
+from mocap.fitcheck import FitMonitor, check_calibration_fit
 from tests.conftest import ring_rig
 
 
@@ -96,7 +96,53 @@ def test_cameras_that_see_only_reflections_are_not_judged():
         for c in (5, 6, 7):  # the subject is out of these cameras' view
             dets[c] = Detections(reflections[c] + rng.normal(0, 0.1, (3, 2)))
     assert check_calibration_fit(rig, frames).poor_cameras(rig) == []
-    cams = list(rig.cameras)
-    order = [0, 3, 2, 1, 4, 5, 6, 7]
-    swapped = Rig([c.with_pose(cams[o].rotation, cams[o].translation) for c, o in zip(cams, order, strict=True)])
+    swapped = _swapped(rig, [0, 3, 2, 1, 4, 5, 6, 7])
     assert sorted(check_calibration_fit(swapped, frames).poor_cameras(rig)) == ["cam2", "cam4"]
+
+
+def _swapped(rig: Rig, order: list[int]) -> Rig:
+    """The rig with camera k given the pose of camera ``order[k]`` (names swapped between recordings)."""
+    cams = list(rig.cameras)
+    return Rig([c.with_pose(cams[o].rotation, cams[o].translation) for c, o in zip(cams, order, strict=True)])
+
+
+def _feed(monitor: FitMonitor, frames: list[list[Detections]]):
+    """Offer ``frames`` one a frame; the monitor's decision (report, names), or its decision at the end."""
+    for k, dets in enumerate(frames):
+        verdict = monitor.offer(k, dets)
+        if verdict is not None:
+            return verdict
+    return monitor.finish()
+
+
+def _lonely_then_shared(rig: Rig, lonely: tuple[int, ...], n_frames: int = 60) -> list[list[Detections]]:
+    """The first 20 frames: cameras ``lonely`` see markers that no other camera sees (a walkway camera away from
+    the subject); then every camera sees the shared markers."""
+    rng = np.random.default_rng(7)
+    frames = _frames(rig, n_frames=n_frames, n_markers=30, seed=7)
+    for dets in frames[:20]:
+        for c in lonely:
+            X = rng.uniform([-0.8, -0.8, 0.1], [0.8, 0.8, 1.9], size=(30, 3))
+            dets[c] = Detections(rig[c].project(X) + rng.normal(0, 0.1, (30, 2)))
+    return frames
+
+
+def test_cameras_that_share_no_marker_in_the_first_frames_are_judged_on_later_ones():
+    """One window of frames cannot judge a camera whose markers no second camera sees (no support, no chance
+    either): it used to be named. It is named only if later windows (10 frames each, 10 apart) find it poor too."""
+    rig = ring_rig()
+    frames = _lonely_then_shared(rig, (4, 5))
+    assert sorted(check_calibration_fit(rig, frames[:10]).poor_cameras(rig)) == ["cam5", "cam6"]  # the old check
+    report, names = _feed(FitMonitor(rig, frames=10, spacing=10), frames)
+    assert names == [] and sorted(report.poor_cameras(rig)) == ["cam5", "cam6"]
+    swapped = _swapped(rig, [0, 3, 2, 1, 4, 5])
+    _, names = _feed(FitMonitor(swapped, frames=10, spacing=10), frames)
+    assert names == ["cam2", "cam4"]
+
+
+def test_a_short_take_is_judged_on_what_it_has():
+    rig = ring_rig()
+    swapped = _swapped(rig, [0, 3, 2, 1, 4, 5])
+    _, names = _feed(FitMonitor(swapped, frames=10, spacing=10), _frames(rig, n_frames=6, n_markers=40))
+    assert names == ["cam2", "cam4"]
+    assert _feed(FitMonitor(rig, frames=10, spacing=10), []) is None
