@@ -57,7 +57,7 @@ class FitReport:
         below the others (a swapped pair: 0.01-0.3 where the rest keep 0.7-0.9), and a wrong file takes
         every camera to chance.
         """
-        s = np.where(self.blobs >= few * self.blobs.max(initial=0), self.support, np.nan)
+        s = np.where(self._judged(few), self.support, np.nan)
         if not np.isfinite(s).any():
             return []
         limit = np.maximum(relative * float(np.nanmedian(s)), over_chance * np.nan_to_num(self.chance) + margin)
@@ -65,8 +65,11 @@ class FitReport:
 
     def judged_cameras(self, rig: Rig, few: float = 0.25) -> list[str]:
         """Names of the cameras :meth:`poor_cameras` judges (enough blobs)."""
-        return [name for name, n, v in zip(rig.names, self.blobs, self.support, strict=True)
-                if n >= few * self.blobs.max(initial=0) and np.isfinite(v)]
+        return [name for name, ok in zip(rig.names, self._judged(few), strict=True) if ok]
+
+    def _judged(self, few: float) -> np.ndarray:
+        """(C,) bool: cameras with blobs, at least ``few`` x the busiest camera's."""
+        return (self.blobs >= few * self.blobs.max(initial=0)) & np.isfinite(self.support)
 
 
 class FitMonitor:

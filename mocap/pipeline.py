@@ -106,7 +106,7 @@ def _detection_frames(source: Any, kind: str, tracker: Tracker, opts: Reconstruc
         yield frame_index, dets
 
 
-def _report_calibration_fit(rig: Rig, verdict: tuple[FitReport, list[str]], where: Path, spacing_s: float) -> None:
+def _report_calibration_fit(rig: Rig, verdict: tuple[FitReport, list[str]], where: Path) -> None:
     """Warn about the cameras :class:`mocap.fitcheck.FitMonitor` named (support shown from its first window)."""
     report, poor = verdict
     if int(report.blobs.sum()) == 0:
@@ -119,7 +119,7 @@ def _report_calibration_fit(rig: Rig, verdict: tuple[FitReport, list[str]], wher
             "their epipolar line in another camera (%s in the first %d frames, tolerance %.0f px; as few in "
             "windows of frames %.0f s apart). Check that calibration.toml belongs to this take, that camera names "
             "match their recordings, and that no camera moved since calibration; re-run 'mocap calibrate' if in "
-            "doubt.", where, ", ".join(poor), pct, FIT_CHECK_FRAMES, report.tolerance_px, spacing_s,
+            "doubt.", where, ", ".join(poor), pct, FIT_CHECK_FRAMES, report.tolerance_px, FIT_CHECK_SPACING_S,
         )
     else:
         log.debug("calibration fit: epipolar support per camera %s", np.round(report.support, 3))
@@ -159,14 +159,14 @@ def reconstruct(take: str | os.PathLike, options: ReconstructOptions | None = No
         for frame_index, dets in bar:
             verdict = fit.offer(frame_index, dets)
             if verdict is not None:
-                _report_calibration_fit(rig, verdict, path, FIT_CHECK_SPACING_S)
+                _report_calibration_fit(rig, verdict, path)
             result = tracker.step(frame_index, dets)
             if mcap is not None:
                 logger.log_frame(frame_index, dets, result.ids, result.positions, result.residuals_mm,
                                  result.camera_masks)
         verdict = fit.finish()
         if verdict is not None:
-            _report_calibration_fit(rig, verdict, path, FIT_CHECK_SPACING_S)
+            _report_calibration_fit(rig, verdict, path)
     traj = tracker.finish()
     if opts.relabel:
         before = traj.n_markers
