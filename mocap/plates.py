@@ -12,10 +12,12 @@ On finished trajectories (after :mod:`mocap.relabel` and :mod:`mocap.reunite`), 
    ``MAX_MEMBERS``; a plate with two members at the same distances from the others (within ``2 x
    tolerance_m``: a square, an isosceles triangle, which the shape cannot label) is not used, and of
    plates of one shape (the same plate under other identities after a long absence) the one seen longest
-   is; a triangle of it that another rigid structure seen with it matches (a twin plate) is not searched;
-2. finds, in every frame, the points whose distances match a plate triangle's (``tolerance_m``), and the
-   other members whose distances to those three fit: votes, sample -> plate member; a sample voted for two
-   members, or a member voted to two samples in one frame, has none;
+   is; another rigid structure seen with it whose triangle has the shape of one of its triangles (a twin
+   plate) is remembered with that triangle;
+2. finds, in every frame, the points whose distances match a plate triangle's (``tolerance_m``) and not
+   those of its twins (points that fit both cannot be told apart), and the other members whose distances to
+   those three fit: votes, sample -> plate member; a sample voted for two members, or a member voted to two
+   samples in one frame, has none;
 3. cuts every identity into tracklets (runs of consecutive samples, also cut where the votes change) and
    gives a tracklet whose votes all name one member (``min_votes``, and ``vote_fraction`` of its samples) to
    that member; a tracklet without votes goes with the nearest voted tracklet of its identity (the
@@ -108,21 +110,23 @@ def _fits_into(D: np.ndarray, E: np.ndarray, tol: float) -> bool:
                                for q in itertools.permutations(range(len(E)), n))
 
 
-def _twinned(tri: np.ndarray, median: np.ndarray, others: np.ndarray, seen: np.ndarray, tol: float) -> bool:
-    """A rigid triangle of other identities, ``others`` (T, 3), has the shape of ``tri`` (3,) and is seen in the
-    same frames as it (``TWIN_FRAMES``): another structure alike. (Never seen with it, it may be the same markers
-    under other identities.)"""
+def _twins(tri: np.ndarray, median: np.ndarray, others: np.ndarray, seen: np.ndarray, tol: float) -> np.ndarray:
+    """(T, 3) distances, in every vertex order, of the rigid triangles of other identities, ``others`` (n, 3),
+    that have the shape of ``tri`` (3,) within ``2 tol`` and are seen in the same frames as it (``TWIN_FRAMES``):
+    other structures alike, whose points could match it. (Never seen with it, one may be the same markers under
+    other identities.)"""
     if len(others) == 0:
-        return False
-    orders = others[:, PERMUTATIONS]  # (T, 6, 3)
-    sides = median[orders[..., PAIRS[:, 0]], orders[..., PAIRS[:, 1]]]  # (T, 6, 3)
+        return np.zeros((0, 3))
+    orders = others[:, PERMUTATIONS]  # (n, 6, 3)
+    sides = median[orders[..., PAIRS[:, 0]], orders[..., PAIRS[:, 1]]]  # (n, 6, 3)
     alike = (np.abs(sides - _sides(median, tuple(tri))) < 2 * tol).all(axis=2).any(axis=1)
     both = seen[:, tri].all(axis=1)
-    return any((both & seen[:, t].all(axis=1)).sum() >= TWIN_FRAMES for t in others[alike])
+    together = np.array([(both & seen[:, t].all(axis=1)).sum() >= TWIN_FRAMES for t in others[alike]], dtype=bool)
+    return sides[np.flatnonzero(alike)[together]].reshape(-1, 3)
 
 
 def _plates(median: np.ndarray, rigid: np.ndarray, seen: np.ndarray, tol: float
-            ) -> list[tuple[np.ndarray, list[tuple[int, int, int]]]]:
+            ) -> list[tuple[np.ndarray, list[tuple[int, int, int]], list[np.ndarray]]]:
     """The plates (step 1 of the module docstring): member identities (n,), and the triangles (indices into
     the members) searched for."""
     candidates, used = [], set()
@@ -136,32 +140,35 @@ def _plates(median: np.ndarray, rigid: np.ndarray, seen: np.ndarray, tol: float
         used.update(members.tolist())
     rigid_ids = np.flatnonzero(rigid.any(axis=1))
     structures = rigid_triangles(rigid, rigid_ids)  # (T, 3)
-    plates: list[tuple[np.ndarray, list[tuple[int, int, int]]]] = []
+    plates: list[tuple[np.ndarray, list[tuple[int, int, int]], list[np.ndarray]]] = []
     for i in np.argsort([-seen[:, m].sum() for m in candidates], kind="stable"):
         members = candidates[i]
-        if any(_fits_into(median[np.ix_(members, members)], median[np.ix_(p, p)], tol) for p, _ in plates):
+        if any(_fits_into(median[np.ix_(members, members)], median[np.ix_(p, p)], tol) for p, _, _ in plates):
             continue  # the shape of a plate seen longer
         others = structures[~np.isin(structures, members).any(axis=1)]
-        triangles = [t for t in itertools.combinations(range(members.size), 3)
-                     if not _twinned(members[list(t)], median, others, seen, tol)]
-        if triangles:
-            plates.append((members, triangles))
+        triangles = list(itertools.combinations(range(members.size), 3))
+        plates.append((members, triangles, [_twins(members[list(t)], median, others, seen, tol) for t in triangles]))
     return plates
 
 
-def _votes(P: np.ndarray, shape: np.ndarray, triangles: list[tuple[int, int, int]], tol: float
-           ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Step 2 for one plate over frames ``P`` (F, M, 3): (frame, column, member) of every vote, unresolved."""
+def _votes(P: np.ndarray, shape: np.ndarray, triangles: list[tuple[int, int, int]], twins: list[np.ndarray],
+           tol: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Step 2 for one plate over frames ``P`` (F, M, 3): (frame, column, member) of every vote, unresolved.
+    ``twins``: per triangle, (T, 3) distances of other structures alike; points that match one of them too are
+    not told apart from it and give no vote."""
     D = np.linalg.norm(P[:, :, None] - P[:, None], axis=3)  # (F, M, M), NaN where either is unseen
     n = len(shape)
     out = []
     with np.errstate(invalid="ignore"):
-        for a, b, c in triangles:
+        for (a, b, c), alike in zip(triangles, twins, strict=True):
             f, i, j = np.nonzero(np.abs(D - shape[a, b]) < tol)
             fit = (np.abs(D[f, i] - shape[a, c]) < tol) & (np.abs(D[f, j] - shape[b, c]) < tol)
             r, k = np.nonzero(fit)
             f, i, j = f[r], i[r], j[r]
             ok = (k != i) & (k != j)
+            if len(alike):  # points that fit another structure of this shape as well: no telling which
+                sides = np.stack([D[f, i, j], D[f, i, k], D[f, j, k]], axis=1)  # (m, 3)
+                ok &= ~(np.abs(sides[:, None] - alike[None]) < tol).all(axis=2).any(axis=1)
             f, got = f[ok], np.stack([i[ok], j[ok], k[ok]], axis=1)  # (m,) frames, (m, 3) columns
             out += [(f, got[:, q], np.full(f.size, member)) for q, member in enumerate((a, b, c))]
             for member in set(range(n)) - {a, b, c}:
@@ -303,11 +310,11 @@ def label_plates(traj: Trajectories, config: PlateConfig | None = None, extra: U
     everything = np.concatenate([P, E], axis=1)
     N = everything.shape[1]
     found = []  # (frame, column, member identity) of every vote
-    for members, triangles in plates:
+    for members, triangles, twins in plates:
         shape = median[np.ix_(members, members)]
         step = max(1, CHUNK_ENTRIES // (N * N))
         for start in range(0, F, step):
-            f, col, m = _votes(everything[start:start + step], shape, triangles, cfg.tolerance_m)
+            f, col, m = _votes(everything[start:start + step], shape, triangles, twins, cfg.tolerance_m)
             found.append((f + start, col, members[m]))
     v_frame, v_col, v_member = (np.concatenate(x) for x in zip(*found, strict=True))
     mine = v_col < M  # the identities' own samples are resolved first: an unconfirmed point never takes their votes
