@@ -127,8 +127,8 @@ def _twins(tri: np.ndarray, median: np.ndarray, others: np.ndarray, seen: np.nda
 
 def _plates(median: np.ndarray, rigid: np.ndarray, seen: np.ndarray, tol: float
             ) -> list[tuple[np.ndarray, list[tuple[int, int, int]], list[np.ndarray]]]:
-    """The plates (step 1 of the module docstring): member identities (n,), and the triangles (indices into
-    the members) searched for."""
+    """The plates (step 1 of the module docstring): member identities (n,), their triangles (indices into the
+    members), and per triangle the distances of its twins (:func:`_twins`)."""
     candidates, used = [], set()
     for clique in sorted(_cliques(rigid), key=len, reverse=True):
         members = np.array(sorted(set(clique) - used))
