@@ -13,15 +13,18 @@ On finished trajectories (after :mod:`mocap.relabel` and :mod:`mocap.reunite`), 
    tolerance_m``: a square, an isosceles triangle, which the shape cannot label) is not used, and of
    plates of one shape (the same plate under other identities after a long absence) the one seen longest
    is; another rigid structure seen with it whose triangle has the shape of one of its triangles (a twin
-   plate) is remembered with that triangle;
+   plate) is remembered with that triangle. Plates are learned from the whole take, then from stretches of
+   it: a plate whose identities the tracker mixed up after every absence is rigid under one labelling only
+   within a stretch (such a plate must keep its shape, in some order of its members, over the take);
 2. finds, in every frame, the points whose distances match a plate triangle's (``tolerance_m``) and not
    those of its twins (points that fit both cannot be told apart), and the other members whose distances to
    those three fit: votes, sample -> plate member; a sample voted for two members, or a member voted to two
    samples in one frame, has none;
 3. cuts every identity into tracklets (runs of consecutive samples, also cut where the votes change) and
    gives a tracklet whose votes all name one member (``min_votes``, and ``vote_fraction`` of its samples) to
-   that member; a tracklet without votes goes with the nearest voted tracklet of its identity (the
-   tracker followed one marker through it), unless the nearest before and after disagree;
+   that member; a tracklet without enough votes goes with the nearest voted tracklet of its identity (the
+   tracker followed one marker through it), unless the nearest before and after disagree and its own votes
+   side with neither;
 4. moves each tracklet given to a member into that member's identity where it is free over those frames,
    longest first;
 5. gives the tracker's unconfirmed points (:meth:`mocap.tracker.Tracker.unconfirmed`: a marker the recording
@@ -46,6 +49,8 @@ __all__ = ["PlateConfig", "label_plates"]
 CHUNK_ENTRIES = 1 << 22  # frames x identities^2 searched at a time (the distance arrays stay near 32 MB)
 MAX_MEMBERS = 8  # larger cliques of rigid pairs are not taken for plates
 TWIN_FRAMES = 10  # frames two structures of one shape must be seen together to be two structures
+WINDOW_SPAN = 3  # plates are also learned from stretches of this many times min_frames frames ...
+WINDOW_FIT = 0.75  # ... when their members keep the shape, in some order, in this fraction of the take's frames
 
 
 @dataclass(frozen=True)
@@ -125,10 +130,21 @@ def _twins(tri: np.ndarray, median: np.ndarray, others: np.ndarray, seen: np.nda
     return sides[np.flatnonzero(alike)[together]].reshape(-1, 3)
 
 
-def _plates(median: np.ndarray, rigid: np.ndarray, seen: np.ndarray, tol: float
-            ) -> list[tuple[np.ndarray, list[tuple[int, int, int]], list[np.ndarray]]]:
-    """The plates (step 1 of the module docstring): member identities (n,), their triangles (indices into the
-    members), and per triangle the distances of its twins (:func:`_twins`)."""
+@dataclass(frozen=True)
+class _Plate:
+    """A learned plate: member identities (n,), their distances (n, n) m, their triangles (indices into the
+    members), per triangle the distances of its twins (:func:`_twins`), and their samples counted."""
+
+    members: np.ndarray
+    shape: np.ndarray
+    triangles: list[tuple[int, int, int]]
+    twins: list[np.ndarray]
+    samples: int
+
+
+def _plates(median: np.ndarray, rigid: np.ndarray, seen: np.ndarray, tol: float) -> list[_Plate]:
+    """The plates of one stretch of the take (step 1 of the module docstring), seen longest first, from its pair
+    statistics ``median`` and ``rigid`` (M, M) and its samples ``seen`` (F, M) bool."""
     candidates, used = [], set()
     for clique in sorted(_cliques(rigid), key=len, reverse=True):
         members = np.array(sorted(set(clique) - used))
@@ -140,14 +156,50 @@ def _plates(median: np.ndarray, rigid: np.ndarray, seen: np.ndarray, tol: float
         used.update(members.tolist())
     rigid_ids = np.flatnonzero(rigid.any(axis=1))
     structures = rigid_triangles(rigid, rigid_ids)  # (T, 3)
-    plates: list[tuple[np.ndarray, list[tuple[int, int, int]], list[np.ndarray]]] = []
+    plates: list[_Plate] = []
     for i in np.argsort([-seen[:, m].sum() for m in candidates], kind="stable"):
         members = candidates[i]
-        if any(_fits_into(median[np.ix_(members, members)], median[np.ix_(p, p)], tol) for p, _, _ in plates):
+        shape = median[np.ix_(members, members)]
+        if any(_fits_into(shape, p.shape, tol) for p in plates):
             continue  # the shape of a plate seen longer
         others = structures[~np.isin(structures, members).any(axis=1)]
         triangles = list(itertools.combinations(range(members.size), 3))
-        plates.append((members, triangles, [_twins(members[list(t)], median, others, seen, tol) for t in triangles]))
+        plates.append(_Plate(members, shape, triangles, [_twins(members[list(t)], median, others, seen, tol)
+                                                         for t in triangles], int(seen[:, members].sum())))
+    return plates
+
+
+def _keeps_shape(P: np.ndarray, shape: np.ndarray, tol: float) -> bool:
+    """Whether the markers ``P`` (F, n, 3) have the distances of ``shape`` (n, n), in some order (sorted distances
+    within ``tol``), in ``WINDOW_FIT`` of the frames all are seen in: a plate whose identities were mixed up does."""
+    i, j = np.triu_indices(shape.shape[0], 1)
+    whole = P[np.isfinite(P[..., 0]).all(axis=1)]
+    sides = np.sort(np.linalg.norm(whole[:, i] - whole[:, j], axis=2), axis=1)  # (frames, pairs)
+    return bool(len(whole)) and (np.abs(sides - np.sort(shape[i, j])) < tol).all(axis=1).mean() >= WINDOW_FIT
+
+
+def _learn(P: np.ndarray, cfg: PlateConfig) -> list[_Plate]:
+    """The plates of the take ``P`` (F, M, 3).
+
+    First from the whole take's pair statistics; then from stretches of ``WINDOW_SPAN x min_frames`` frames
+    (overlapping by half): a plate whose identities the tracker mixed up after each absence is rigid under one
+    labelling within a stretch, not over the take. A plate from a stretch is kept when its shape is new and
+    none of its identities is a member of a plate kept already (stretches seen longest first), and its members
+    keep its shape in some order (:func:`_keeps_shape`) over the take: skin markers steady for a while do not."""
+    median, spread, _ = pair_statistics(P, cfg.min_frames)
+    seen = np.isfinite(P[..., 0])
+    plates = _plates(median, (spread < cfg.spread_m) & (median < cfg.reach_m), seen, cfg.tolerance_m)
+    span = WINDOW_SPAN * cfg.min_frames
+    found = []
+    for start in range(0, len(P) - span + 1, span // 2) if len(P) > span else []:
+        part = P[start:start + span]
+        m, s, _ = pair_statistics(part, cfg.min_frames)
+        found += _plates(m, (s < cfg.spread_m) & (m < cfg.reach_m), seen[start:start + span], cfg.tolerance_m)
+    for plate in sorted(found, key=lambda p: -p.samples):
+        if any(np.isin(plate.members, p.members).any() or _fits_into(plate.shape, p.shape, cfg.tolerance_m)
+               for p in plates) or not _keeps_shape(P[:, plate.members], plate.shape, cfg.tolerance_m):
+            continue
+        plates.append(plate)
     return plates
 
 
@@ -211,16 +263,22 @@ def _tracklets(seen: np.ndarray, vote: np.ndarray) -> list[tuple[int, np.ndarray
 
 
 def _destinations(runs: list[tuple[int, np.ndarray]], vote: np.ndarray, cfg: PlateConfig) -> list[int]:
-    """Step 3: the identity each tracklet is given (-1: none)."""
-    dest = []
+    """Step 3: the identity each tracklet is given (-1: none). A tracklet with too few votes of its own follows
+    the nearest voted tracklets of its identity; where those before and after it disagree, it follows the one
+    its own votes name, if any."""
+    dest, few = [], []
     for col, run in runs:
         v = vote[run, col]
         named = np.unique(v[v >= 0])
         enough = (v >= 0).sum() >= max(cfg.min_votes, cfg.vote_fraction * run.size)
         dest.append(int(named[0]) if named.size == 1 and enough else -1)
+        few.append(int(named[0]) if named.size == 1 else -1)
     out = []
-    for d, *sides in zip(dest, _nearest_voted(runs, dest, True), _nearest_voted(runs, dest, False), strict=True):
+    for d, f, *sides in zip(dest, few, _nearest_voted(runs, dest, True), _nearest_voted(runs, dest, False),
+                            strict=True):
         named = {x for x in sides if x >= 0}  # the nearest voted before and after: none, one, or two alike
+        if d < 0 and len(named) == 2 and f in named:
+            named = {f}  # they disagree, and its own few votes side with one of them
         out.append(d if d >= 0 or len(named) != 1 else named.pop())
     return out
 
@@ -300,9 +358,8 @@ def label_plates(traj: Trajectories, config: PlateConfig | None = None, extra: U
     F, M = P.shape[:2]
     if M < 3 or not np.isfinite(P[..., 0]).any():
         return 0
-    median, spread, _ = pair_statistics(P, cfg.min_frames)
+    plates = _learn(P, cfg)
     seen = np.isfinite(P[..., 0])
-    plates = _plates(median, (spread < cfg.spread_m) & (median < cfg.reach_m), seen, cfg.tolerance_m)
     if not plates:
         return 0
     E, slot = _as_columns(extra, P, cfg.tolerance_m) if extra is not None and len(extra.rows) else (
@@ -310,12 +367,12 @@ def label_plates(traj: Trajectories, config: PlateConfig | None = None, extra: U
     everything = np.concatenate([P, E], axis=1)
     N = everything.shape[1]
     found = []  # (frame, column, member identity) of every vote
-    for members, triangles, twins in plates:
-        shape = median[np.ix_(members, members)]
+    for plate in plates:
         step = max(1, CHUNK_ENTRIES // (N * N))
         for start in range(0, F, step):
-            f, col, m = _votes(everything[start:start + step], shape, triangles, twins, cfg.tolerance_m)
-            found.append((f + start, col, members[m]))
+            f, col, m = _votes(everything[start:start + step], plate.shape, plate.triangles, plate.twins,
+                               cfg.tolerance_m)
+            found.append((f + start, col, plate.members[m]))
     v_frame, v_col, v_member = (np.concatenate(x) for x in zip(*found, strict=True))
     mine = v_col < M  # the identities' own samples are resolved first: an unconfirmed point never takes their votes
     vote = _resolve(v_frame[mine], v_col[mine], v_member[mine], shape=(F, M))

@@ -10,7 +10,7 @@ from helpers_rigid import FRAMES, PLATE, SQUARE, TRIANGLE, columns_follow, movin
 
 from mocap.errors import MocapError
 from mocap.evaluate import evaluate
-from mocap.plates import label_plates
+from mocap.plates import PlateConfig, _destinations, label_plates
 from mocap.relabel import repair_identities
 from mocap.synth import SynthSettings, ring_rig
 from mocap.tracker import Tracker
@@ -19,15 +19,23 @@ from mocap.trajectories import Trajectories
 HIDDEN, BACK = 360, 400  # the plate is hidden from frame 360 and comes back, a marker every 5 frames, from 400
 
 
-def _rotated_after_the_gap(truth: np.ndarray, plate: np.ndarray, order: np.ndarray) -> Trajectories:
-    """The tracker's output: the ``plate`` markers' columns are empty from HIDDEN, and after the gap column
-    ``plate[order[k]]`` holds marker ``plate[k]`` (each returning marker re-identified as a neighbour)."""
+def _rotated_after_gaps(truth: np.ndarray, plate: np.ndarray, gaps: list[tuple[int, int, np.ndarray]]
+                        ) -> Trajectories:
+    """The tracker's output: for every gap (hidden, back, order), the ``plate`` markers' columns are empty from
+    frame ``hidden``, and from ``back`` on (a marker every 5 frames) column ``plate[order[k]]`` holds marker
+    ``plate[k]`` (each returning marker re-identified as a neighbour)."""
     P = truth.copy()
-    P[HIDDEN:, plate] = np.nan
-    for k, marker in enumerate(plate):
-        back = BACK + 5 * k
-        P[back:, plate[order[k]]] = truth[back:, marker]
+    for hidden, back, order in gaps:
+        P[hidden:, plate] = np.nan
+        for k, marker in enumerate(plate):
+            start = back + 5 * k
+            P[start:, plate[order[k]]] = truth[start:, marker]
     return Trajectories([f"M{k + 1:03d}" for k in range(P.shape[1])], 100.0, P)
+
+
+def _rotated_after_the_gap(truth: np.ndarray, plate: np.ndarray, order: np.ndarray) -> Trajectories:
+    """:func:`_rotated_after_gaps` for one gap, from HIDDEN to BACK."""
+    return _rotated_after_gaps(truth, plate, [(HIDDEN, BACK, order)])
 
 
 def _samples_per_frame(traj: Trajectories) -> list[np.ndarray]:
@@ -44,6 +52,20 @@ def test_a_plate_back_from_a_gap_with_its_identities_rotated_is_labelled_by_its_
     assert columns_follow(traj, truth)[:4] == [0, 1, 2, 3]
     after = _samples_per_frame(traj)
     assert all(np.array_equal(a, b) for a, b in zip(before, after, strict=True))  # samples moved, none changed
+
+
+def test_a_plate_rotated_after_every_absence_is_learned_from_a_stretch_of_the_take():
+    """Hidden three times and mixed up after each: no labelling holds for most of the take, so no pair of
+    identities keeps its distance over it; within the longest stint one does."""
+    rng = np.random.default_rng(18)
+    truth = np.concatenate([moving(PLATE, rng, 0.0), skin(3, rng)], axis=1)
+    gaps = [(100, 130, np.array([1, 2, 3, 0])), (330, 360, np.array([2, 0, 3, 1])), (470, 500, np.array([3, 2, 1, 0]))]
+    traj = _rotated_after_gaps(truth, np.arange(4), gaps)
+    before = _samples_per_frame(traj)
+    assert label_plates(traj) > 0
+    assert sorted(columns_follow(traj, truth)) == list(range(7))  # one column per marker, whole take
+    after = _samples_per_frame(traj)
+    assert all(np.array_equal(a, b) for a, b in zip(before, after, strict=True))
 
 
 def test_the_identity_repair_labels_plates_last():
@@ -110,3 +132,15 @@ def test_a_plate_marker_back_flickering_is_given_its_points_the_tracker_never_co
           f"{before.switches} -> {after.switches}, IDF1 {before.idf1:.4f} -> {after.idf1:.4f}")
     assert found[0] <= 5 and found[1] >= 35 and stats.plate_samples >= 35
     assert after.switches <= before.switches and after.idf1 > before.idf1 and after.ghost_rate == 0
+
+
+def test_a_short_tracklet_between_disagreeing_neighbours_follows_the_one_its_own_votes_name():
+    """A plate marker's identity: 10 frames voted for member 5, a 1-frame gap, 3 frames with one vote, then
+    (after the plate was away) 10 frames voted for member 7. The 3 frames follow their own vote when it sides
+    with a neighbour, and stay put when it names neither."""
+    vote = np.full((100, 1), -1)
+    vote[0:10, 0], vote[80:90, 0] = 5, 7
+    runs = [(0, np.arange(0, 10)), (0, np.arange(11, 14)), (0, np.arange(80, 90))]
+    for own, expected in ((5, 5), (7, 7), (9, -1)):
+        vote[13, 0] = own
+        assert _destinations(runs, vote, PlateConfig()) == [5, expected, 7]
