@@ -203,12 +203,25 @@ def _learn(P: np.ndarray, cfg: PlateConfig) -> list[_Plate]:
     return plates
 
 
-def _votes(P: np.ndarray, shape: np.ndarray, triangles: list[tuple[int, int, int]], twins: list[np.ndarray],
+def _distances(P: np.ndarray) -> np.ndarray:
+    """(F, M, M) distances between the points of every frame of ``P`` (F, M, 3), m; NaN where either is unseen.
+    (From the Gram matrix of each frame's points about their mean: no (F, M, M, 3) array.)"""
+    seen = np.isfinite(P[..., :1])  # (F, M, 1)
+    mean = np.where(seen, P, 0.0).sum(axis=1, keepdims=True) / np.maximum(seen.sum(axis=1, keepdims=True), 1)
+    Q = np.where(seen, P - mean, 0.0)
+    sq = np.einsum("fmi,fmi->fm", Q, Q)
+    D2 = sq[:, :, None] + sq[:, None, :] - 2.0 * np.matmul(Q, Q.transpose(0, 2, 1))
+    D = np.sqrt(np.maximum(D2, 0.0))
+    unseen = ~seen[..., 0]
+    D[unseen[:, :, None] | unseen[:, None, :]] = np.nan
+    return D
+
+
+def _votes(D: np.ndarray, shape: np.ndarray, triangles: list[tuple[int, int, int]], twins: list[np.ndarray],
            tol: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Step 2 for one plate over frames ``P`` (F, M, 3): (frame, column, member) of every vote, unresolved.
-    ``twins``: per triangle, (T, 3) distances of other structures alike; points that match one of them too are
-    not told apart from it and give no vote."""
-    D = np.linalg.norm(P[:, :, None] - P[:, None], axis=3)  # (F, M, M), NaN where either is unseen
+    """Step 2 for one plate over frames whose point distances are ``D`` (F, M, M) (:func:`_distances`): (frame,
+    column, member) of every vote, unresolved. ``twins``: per triangle, (T, 3) distances of other structures
+    alike; points that match one of them too are not told apart from it and give no vote."""
     n = len(shape)
     out = []
     with np.errstate(invalid="ignore"):
@@ -224,7 +237,7 @@ def _votes(P: np.ndarray, shape: np.ndarray, triangles: list[tuple[int, int, int
             f, got = f[ok], np.stack([i[ok], j[ok], k[ok]], axis=1)  # (m,) frames, (m, 3) columns
             out += [(f, got[:, q], np.full(f.size, member)) for q, member in enumerate((a, b, c))]
             for member in set(range(n)) - {a, b, c}:
-                near = np.ones((f.size, P.shape[1]), dtype=bool)
+                near = np.ones((f.size, D.shape[1]), dtype=bool)
                 for q, corner in enumerate((a, b, c)):
                     near &= np.abs(D[f, got[:, q]] - shape[corner, member]) < tol
                 near[np.arange(f.size)[:, None], got] = False
@@ -367,11 +380,11 @@ def label_plates(traj: Trajectories, config: PlateConfig | None = None, extra: U
     everything = np.concatenate([P, E], axis=1)
     N = everything.shape[1]
     found = []  # (frame, column, member identity) of every vote
-    for plate in plates:
-        step = max(1, CHUNK_ENTRIES // (N * N))
-        for start in range(0, F, step):
-            f, col, m = _votes(everything[start:start + step], plate.shape, plate.triangles, plate.twins,
-                               cfg.tolerance_m)
+    step = max(1, CHUNK_ENTRIES // (N * N))
+    for start in range(0, F, step):
+        D = _distances(everything[start:start + step])
+        for plate in plates:
+            f, col, m = _votes(D, plate.shape, plate.triangles, plate.twins, cfg.tolerance_m)
             found.append((f + start, col, plate.members[m]))
     v_frame, v_col, v_member = (np.concatenate(x) for x in zip(*found, strict=True))
     mine = v_col < M  # the identities' own samples are resolved first: an unconfirmed point never takes their votes

@@ -10,7 +10,7 @@ from helpers_rigid import FRAMES, PLATE, SQUARE, TRIANGLE, columns_follow, movin
 
 from mocap.errors import MocapError
 from mocap.evaluate import evaluate
-from mocap.plates import PlateConfig, _destinations, label_plates
+from mocap.plates import PlateConfig, _destinations, _distances, label_plates
 from mocap.relabel import repair_identities
 from mocap.synth import SynthSettings, ring_rig
 from mocap.tracker import Tracker
@@ -144,3 +144,14 @@ def test_a_short_tracklet_between_disagreeing_neighbours_follows_the_one_its_own
     for own, expected in ((5, 5), (7, 7), (9, -1)):
         vote[13, 0] = own
         assert _destinations(runs, vote, PlateConfig()) == [5, expected, 7]
+
+
+def test_the_distances_are_those_of_every_pair_of_points():
+    rng = np.random.default_rng(19)
+    P = rng.normal(0.0, 1.0, (40, 12, 3)) + np.array([5.0, -3.0, 1.0])
+    P[rng.random((40, 12)) < 0.3] = np.nan
+    P[7] = np.nan  # a frame with nothing seen
+    expected = np.linalg.norm(P[:, :, None] - P[:, None], axis=3)
+    D = _distances(P)
+    assert np.array_equal(np.isnan(D), np.isnan(expected))
+    assert np.nanmax(np.abs(D - expected)) < 1e-6
