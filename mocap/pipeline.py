@@ -170,6 +170,7 @@ def reconstruct(take: str | os.PathLike, options: ReconstructOptions | None = No
     traj = tracker.finish()
     if opts.relabel:
         before = traj.n_markers
+        log.info("identity repair: %d identities over %d frames ...", before, traj.n_frames)
         stats = repair_identities(traj, unconfirmed=tracker.unconfirmed())
         log.info("identity repair: %d swaps undone; %d identities -> %d (fragments re-linked, tracks cut where they "
                  "jumped; %d joined by the shapes of rigid clusters); %d samples labelled by rigid plates' shapes",
