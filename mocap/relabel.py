@@ -70,7 +70,9 @@ class RelabelConfig:
         own_link_weight: the tracker's own link (same identity before and after) costs this fraction
             of its disagreement, and is kept across any gap (the tracker re-identified it).
         split_acc_m: a track is cut where its acceleration exceeds this on two consecutive samples,
-            m/frame^2 (a jump to another marker), and the pieces are re-linked.
+            m/frame^2 (a jump to another marker), and the pieces are re-linked ...
+        split_acc_mps2: ... and exceeds this real acceleration, m/s^2 (a serve's wrist reaches ~200 m/s^2:
+            at 50 Hz that is 80 mm/frame^2, which must not read as a jump).
         shape_window: samples at each tracklet end over which the distances to its neighbours are taken.
         shape_radius_m: neighbours within this distance ...
         shape_steady_m: ... whose distance varies less than this over the window count as attached.
@@ -92,6 +94,7 @@ class RelabelConfig:
     stitch_acc_mps2: float = 25.0
     own_link_weight: float = 0.5
     split_acc_m: float = 0.06
+    split_acc_mps2: float = 250.0
     shape_window: int = 6
     shape_radius_m: float = 0.25
     shape_steady_m: float = 0.004
@@ -229,7 +232,7 @@ def relink_tracklets(traj: Trajectories, config: RelabelConfig | None = None) ->
     one. Output columns are the resulting identities.
     """
     cfg = config or RelabelConfig()
-    runs = _tracklets(traj.positions, cfg.split_acc_m)
+    runs = _tracklets(traj.positions, max(cfg.split_acc_m, cfg.split_acc_mps2 / traj.fps**2))
     if not runs:
         return 0
     runs.sort(key=lambda r: int(r[0, 0]))
