@@ -169,6 +169,13 @@ def _plates(median: np.ndarray, rigid: np.ndarray, seen: np.ndarray, tol: float)
     return plates
 
 
+def _plates_of(P: np.ndarray, cfg: PlateConfig) -> list[_Plate]:
+    """:func:`_plates` of the frames ``P`` (F, M, 3), from their own pair statistics."""
+    median, spread, _ = pair_statistics(P, cfg.min_frames)
+    rigid = (spread < cfg.spread_m) & (median < cfg.reach_m)
+    return _plates(median, rigid, np.isfinite(P[..., 0]), cfg.tolerance_m)
+
+
 def _keeps_shape(P: np.ndarray, shape: np.ndarray, tol: float) -> bool:
     """Whether the markers ``P`` (F, n, 3) have the distances of ``shape`` (n, n), in some order (sorted distances
     within ``tol``), in ``WINDOW_FIT`` of the frames all are seen in: a plate whose identities were mixed up does."""
@@ -186,15 +193,10 @@ def _learn(P: np.ndarray, cfg: PlateConfig) -> list[_Plate]:
     labelling within a stretch, not over the take. A plate from a stretch is kept when its shape is new and
     none of its identities is a member of a plate kept already (stretches seen longest first), and its members
     keep its shape in some order (:func:`_keeps_shape`) over the take: skin markers steady for a while do not."""
-    median, spread, _ = pair_statistics(P, cfg.min_frames)
-    seen = np.isfinite(P[..., 0])
-    plates = _plates(median, (spread < cfg.spread_m) & (median < cfg.reach_m), seen, cfg.tolerance_m)
+    plates = _plates_of(P, cfg)
     span = WINDOW_SPAN * cfg.min_frames
-    found = []
-    for start in range(0, len(P) - span + 1, span // 2) if len(P) > span else []:
-        part = P[start:start + span]
-        m, s, _ = pair_statistics(part, cfg.min_frames)
-        found += _plates(m, (s < cfg.spread_m) & (m < cfg.reach_m), seen[start:start + span], cfg.tolerance_m)
+    found = [plate for start in (range(0, len(P) - span + 1, span // 2) if len(P) > span else [])
+             for plate in _plates_of(P[start:start + span], cfg)]
     for plate in sorted(found, key=lambda p: -p.samples):
         if any(np.isin(plate.members, p.members).any() or _fits_into(plate.shape, p.shape, cfg.tolerance_m)
                for p in plates) or not _keeps_shape(P[:, plate.members], plate.shape, cfg.tolerance_m):
