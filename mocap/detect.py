@@ -51,6 +51,7 @@ import numpy as np
 from scipy import special
 from scipy.spatial import cKDTree
 
+from mocap import kernels
 from mocap.detections import Detections, floored_covariance
 
 __all__ = ["background_level", "detect", "K_SIGMA", "MIN_CONTRAST"]
@@ -260,6 +261,14 @@ def _fit_discs(values: np.ndarray, ox: np.ndarray, oy: np.ndarray, seg: np.ndarr
         params (N, 1 + 5K) and the unscaled covariance ``(J^T J)^-1`` of the centres (N, 2K, 2K), from the
         Jacobian at the last step's start.
     """
+    if kernels.HAVE_NUMBA:
+        params = kernels.contiguous(params)
+        cov = kernels.fit_discs(values, ox, oy, np.append(starts, len(seg)), params, iterations, _EDGE_TABLES,
+                                _EDGE_STEPS, float(_Z_RES), float(_Z_ORIGIN), float(_Z_LAST), _MIN_FOOTPRINT, DAMPING,
+                                _STEP_BOUND.astype(np.float64), _PARAM_LOW.astype(np.float64),
+                                _PARAM_HIGH.astype(np.float64))
+        pos = (1 + 5 * np.arange((params.shape[1] - 1) // 5)[:, None] + np.arange(2)).ravel()
+        return params, cov[:, pos[:, None], pos]
     params = params.astype(np.float32)
     n, n_par = params.shape
     disc = params[:, 1:].reshape(n, -1, 5)  # (N, K, 5) view
