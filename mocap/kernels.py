@@ -717,8 +717,8 @@ def fit_discs(values, ox, oy, starts, params, iterations, tables, steps, z_res, 
                     z[2], z[3] = centre - half_diff, centre - half_sum
                     for i in range(4):
                         zi = min(max(z[i], 0.0), z_last)
-                        cell = math.floor(zi)
-                        index = int(cell) + (half if inside else 0)
+                        cell = int(zi)  # (zi >= 0: the floor)
+                        index = cell + (half if inside else 0)
                         dt[i] = steps[index]
                         t[i] = tables[index] + (zi - cell) * dt[i]
                         z[i] = (zi - z_origin) * dt[i]  # z T'(z), scaled as the numpy one
