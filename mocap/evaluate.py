@@ -54,6 +54,8 @@ class MarkerScore:
     completeness: float
     rmse_mm: float
     switches: int
+    identified: int = 0  # of the required marker-frames, those its IDF1 identity (output track) matched
+    identity: float = math.nan  # identified / required: where the IDF1 is lost
 
 
 @dataclass
@@ -124,9 +126,10 @@ class EvalReport:
         ]
         if per_marker:
             width = max([len(m.label) for m in self.per_marker] + [6])
-            lines.append(f"{'marker':<{width}}  complete %   RMSE mm  switches")
+            lines.append(f"{'marker':<{width}}  complete %   RMSE mm  switches  identity %")
             lines += [
                 f"{m.label:<{width}}  {f(100 * m.completeness, 2):>10}  {f(m.rmse_mm, 3):>8}  {m.switches:>8}"
+                f"  {f(100 * m.identity, 2):>10}"
                 for m in self.per_marker
             ]
         return "\n".join(lines)
@@ -286,6 +289,7 @@ def evaluate(traj: Trajectories, truth: Truth, rig: Rig | None = None, gate_mm: 
     match_per = np.bincount(m.marker, minlength=M)
     sq_per = np.bincount(m.marker, weights=sq, minlength=M)
     switches_per = np.bincount(switch_oids, minlength=M)
+    identified_per = _identified(acc, M)
     per_marker = [
         MarkerScore(
             label=truth.labels[j],
@@ -294,6 +298,8 @@ def evaluate(traj: Trajectories, truth: Truth, rig: Rig | None = None, gate_mm: 
             completeness=_ratio(match_per[j], req_per[j]),
             rmse_mm=math.sqrt(_ratio(sq_per[j], match_per[j])),
             switches=int(switches_per[j]),
+            identified=int(identified_per[j]),
+            identity=_ratio(identified_per[j], req_per[j]),
         )
         for j in range(M)
     ]
@@ -334,6 +340,23 @@ def _mot_summary(acc: mm.MOTAccumulator) -> dict[str, float]:
     """Switches, IDF1, IDP, IDR and MOTA from py-motmetrics (NaN where undefined)."""
     summary = mm.metrics.create().compute(acc, metrics=_MOT_METRICS, name="take")
     return {name: float(summary[name].iloc[0]) for name in _MOT_METRICS}
+
+
+def _identified(acc: mm.MOTAccumulator, n_markers: int) -> np.ndarray:
+    """(n_markers,) marker-frames each truth marker spends matched to the output track IDF1 pairs it with: the
+    pairing of truth markers and tracks that matches the most marker-frames (within the gate), as IDF1's global
+    assignment does; their sum is IDF1's IDTP."""
+    events = acc.events
+    raw = events.loc[(events["Type"] == "RAW") & events["D"].notna(), ["OId", "HId"]].to_numpy(dtype=np.intp)
+    out = np.zeros(n_markers, dtype=np.intp)
+    if len(raw) == 0:
+        return out
+    hyps, h = np.unique(raw[:, 1], return_inverse=True)
+    together = np.zeros((n_markers, len(hyps)), dtype=np.intp)  # frames each marker and track were within the gate
+    np.add.at(together, (raw[:, 0], h), 1)
+    rows, cols = linear_sum_assignment(-together)
+    out[rows] = together[rows, cols]
+    return out
 
 
 def _switch_objects(acc: mm.MOTAccumulator) -> np.ndarray:

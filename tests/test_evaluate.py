@@ -107,6 +107,11 @@ def test_swapped_labels_count_two_switches(truth: Truth) -> None:
     assert report.idf1 == pytest.approx(idtp / req.sum())
     assert report.idp == pytest.approx(idtp / req.sum()) and report.idr == pytest.approx(idtp / req.sum())
     assert report.mota == pytest.approx(1 - 2 / req.sum())
+    # Per marker, the marker-frames under the track IDF1 pairs it with: they sum to IDTP.
+    assert sum(m.identified for m in report.per_marker) == idtp
+    assert [m.identity for m in report.per_marker[2:]] == [1.0] * (len(truth.labels) - 2)
+    halves = (req[:k, :2] if req[:k, :2].sum() >= req[k:, :2].sum() else req[k:, :2]).sum(axis=0)
+    assert [m.identified for m in report.per_marker[:2]] == halves.tolist()
 
 
 def test_restarted_track_is_one_switch_and_a_gap_none(truth: Truth) -> None:
@@ -117,6 +122,8 @@ def test_restarted_track_is_one_switch_and_a_gap_none(truth: Truth) -> None:
     report = evaluate(output_of(restarted), truth)
     assert report.switches == 1 and report.per_marker[0].switches == 1
     assert report.completeness == 1.0
+    req0 = required(truth)[:, 0]
+    assert report.per_marker[0].identity == pytest.approx(max(req0[:30].sum(), req0[30:].sum()) / req0.sum())
     gap = truth.positions.copy()
     gap[20:25, 0] = np.nan  # same identity after the gap
     report = evaluate(output_of(gap), truth)
