@@ -132,7 +132,7 @@ class TrackerConfig:
 
     confirm_frames: int = 4
     coast_frames: int = 3
-    keep_lost_s: float = 10.0
+    keep_lost_s: float = 20.0
     jerk_std_3d: float = 20.0
     jerk_std_2d: float = 50000.0
     accel_damping: float = 0.0

@@ -140,6 +140,25 @@ def test_lost_marker_is_reidentified_where_fixed_threshold_nearest_neighbour_fai
     assert baseline.idf1 < ours.idf1 - 0.2
 
 
+def test_a_lone_marker_hidden_for_15_s_gets_its_identity_back():
+    """A lone marker (a sync light on a slow trolley) hidden from every camera for 15 s comes back 0.3 m from where
+    it was lost: no neighbour or shape names it, only its lost identity's widening radius (at most ``reid_max_m``)
+    does, which must still be waiting (``keep_lost_s`` 20 s; with 10 s it came back as a new marker)."""
+    fps, frames = 20.0, 420
+    t = np.arange(frames) / fps
+    pos = np.zeros((frames, 2, 3))
+    pos[:, 0] = np.stack([-0.4 + 0.015 * t, np.zeros_like(t), np.full_like(t, 1.0)], axis=1)  # 0.3 m in 20 s
+    pos[:, 1] = [0.5, 0.6, 1.3]
+    hidden = np.zeros((frames, 6, 2), dtype=bool)
+    hidden[60:360, :, 0] = True
+    take = simulate("lone", ring_rig(seed=4), scripted_motion(pos, fps), SynthSettings(seed=4, ghosts=0),
+                    hidden=hidden, seed=4)
+    report = evaluate(_run(Tracker(take.rig, fps), take)[0], take.truth)
+    assert report.output_tracks == 2 and report.switches == 0
+    shorter = evaluate(_run(Tracker(take.rig, fps, TrackerConfig(keep_lost_s=10.0)), take)[0], take.truth)
+    assert shorter.output_tracks == 3 and shorter.switches == 1
+
+
 def _still_then_moving(frames: int = 200, fps: float = 100.0) -> np.ndarray:
     """(F, 5, 3): four markers of one segment (0.1 m across) stand still for 100 frames, then move off at
     0.5 m/s; the fifth point is a fixed reflection 0.1 m from them that never moves."""
