@@ -32,6 +32,7 @@ its residual is the RMS reprojection error back-projected to the marker's depth 
 
 from __future__ import annotations
 
+import mmap
 from collections import deque
 from collections.abc import Iterator
 from dataclasses import dataclass, field, fields
@@ -213,9 +214,17 @@ _IMAGE_ACCEL_STD = 1e5
 _VAGUE_TYPICAL = 10.0  # a vague blob's std is also over this many times the frame's median (see vague_px)
 
 
+def _released_on_free(shape: tuple[int, ...], dtype: type) -> np.ndarray:
+    """An uninitialised array in its own anonymous memory map: freeing it returns its memory to the system at once
+    (the C heap keeps freed blocks of a few MB for reuse, where the output arrays built from them cannot use them)."""
+    size = int(np.prod(shape)) * np.dtype(dtype).itemsize
+    return np.frombuffer(mmap.mmap(-1, max(size, 1)), dtype=dtype, count=int(np.prod(shape))).reshape(shape)
+
+
 class _Records:
     """Per-frame measurements in fixed-size chunks: appending never copies what is stored, so memory
-    grows only by what the take adds (no per-frame objects, no capacity doubling)."""
+    grows only by what the take adds (no per-frame objects, no capacity doubling); each chunk is released to the
+    system when :meth:`drain` has moved it into the output."""
 
     CHUNK = 1 << 16
     _COLUMNS = (("frame", (), np.int32), ("uid", (), np.int32), ("pos", (3,), np.float64),
@@ -236,7 +245,7 @@ class _Records:
         done = 0
         while done < k:
             if self._fill == self.CHUNK:
-                self._chunks.append({name: np.empty((self.CHUNK,) + shape, dtype=dtype)
+                self._chunks.append({name: _released_on_free((self.CHUNK,) + shape, dtype)
                                      for name, shape, dtype in self._COLUMNS})
                 self._fill = 0
             take = min(k - done, self.CHUNK - self._fill)
@@ -245,6 +254,12 @@ class _Records:
                 chunk[name][self._fill : self._fill + take] = value[done : done + take] if np.ndim(value) else value
             self._fill += take
             done += take
+
+    def peek(self, *names: str) -> Iterator[tuple[np.ndarray, ...]]:
+        """Yield the stored samples' columns ``names``, chunk by chunk, keeping them."""
+        for i, chunk in enumerate(self._chunks):
+            used = self._fill if i == len(self._chunks) - 1 else self.CHUNK
+            yield tuple(chunk[name][:used] for name in names)
 
     def drain(self) -> Iterator[dict[str, np.ndarray]]:
         """Yield the stored samples chunk by chunk, releasing each chunk once yielded."""
@@ -438,36 +453,49 @@ class Tracker:
     def finish(self) -> Trajectories:
         """All frames stepped so far as :class:`Trajectories` (one column per confirmed identity).
 
-        Ends the run: the stored measurements are moved into the output (so the two are never held
-        twice in full); calling it again returns the same result.
+        Ends the run: the stored measurements are moved into the output chunk by chunk, the output's rows
+        written (and so given memory) as the chunks holding their frames are released, so the two are never
+        held twice in full; calling it again returns the same result.
         """
         if self._result is not None:
             return self._result
         first = self._first if self._first is not None else 0
         F = max(self._last - first + 1, 0)
-        M = self._n_ident
-        pos = np.full((F, M, 3), np.nan)
-        res = np.full((F, M), np.nan)
-        mask = np.zeros((F, M), dtype=np.uint32)
+        seen = np.zeros(self._n_ident, dtype=bool)  # identities withdrawn as reflections have no sample: no column
+        for uid, p in self._records.peek("uid", "pos"):
+            ident = self._uid_ident[uid]
+            seen[ident[(ident >= 0) & np.isfinite(p[:, 0])]] = True
+        seen = np.flatnonzero(seen)
+        col_of = np.full(self._n_ident, -1, dtype=np.intp)  # identity -> output column
+        col_of[seen] = np.arange(len(seen))
+        S = len(seen)
+        pos, res = np.empty((F, S, 3)), np.empty((F, S))  # rows set to NaN as they are reached (see above)
+        mask = np.zeros((F, S), dtype=np.uint32)
+        ready = 0  # rows 0 .. ready - 1 are initialised
         loose: list[dict[str, np.ndarray]] = []
         for rec in self._records.drain():
             ident = self._uid_ident[rec["uid"]]
             ok = ident >= 0
-            rows, cols = rec["frame"][ok] - first, ident[ok]
+            rows, cols = rec["frame"][ok] - first, col_of[ident[ok]]
+            if rows.size and rows.max() >= ready:
+                pos[ready: rows.max() + 1] = np.nan
+                res[ready: rows.max() + 1] = np.nan
+                ready = int(rows.max()) + 1
             pos[rows, cols] = rec["pos"][ok]
             res[rows, cols] = rec["res"][ok]
             mask[rows, cols] = rec["mask"][ok]
             loose.append({name: column[~ok] for name, column in rec.items()})
+        pos[ready:] = np.nan
+        res[ready:] = np.nan
         def joined(name: str, shape: tuple[int, ...], dtype: type) -> np.ndarray:
             return np.concatenate([rec[name] for rec in loose]).astype(dtype) if loose else np.zeros(shape, dtype)
 
         self._unconfirmed = UnconfirmedPoints(joined("frame", (0,), np.int64) - first,
                                               joined("pos", (0, 3), np.float64), joined("res", (0,), np.float64),
                                               joined("mask", (0,), np.uint32))
-        seen = np.flatnonzero(np.isfinite(pos[:, :, 0]).any(axis=0))  # identities withdrawn as reflections: none
         labels = [f"M{i + 1:03d}" for i in seen]  # the identities' live names (FrameResult, MCAP log)
-        self._result = Trajectories(labels, self._fps, pos[:, seen], res[:, seen], mask[:, seen], self._rig.names,
-                                    first, {"tracker": "mocap.tracker", "identities": len(seen)})
+        self._result = Trajectories(labels, self._fps, pos, res, mask, self._rig.names,
+                                    first, {"tracker": "mocap.tracker", "identities": S})
         return self._result
 
     # ------------------------------------------------------------------ stages
