@@ -216,6 +216,27 @@ def test_marching_body_accuracy_and_identity(body):
             assert last.camera_masks[row] >> c & 1
 
 
+def test_output_is_the_same_whatever_the_record_chunk_size(body, monkeypatch):
+    """``finish()`` moves the per-sample records into the output chunk by chunk, initialising the output's rows as
+    it reaches them: with chunks of 7 samples (hundreds of chunks, every boundary inside a frame) the trajectories
+    and the unconfirmed points are those of one chunk, and a reflection withdrawn leaves no column."""
+    from mocap import tracker as tracker_module
+
+    ref_tracker = Tracker(body.rig, body.truth.fps)
+    ref = _run(ref_tracker, body)[0]
+    monkeypatch.setattr(tracker_module._Records, "CHUNK", 7)
+    small_tracker = Tracker(body.rig, body.truth.fps)
+    small = _run(small_tracker, body)[0]
+    assert small.labels == ref.labels
+    np.testing.assert_array_equal(small.positions, ref.positions)
+    np.testing.assert_array_equal(small.residuals, ref.residuals)
+    np.testing.assert_array_equal(small.camera_masks, ref.camera_masks)
+    for a, b in zip(dataclasses.astuple(small_tracker.unconfirmed()), dataclasses.astuple(ref_tracker.unconfirmed()),
+                    strict=True):
+        np.testing.assert_array_equal(a, b)
+    assert np.isfinite(ref.positions[..., 0]).any(axis=0).all()
+
+
 def test_flat_blob_is_treated_as_merged(body):
     """A blob much flatter than a sphere's image (two markers merged without a saddle, or one partly
     hidden) has its centroid pulled off: here 0.12 px in camera 1, below any rejection threshold. Flagged by
