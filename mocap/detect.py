@@ -84,6 +84,7 @@ _BRUTE_FORCE_NEIGHBOURS = 300  # blobs: up to this many, nearest neighbours from
 _PARAM_LOW = np.array([-np.inf, -np.inf, 1.0, 0.2, 0.15], np.float32)
 _PARAM_HIGH = np.array([np.inf, np.inf, np.inf, 100.0, 5.0], np.float32)
 _STEP_BOUND = np.array([MAX_STEP, MAX_STEP, np.inf, np.inf, np.inf], np.float32)
+_BOUNDS_F64 = tuple(b.astype(np.float64) for b in (_STEP_BOUND, _PARAM_LOW, _PARAM_HIGH))  # the compiled fit's
 # The disc edge seen by a square pixel: a straight edge blurred by a Gaussian of std s, integrated over the
 # pixel, whose footprint across the edge (normal (a, b) = |cos|, |sin| of its direction) is the trapezoid
 # box(a) * box(b). With d = r - rho the pixel centre's depth inside the edge and p, q = (a + b) / 2, |a - b| / 2:
@@ -247,7 +248,8 @@ def _fit_discs(values: np.ndarray, ox: np.ndarray, oy: np.ndarray, seg: np.ndarr
     of std ``s`` (px) and integrated over the pixel (``E``: see ``_EDGE_TABLES``). All but the last step are damped
     (``DAMPING``); a centre moves at most ``MAX_STEP`` px per step. Pixel arithmetic is float32 (centres are
     relative to the window, so float32 resolves 1e-6 px); the normal equations are solved in float64.
-    The windows' pixels of all blobs lie one after another in flat (T,) arrays (no padding).
+    The windows' pixels of all blobs lie one after another in flat (T,) arrays (no padding). With the compiled
+    kernels on, :func:`mocap.kernels.fit_discs` does the same blob by blob in float64.
 
     Args:
         values: (T,) grey levels minus the frame's background level.
@@ -265,8 +267,7 @@ def _fit_discs(values: np.ndarray, ox: np.ndarray, oy: np.ndarray, seg: np.ndarr
         params = kernels.contiguous(params)
         cov = kernels.fit_discs(values, ox, oy, np.append(starts, len(seg)), params, iterations, _EDGE_TABLES,
                                 _EDGE_STEPS, float(_Z_RES), float(_Z_ORIGIN), float(_Z_LAST), _MIN_FOOTPRINT, DAMPING,
-                                _STEP_BOUND.astype(np.float64), _PARAM_LOW.astype(np.float64),
-                                _PARAM_HIGH.astype(np.float64))
+                                *_BOUNDS_F64)
         pos = (1 + 5 * np.arange((params.shape[1] - 1) // 5)[:, None] + np.arange(2)).ravel()
         return params, cov[:, pos[:, None], pos]
     params = params.astype(np.float32)
