@@ -201,9 +201,17 @@ def _chain_distances(P: np.ndarray, samples: np.ndarray, owner: np.ndarray, chai
     for other in np.unique(own[ok]):
         rows, where = np.nonzero(ok & (own == other))
         v = d[rows, where][-cfg.shape_window:]
-        if np.median(v) < cfg.shape_radius_m:
+        if _median(v) < cfg.shape_radius_m:
             out[int(other)] = v
     return out
+
+
+def _median(v: np.ndarray) -> float:
+    """``np.median`` of a short 1-D array, the same number without its overhead (called for every pair of identities
+    at every link)."""
+    s = np.sort(v)
+    n = len(s)
+    return float((s[(n - 1) // 2] + s[n // 2]) / 2)
 
 
 def _steady(distances: np.ndarray | None, cfg: RelabelConfig) -> bool:
@@ -265,7 +273,7 @@ def _comparable(memory: dict[int, np.ndarray], head: dict[int, np.ndarray], chai
                 ) -> list[tuple[float, float]]:
     """(then, now) median distances, m, to the identities steady in both an identity's ``memory`` and a
     tracklet's ``head`` (the identity ``chain`` itself left out)."""
-    return [(float(np.median(memory[o])), float(np.median(h))) for o, h in head.items()
+    return [(_median(memory[o]), _median(h)) for o, h in head.items()
             if o != chain and _steady(h, cfg) and _steady(memory.get(o), cfg)]
 
 
@@ -440,8 +448,8 @@ class _Linker:
                 if common.size < 3:
                     continue
                 v = np.linalg.norm(P[common, fa[0, 1]] - P[common, fb[0, 1]], axis=1)
-                if np.median(v) < cfg.shape_radius_m and _steady(v, cfg):
-                    within[a, b] = within[b, a] = float(np.median(v))
+                if _median(v) < cfg.shape_radius_m and _steady(v, cfg):
+                    within[a, b] = within[b, a] = _median(v)
         members = sorted({a for a, _ in within})
         chains = [c for c in open_chains if start - self.ends[c][0] <= self.shape_max and self._attached(c)]
         if len(members) < 2 or len(members) > 6 or len(chains) < len(members):
@@ -457,7 +465,7 @@ class _Linker:
                     return np.inf
                 pairs = _comparable(memory[c], heads[g], c, cfg)
                 relations += len(pairs)
-                inside = [(np.median(memory[c][choice[m]]), within[g, h]) for m, h in enumerate(members)
+                inside = [(_median(memory[c][choice[m]]), within[g, h]) for m, h in enumerate(members)
                           if m != k and (g, h) in within and _steady(memory[c].get(choice[m]), cfg)]
                 relations += 0.5 * len(inside)
                 pairs += inside

@@ -10,7 +10,7 @@ from helpers_rigid import FRAMES, PLATE, SQUARE, TRIANGLE, columns_follow, movin
 
 from mocap.errors import MocapError
 from mocap.evaluate import evaluate
-from mocap.plates import PlateConfig, _destinations, _distances, label_plates
+from mocap.plates import PlateConfig, _destinations, _distances, _SortedPairs, label_plates
 from mocap.relabel import repair_identities
 from mocap.synth import SynthSettings, ring_rig
 from mocap.tracker import Tracker
@@ -155,3 +155,20 @@ def test_the_distances_are_those_of_every_pair_of_points():
     D = _distances(P)
     assert np.array_equal(np.isnan(D), np.isnan(expected))
     assert np.nanmax(np.abs(D - expected)) < 1e-6
+
+
+def test_sorted_pairs_find_what_a_scan_finds():
+    """The votes' first edge is found by bisection in the chunk's sorted distances: the same (frame, i, j), in the
+    same order, as scanning the whole array, NaN (unseen points) and entries beyond the reach left out."""
+    rng = np.random.default_rng(4)
+    P = rng.uniform(0, 0.4, (50, 12, 3))
+    P[rng.random((50, 12)) < 0.2] = np.nan
+    D = _distances(P)
+    pairs = _SortedPairs(D, 0.3)
+    for distance in (0.0, 0.05, 0.1234, 0.25, 0.297):
+        with np.errstate(invalid="ignore"):
+            scan = np.nonzero(np.abs(D - distance) < 0.003)
+        found = pairs.near(distance, 0.003)
+        assert len(scan[0]) > 0 or distance == 0.0
+        for a, b in zip(found, scan, strict=True):
+            np.testing.assert_array_equal(a, b)

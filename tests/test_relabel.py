@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from mocap.relabel import RelabelConfig, _tracklets, relink_tracklets, repair_identities, repair_swaps
+from mocap.relabel import RelabelConfig, _median, _tracklets, relink_tracklets, repair_identities, repair_swaps
 from mocap.trajectories import Trajectories
 
 
@@ -178,3 +178,10 @@ def test_a_fast_swing_at_50_hz_is_not_cut_where_a_jump_is():
     assert len(_tracklets(P, split)) == 1
     P[50:, 0, 2] += 0.15
     assert len(_tracklets(P, split)) == 2
+
+
+def test_short_median_is_numpys():
+    rng = np.random.default_rng(2)
+    for n in range(1, 9):
+        v = rng.uniform(0.0, 0.3, n)
+        assert _median(v) == float(np.median(v))
