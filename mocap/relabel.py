@@ -197,12 +197,16 @@ def _chain_distances(P: np.ndarray, samples: np.ndarray, owner: np.ndarray, chai
     if not ok.any():
         return {}
     d = np.linalg.norm(P[frames] - P[frames, cols][:, None, :], axis=2)
+    rows, where = np.nonzero(ok)  # an identity has one sample per frame at most: one entry per row and identity
+    others = own[rows, where]
+    order = np.argsort(others, kind="stable")  # grouped by identity, each group in time order
+    others, values = others[order], d[rows[order], where[order]]
+    ends = np.append(np.flatnonzero(others[1:] != others[:-1]) + 1, len(others))
     out = {}
-    for other in np.unique(own[ok]):
-        rows, where = np.nonzero(ok & (own == other))
-        v = d[rows, where][-cfg.shape_window:]
+    for start, end in zip(np.append(0, ends[:-1]), ends, strict=True):
+        v = values[max(start, end - cfg.shape_window):end]
         if _median(v) < cfg.shape_radius_m:
-            out[int(other)] = v
+            out[int(others[start])] = v
     return out
 
 
