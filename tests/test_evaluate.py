@@ -307,6 +307,8 @@ def test_cli_writes_table_and_json(truth: Truth, tmp_path, capsys) -> None:
     assert data["completeness"] == 1.0 and data["switches"] == 0
     assert data["required"] == int(required(truth).sum())
     assert [m["label"] for m in data["per_marker"]] == truth.labels
+    assert [m["identity"] for m in data["per_marker"]] == [1.0] * len(truth.labels)
+    assert "identity %" in printed
     assert data["crlb_rmse_mm"] > 0
 
 
