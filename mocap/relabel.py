@@ -186,6 +186,14 @@ def _end_state(P: np.ndarray, run: np.ndarray, at_start: bool) -> tuple[int, np.
     return int(frame), pos, pos - P[run[-2][0], run[-2][1]]
 
 
+def _median(v: np.ndarray) -> float:
+    """``np.median`` of a short 1-D array, the same number without its overhead (called for every pair of identities
+    at every link)."""
+    s = np.sort(v)
+    n = len(s)
+    return float((s[(n - 1) // 2] + s[n // 2]) / 2)
+
+
 def _chain_distances(P: np.ndarray, samples: np.ndarray, owner: np.ndarray, chain: int, cfg: RelabelConfig
                      ) -> dict[int, np.ndarray]:
     """Distances from a tracklet's samples (n, 2) (frame, column) to the identities (chains) seen in the same
@@ -208,14 +216,6 @@ def _chain_distances(P: np.ndarray, samples: np.ndarray, owner: np.ndarray, chai
         if _median(v) < cfg.shape_radius_m:
             out[int(others[start])] = v
     return out
-
-
-def _median(v: np.ndarray) -> float:
-    """``np.median`` of a short 1-D array, the same number without its overhead (called for every pair of identities
-    at every link)."""
-    s = np.sort(v)
-    n = len(s)
-    return float((s[(n - 1) // 2] + s[n // 2]) / 2)
 
 
 def _steady(distances: np.ndarray | None, cfg: RelabelConfig) -> bool:
@@ -452,8 +452,9 @@ class _Linker:
                 if common.size < 3:
                     continue
                 v = np.linalg.norm(P[common, fa[0, 1]] - P[common, fb[0, 1]], axis=1)
-                if _median(v) < cfg.shape_radius_m and _steady(v, cfg):
-                    within[a, b] = within[b, a] = _median(v)
+                middle = _median(v)
+                if middle < cfg.shape_radius_m and _steady(v, cfg):
+                    within[a, b] = within[b, a] = middle
         members = sorted({a for a, _ in within})
         chains = [c for c in open_chains if start - self.ends[c][0] <= self.shape_max and self._attached(c)]
         if len(members) < 2 or len(members) > 6 or len(chains) < len(members):
