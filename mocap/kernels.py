@@ -690,7 +690,7 @@ def fit_discs(values, ox, oy, starts, params, iterations, tables, steps, z_res, 
     z = np.empty(4)
     t = np.empty(4)
     dt = np.empty(4)
-    lhs = np.empty((n_par, n_par))
+    lhs, damped = np.empty((n_par, n_par)), np.empty((n_par, n_par))
     step, unit, column = np.empty(n_par), np.empty(n_par), np.empty(n_par)
     for b in range(n):
         for step_no in range(iterations):
@@ -741,13 +741,14 @@ def fit_discs(values, ox, oy, starts, params, iterations, tables, steps, z_res, 
                 for j in range(i):
                     jtj[i, j] = jtj[j, i]
             if step_no < iterations - 1:
-                lhs[:] = jtj
+                damped[:] = jtj
                 for i in range(n_par):
-                    lhs[i, i] = lhs[i, i] * (1.0 + damping) + 1e-9
+                    damped[i, i] = damped[i, i] * (1.0 + damping) + 1e-9
+                lhs[:] = damped  # (factored in place)
                 if _cholesky(lhs):
                     _cholesky_solve(lhs, grad, step)
                 else:
-                    step[:] = np.linalg.solve(jtj * (1.0 + damping * np.eye(n_par)) + 1e-9 * np.eye(n_par), grad)
+                    step[:] = np.linalg.solve(damped, grad)
             else:  # the last step is undamped: its inverse is also the covariance
                 lhs[:] = jtj
                 if _cholesky(lhs):

@@ -477,16 +477,18 @@ class Tracker:
             ident = self._uid_ident[rec["uid"]]
             ok = ident >= 0
             rows, cols = rec["frame"][ok] - first, col_of[ident[ok]]
-            if rows.size and rows.max() >= ready:
-                pos[ready: rows.max() + 1] = np.nan
-                res[ready: rows.max() + 1] = np.nan
-                ready = int(rows.max()) + 1
+            last = int(rows.max()) if rows.size else -1
+            if last >= ready:
+                pos[ready: last + 1] = np.nan
+                res[ready: last + 1] = np.nan
+                ready = last + 1
             pos[rows, cols] = rec["pos"][ok]
             res[rows, cols] = rec["res"][ok]
             mask[rows, cols] = rec["mask"][ok]
             loose.append({name: column[~ok] for name, column in rec.items()})
         pos[ready:] = np.nan
         res[ready:] = np.nan
+
         def joined(name: str, shape: tuple[int, ...], dtype: type) -> np.ndarray:
             return np.concatenate([rec[name] for rec in loose]).astype(dtype) if loose else np.zeros(shape, dtype)
 
