@@ -1,9 +1,12 @@
-"""Offline identity repair on finished trajectories: swap repair and fragment stitching.
+"""Offline identity repair on finished trajectories: duplicates, swaps and fragments.
 
 The online tracker decides each frame's identities from the past alone. Once the take is done,
-the frames on both sides of a decision are known, and two kinds of identity error are easy to
-see and undo:
+the frames on both sides of a decision are known, and these identity errors are easy to see and undo:
 
+* **Duplicates.** Two identities hold one point in a frame: one took the other's marker (its own was hidden
+  and the other's prediction missed). :func:`drop_duplicates` keeps the point in the identity it continues on
+  more sides (a sample before it, one after), else more closely, and deletes it from the other, so that the
+  passes below see where the thief's track jumped.
 * **Swaps.** Two identities exchange markers between frame ``f`` and ``f + 1`` (fast motion next to
   a close neighbour). Relabelling the tails after ``f`` with a permutation ``pi`` changes the
   second differences (accelerations, m/frame^2) at ``f`` and ``f + 1`` of the tracks involved.
@@ -51,7 +54,7 @@ from mocap.plates import label_plates
 from mocap.reunite import reunite_clusters
 from mocap.trajectories import Trajectories, UnconfirmedPoints
 
-__all__ = ["RelabelConfig", "RelabelStats", "relink_tracklets", "repair_identities", "repair_swaps"]
+__all__ = ["RelabelConfig", "RelabelStats", "drop_duplicates", "relink_tracklets", "repair_identities", "repair_swaps"]
 
 
 @dataclass(frozen=True)
@@ -85,6 +88,8 @@ class RelabelConfig:
             distance change is lower by more than this per marker, m.
         usurp_margin_m: a marker back after a gap takes its identity back from the one that continued it
             (a newcomer next to it) when its distances fit the identity's from before by this much better, m.
+        duplicate_m: two identities' samples of one frame closer than this are one marker (below any marker's
+            diameter: two markers' centres cannot be this close), m.
     """
 
     swap_ratio: float = 0.25
@@ -104,13 +109,15 @@ class RelabelConfig:
     shape_max_s: float = 10.0
     cluster_margin_m: float = 0.001
     usurp_margin_m: float = 0.003
+    duplicate_m: float = 0.003
 
 
 @dataclass
 class RelabelStats:
-    """What the repair changed: tail permutations applied, fragments joined, cluster members reunited, samples
-    moved to the plate member their shape names."""
+    """What the repair changed: duplicate samples deleted, tail permutations applied, fragments joined, cluster
+    members reunited, samples moved to the plate member their shape names."""
 
+    duplicates: int = 0
     swaps: int = 0
     stitches: int = 0
     reunited: int = 0
@@ -121,6 +128,71 @@ def _permute_tails(traj: Trajectories, start: int, order: np.ndarray, columns: n
     """From frame ``start`` on, column ``columns[k]`` receives what column ``order[k]`` held."""
     for array in (traj.positions, traj.residuals, traj.camera_masks):
         array[start:, columns] = array[start:, order]
+
+
+def _smooth_run(P: np.ndarray, f: int, col: int, split_acc: float) -> int:
+    """Length (samples) of identity ``col``'s run through frame ``f`` in ``P`` (F, M, 3): consecutive samples, broken
+    where either sample of a step has an acceleration (second difference) above ``split_acc`` m/frame^2."""
+    valid = np.isfinite(P[:, col, 0])
+
+    def jumps(k: int) -> bool:  # sample k, with both neighbours present, accelerates above split_acc
+        return 0 < k < len(P) - 1 and valid[k - 1] and valid[k + 1] and bool(
+            np.linalg.norm(P[k + 1, col] - 2 * P[k, col] + P[k - 1, col]) > split_acc)
+
+    lo = f
+    while lo > 0 and valid[lo - 1] and not (jumps(lo - 1) or jumps(lo)):
+        lo -= 1
+    hi = f
+    while hi < len(P) - 1 and valid[hi + 1] and not (jumps(hi) or jumps(hi + 1)):
+        hi += 1
+    return hi - lo + 1
+
+
+def drop_duplicates(traj: Trajectories, config: RelabelConfig | None = None) -> int:
+    """Where two identities hold one point (closer than ``duplicate_m``: one took the other's marker), keep it in
+    the identity whose smooth run through that frame is longer (:func:`_smooth_run`: the thief jumped onto the
+    marker, and off it) and delete it from the other; the thief's samples next to it that the owner misses and
+    continues (:func:`_continues`) move to the owner. In place; returns how many samples were deleted."""
+    cfg = config or RelabelConfig()
+    P = traj.positions
+    split = max(cfg.split_acc_m, cfg.split_acc_mps2 / traj.fps**2)
+    dropped = 0
+    F = len(P)
+    for f in range(F):
+        seen = np.flatnonzero(np.isfinite(P[f, :, 0]))
+        x = P[f, seen]
+        close = np.argwhere(np.triu(np.linalg.norm(x[:, None] - x[None], axis=2) < cfg.duplicate_m, 1))
+        for a, b in seen[close]:
+            if not (np.isfinite(P[f, a, 0]) and np.isfinite(P[f, b, 0])):  # one of them lost it already
+                continue
+            owner, thief = (a, b) if _smooth_run(P, f, a, split) >= _smooth_run(P, f, b, split) else (b, a)
+            P[f, thief] = np.nan
+            traj.residuals[f, thief] = np.nan
+            traj.camera_masks[f, thief] = 0
+            dropped += 1
+            for side in (-1, 1):  # the thief's samples next to it that the owner, missing there, continues
+                k = f + side
+                while 0 <= k < F and np.isfinite(P[k, thief, 0]) and not np.isfinite(P[k, owner, 0]):
+                    if not _continues(P, k, owner, thief, -side, split):
+                        break
+                    for array, empty in ((P, np.nan), (traj.residuals, np.nan), (traj.camera_masks, 0)):
+                        array[k, owner] = array[k, thief]
+                        array[k, thief] = empty
+                    k += side
+    return dropped
+
+
+def _continues(P: np.ndarray, k: int, owner: int, thief: int, back: int, split_acc: float) -> bool:
+    """Whether the thief's sample at frame ``k`` continues the owner's track (its two samples at ``k + back``, ``k +
+    2 back``; one: no velocity) within ``split_acc`` and better than the thief's own from the other side."""
+    def miss(col: int, side: int) -> float:
+        a, b = k + side, k + 2 * side
+        if not 0 <= a < len(P) or not np.isfinite(P[a, col, 0]):
+            return np.inf
+        guess = 2 * P[a, col] - P[b, col] if 0 <= b < len(P) and np.isfinite(P[b, col, 0]) else P[a, col]
+        return float(np.linalg.norm(P[k, thief] - guess))
+    mine = miss(owner, back)
+    return mine < split_acc and mine < miss(thief, -back)
 
 
 def repair_swaps(traj: Trajectories, config: RelabelConfig | None = None) -> int:
@@ -504,16 +576,17 @@ class _Linker:
 
 def repair_identities(traj: Trajectories, config: RelabelConfig | None = None,
                       unconfirmed: UnconfirmedPoints | None = None) -> RelabelStats:
-    """Swap repair, fragment stitching, the reunion of rigid clusters back after a long absence
-    (:mod:`mocap.reunite`), then the labelling of rigid plates by their shape (:mod:`mocap.plates`), in place;
-    empty identity columns are dropped. ``unconfirmed``: the tracker's points without identity
-    (:meth:`mocap.tracker.Tracker.unconfirmed`), which the plate labelling may give one.
+    """Duplicates dropped (:func:`drop_duplicates`), swap repair, fragment stitching, the reunion of rigid clusters
+    back after a long absence (:mod:`mocap.reunite`), then the labelling of rigid plates by their shape
+    (:mod:`mocap.plates`), in place; empty identity columns are dropped. ``unconfirmed``: the tracker's points
+    without identity (:meth:`mocap.tracker.Tracker.unconfirmed`), which the plate labelling may give one.
 
     Labels of the remaining identities are renumbered ``M001``, ``M002`` ... in column order.
     """
     stats = RelabelStats()
     if traj.n_markers == 0 or traj.n_frames < 4:
         return stats
+    stats.duplicates = drop_duplicates(traj, config)
     stats.swaps = repair_swaps(traj, config)
     stats.stitches = relink_tracklets(traj, config)
     stats.reunited = reunite_clusters(traj)

@@ -4,7 +4,15 @@ from __future__ import annotations
 
 import numpy as np
 
-from mocap.relabel import RelabelConfig, _median, _tracklets, relink_tracklets, repair_identities, repair_swaps
+from mocap.relabel import (
+    RelabelConfig,
+    _median,
+    _tracklets,
+    drop_duplicates,
+    relink_tracklets,
+    repair_identities,
+    repair_swaps,
+)
 from mocap.trajectories import Trajectories
 
 
@@ -185,3 +193,34 @@ def test_short_median_is_numpys():
     for n in range(1, 9):
         v = rng.uniform(0.0, 0.3, n)
         assert _median(v) == float(np.median(v))
+
+
+def test_a_marker_held_by_two_identities_stays_with_the_one_it_continues():
+    """Marker 4 is hidden from frame 50 on and its identity's track takes marker 0 (frames 50-52), while marker 0's
+    own identity misses frame 50 and holds it again from 51: two identities on one point in frames 51-52. The
+    point stays with marker 0's identity, whose smooth run through those frames is the longer, and the thief's
+    sample at frame 50, which that identity continues, moves to it; two markers 5 mm apart are left alone."""
+    P = _scene()
+    P[:, 2] = P[:, 3] + np.array([0.005, 0.0, 0.0])
+    seen = P.copy()
+    seen[50, 0] = np.nan
+    seen[50:53, 4] = P[50:53, 0]
+    seen[53:, 4] = np.nan
+    assert np.linalg.norm(seen[50, 4] - 2 * seen[49, 4] + seen[48, 4]) > RelabelConfig().split_acc_mps2 / 50.0**2
+    traj = _traj(seen)
+    assert drop_duplicates(traj) == 2
+    expected = P.copy()
+    expected[50:, 4] = np.nan
+    np.testing.assert_array_equal(traj.positions, expected)
+    assert np.isnan(traj.residuals[50:, 4]).all() and (traj.camera_masks[50:, 4] == 0).all()
+
+
+def test_repair_counts_the_duplicates_it_dropped():
+    P = _scene()
+    seen = np.concatenate([P, P[:, :1]], axis=1)  # a second identity on marker 0 throughout frames 40-44 only
+    seen[:40, 6] = np.nan
+    seen[45:, 6] = np.nan
+    traj = _traj(seen)
+    stats = repair_identities(traj)
+    assert stats.duplicates == 5
+    assert traj.n_markers == 6 and _same_identities(traj, P)
