@@ -121,7 +121,7 @@ class Camera:
 
         Returns:
             (N, 2) pixel coordinates (x right, y down). Points behind the camera
-            (depth <= 0) come back as NaN.
+            (depth <= 0) or beyond the lens model's :attr:`fold_radius` come back as NaN.
         """
         xc = self.world_to_camera(points)
         z = xc[:, 2]
@@ -137,8 +137,17 @@ class Camera:
         u = K[0, 0] * xd[:, 0] + K[0, 1] * xd[:, 1] + K[0, 2]
         v = K[1, 1] * xd[:, 1] + K[1, 2]
         uv = np.stack([u, v], axis=1)
-        uv[~(z > 0)] = np.nan
+        uv[~(z > 0) | ~(np.hypot(x, y) < self.fold_radius)] = np.nan
         return uv
+
+    @functools.cached_property
+    def fold_radius(self) -> float:
+        """Normalised radius (tangent of the angle off the optical axis) up to which the lens model maps rays one to
+        one onto the image (inf: everywhere). Beyond it the distortion polynomial turns back, or its radial factor
+        turns negative, and would draw points from far outside the field of view inside the image (a walkway
+        camera with k1 = 0.038, k2 = -0.009 put a marker 75 degrees off its axis 350 px from the image's left
+        edge); :meth:`project` returns NaN there."""
+        return _fold_radius(self.distortions, self.fisheye)
 
     def ideal_to_distorted(self, uv_ideal: np.ndarray) -> np.ndarray:
         """(N, 2) ideal pixels -> (N, 2) distorted pixels (applies the lens model)."""
@@ -253,6 +262,31 @@ def _fisheye_distort(xy: np.ndarray, dist: np.ndarray) -> np.ndarray:
     with np.errstate(divide="ignore", invalid="ignore"):
         scale = np.where(r > 1e-12, theta_d / r, 1.0)
     return xy * scale[:, None]
+
+
+_FOLD_RADII = np.linspace(0.0, 20.0, 20001)  # normalised radii searched for a fold (up to 87 degrees off axis)
+
+
+def _fold_radius(dist: np.ndarray, fisheye: bool) -> float:
+    """The smallest normalised radius where the radial part of the lens model stops increasing (or the standard
+    model's radial factor stops being positive); inf if it never does up to 87 degrees off axis."""
+    r = _FOLD_RADII
+    if fisheye:
+        k = np.zeros(4)
+        k[: min(4, dist.size)] = dist[:4]
+        theta = np.arctan(r)
+        t2 = theta * theta
+        mapped = theta * (1 + t2 * (k[0] + t2 * (k[1] + t2 * (k[2] + t2 * k[3]))))
+        bad = np.diff(mapped) <= 0
+    else:
+        d = np.zeros(8)
+        d[: dist.size] = dist
+        k1, k2, _, _, k3, k4, k5, k6 = d
+        r2 = r * r
+        radial = (1 + r2 * (k1 + r2 * (k2 + r2 * k3))) / (1 + r2 * (k4 + r2 * (k5 + r2 * k6)))
+        bad = (np.diff(r * radial) <= 0) | (radial[1:] <= 0)
+    first = np.flatnonzero(bad)
+    return float(r[first[0]]) if first.size else math.inf
 
 
 # --------------------------------------------------------------------- rig

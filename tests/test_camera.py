@@ -36,6 +36,25 @@ def test_fisheye_project_matches_opencv():
     np.testing.assert_allclose(cam.project(X), ref.reshape(-1, 2), atol=1e-8)
 
 
+def test_points_beyond_the_lens_models_fold_are_not_imaged():
+    """With k1 = 0.038, k2 = -0.009 the radial polynomial turns back at 2.5 (68 degrees off axis): OpenCV's formula
+    puts a point 75 degrees off axis inside the image, where no lens images it; within the fold nothing changes."""
+    base = ring_rig(1)[0]
+    cam = Camera("wide", base.size, base.matrix, [0.038, -0.009, 0.0, 0.0, 0.0], base.rotation, base.translation)
+    assert 2.4 < cam.fold_radius < 2.6
+    outside = cam.camera_to_world(np.array([[3.66, 0.34, 1.0], [-2.6, 0.0, 1.0]]))
+    formula, _ = cv2.projectPoints(outside, cam.rotation, cam.translation, cam.matrix, cam.distortions)
+    assert cam.in_image(formula.reshape(-1, 2))[0]  # drawn 350 px inside the left edge
+    assert np.isnan(cam.project(outside)).all()
+    inside = cam.camera_to_world(np.array([[0.5, -0.3, 2.0], [2.3, 0.1, 1.0]]))
+    ref, _ = cv2.projectPoints(inside, cam.rotation, cam.translation, cam.matrix, cam.distortions)
+    np.testing.assert_allclose(cam.project(inside), ref.reshape(-1, 2), atol=1e-9)
+    assert Camera("mild", base.size, base.matrix, [-0.05, 0.007, 0, 0, 0], base.rotation,
+                  base.translation).fold_radius == np.inf
+    fisheye = Camera("fe", base.size, base.matrix, [0.0, 0.0, 0.0, -0.05], base.rotation, base.translation, True)
+    assert 1.95 < fisheye.fold_radius < 2.05  # theta (1 - 0.05 theta^8) turns back at 63 degrees
+
+
 def test_undistort_inverts_distortion_and_matches_opencv(rig):
     X = _volume_points(200, seed=1)
     for cam in rig:
