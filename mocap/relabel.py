@@ -4,9 +4,9 @@ The online tracker decides each frame's identities from the past alone. Once the
 the frames on both sides of a decision are known, and these identity errors are easy to see and undo:
 
 * **Duplicates.** Two identities hold one point in a frame: one took the other's marker (its own was hidden
-  and the other's prediction missed). :func:`drop_duplicates` keeps the point in the identity it continues on
-  more sides (a sample before it, one after), else more closely, and deletes it from the other, so that the
-  passes below see where the thief's track jumped.
+  and the other's track missed a frame). :func:`drop_duplicates` keeps the point in the identity whose smooth
+  run through that frame is longer (the thief jumped onto the marker, and mostly off it again), deletes the
+  thief's copy, and gives the owner the thief's neighbouring samples that it continues.
 * **Swaps.** Two identities exchange markers between frame ``f`` and ``f + 1`` (fast motion next to
   a close neighbour). Relabelling the tails after ``f`` with a permutation ``pi`` changes the
   second differences (accelerations, m/frame^2) at ``f`` and ``f + 1`` of the tracks involved.
@@ -38,7 +38,7 @@ every gate, by the distances between their markers; a fourth, :mod:`mocap.plates
 rigid plates frame by frame by the plate's shape.
 
 All passes only move whole samples between identity columns (positions, residuals and camera
-masks together); they never change a position.
+masks together), and the first deletes the second copy of a point; they never change a position.
 """
 
 from __future__ import annotations
@@ -183,8 +183,9 @@ def drop_duplicates(traj: Trajectories, config: RelabelConfig | None = None) -> 
 
 
 def _continues(P: np.ndarray, k: int, owner: int, thief: int, back: int, split_acc: float) -> bool:
-    """Whether the thief's sample at frame ``k`` continues the owner's track (its two samples at ``k + back``, ``k +
-    2 back``; one: no velocity) within ``split_acc`` and better than the thief's own from the other side."""
+    """Whether the thief's sample at frame ``k`` continues the owner's track from the side ``back`` (-1: before, 1:
+    after) within ``split_acc`` m, and better than the thief's own track from the other side. A track continues
+    from its two samples nearest ``k`` on that side by constant velocity, from one by standing still."""
     def miss(col: int, side: int) -> float:
         a, b = k + side, k + 2 * side
         if not 0 <= a < len(P) or not np.isfinite(P[a, col, 0]):
