@@ -239,26 +239,37 @@ class Camera:
         }
 
 
-def _standard_distort(x: np.ndarray, y: np.ndarray, dist: np.ndarray) -> np.ndarray:
-    """OpenCV's standard (Brown-Conrady) model on normalised coordinates; (N,) x, y -> (N, 2)."""
+def _standard_radial(r2: np.ndarray, dist: np.ndarray) -> np.ndarray:
+    """The standard model's radial factor at squared normalised radii ``r2`` (N,)."""
     d = np.zeros(8)
     d[: dist.size] = dist
-    k1, k2, p1, p2, k3, k4, k5, k6 = d
+    k1, k2, _, _, k3, k4, k5, k6 = d
+    return (1 + r2 * (k1 + r2 * (k2 + r2 * k3))) / (1 + r2 * (k4 + r2 * (k5 + r2 * k6)))
+
+
+def _standard_distort(x: np.ndarray, y: np.ndarray, dist: np.ndarray) -> np.ndarray:
+    """OpenCV's standard (Brown-Conrady) model on normalised coordinates; (N,) x, y -> (N, 2)."""
+    p1, p2 = dist[2], dist[3]
     r2 = x * x + y * y
-    radial = (1 + r2 * (k1 + r2 * (k2 + r2 * k3))) / (1 + r2 * (k4 + r2 * (k5 + r2 * k6)))
+    radial = _standard_radial(r2, dist)
     xd = x * radial + 2 * p1 * x * y + p2 * (r2 + 2 * x * x)
     yd = y * radial + p1 * (r2 + 2 * y * y) + 2 * p2 * x * y
     return np.stack([xd, yd], axis=1)
 
 
-def _fisheye_distort(xy: np.ndarray, dist: np.ndarray) -> np.ndarray:
-    """OpenCV's fisheye (equidistant) model on normalised coordinates; (N, 2) -> (N, 2)."""
+def _fisheye_angle(r: np.ndarray, dist: np.ndarray) -> np.ndarray:
+    """The fisheye model's distorted angle theta_d at normalised radii ``r`` (N,)."""
     k = np.zeros(4)
     k[: min(4, dist.size)] = dist[:4]
-    r = np.hypot(xy[:, 0], xy[:, 1])
     theta = np.arctan(r)
     t2 = theta * theta
-    theta_d = theta * (1 + t2 * (k[0] + t2 * (k[1] + t2 * (k[2] + t2 * k[3]))))
+    return theta * (1 + t2 * (k[0] + t2 * (k[1] + t2 * (k[2] + t2 * k[3]))))
+
+
+def _fisheye_distort(xy: np.ndarray, dist: np.ndarray) -> np.ndarray:
+    """OpenCV's fisheye (equidistant) model on normalised coordinates; (N, 2) -> (N, 2)."""
+    r = np.hypot(xy[:, 0], xy[:, 1])
+    theta_d = _fisheye_angle(r, dist)
     with np.errstate(divide="ignore", invalid="ignore"):
         scale = np.where(r > 1e-12, theta_d / r, 1.0)
     return xy * scale[:, None]
@@ -272,18 +283,9 @@ def _fold_radius(dist: np.ndarray, fisheye: bool) -> float:
     model's radial factor stops being positive); inf if it never does up to 87 degrees off axis."""
     r = _FOLD_RADII
     if fisheye:
-        k = np.zeros(4)
-        k[: min(4, dist.size)] = dist[:4]
-        theta = np.arctan(r)
-        t2 = theta * theta
-        mapped = theta * (1 + t2 * (k[0] + t2 * (k[1] + t2 * (k[2] + t2 * k[3]))))
-        bad = np.diff(mapped) <= 0
+        bad = np.diff(_fisheye_angle(r, dist)) <= 0
     else:
-        d = np.zeros(8)
-        d[: dist.size] = dist
-        k1, k2, _, _, k3, k4, k5, k6 = d
-        r2 = r * r
-        radial = (1 + r2 * (k1 + r2 * (k2 + r2 * k3))) / (1 + r2 * (k4 + r2 * (k5 + r2 * k6)))
+        radial = _standard_radial(r * r, dist)
         bad = (np.diff(r * radial) <= 0) | (radial[1:] <= 0)
     first = np.flatnonzero(bad)
     return float(r[first[0]]) if first.size else math.inf
