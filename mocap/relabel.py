@@ -111,6 +111,11 @@ class RelabelConfig:
     usurp_margin_m: float = 0.003
     duplicate_m: float = 0.003
 
+    def jump_acc(self, fps: float) -> float:
+        """The acceleration, m/frame^2, above which a track jumped at ``fps`` Hz (``split_acc_m`` and
+        ``split_acc_mps2``)."""
+        return max(self.split_acc_m, self.split_acc_mps2 / fps**2)
+
 
 @dataclass
 class RelabelStats:
@@ -155,7 +160,7 @@ def drop_duplicates(traj: Trajectories, config: RelabelConfig | None = None) -> 
     continues (:func:`_continues`) move to the owner. In place; returns how many samples were deleted."""
     cfg = config or RelabelConfig()
     P = traj.positions
-    split = max(cfg.split_acc_m, cfg.split_acc_mps2 / traj.fps**2)
+    split = cfg.jump_acc(traj.fps)
     dropped = 0
     F = len(P)
     for f in range(F):
@@ -166,16 +171,16 @@ def drop_duplicates(traj: Trajectories, config: RelabelConfig | None = None) -> 
             if not (np.isfinite(P[f, a, 0]) and np.isfinite(P[f, b, 0])):  # one of them lost it already
                 continue
             owner, thief = (a, b) if _smooth_run(P, f, a, split) >= _smooth_run(P, f, b, split) else (b, a)
-            P[f, thief] = np.nan
-            traj.residuals[f, thief] = np.nan
-            traj.camera_masks[f, thief] = 0
+            columns = ((P, np.nan), (traj.residuals, np.nan), (traj.camera_masks, 0))
+            for array, empty in columns:
+                array[f, thief] = empty
             dropped += 1
             for side in (-1, 1):  # the thief's samples next to it that the owner, missing there, continues
                 k = f + side
                 while 0 <= k < F and np.isfinite(P[k, thief, 0]) and not np.isfinite(P[k, owner, 0]):
                     if not _continues(P, k, owner, thief, -side, split):
                         break
-                    for array, empty in ((P, np.nan), (traj.residuals, np.nan), (traj.camera_masks, 0)):
+                    for array, empty in columns:
                         array[k, owner] = array[k, thief]
                         array[k, thief] = empty
                     k += side
@@ -317,7 +322,7 @@ def relink_tracklets(traj: Trajectories, config: RelabelConfig | None = None) ->
     one. Output columns are the resulting identities.
     """
     cfg = config or RelabelConfig()
-    runs = _tracklets(traj.positions, max(cfg.split_acc_m, cfg.split_acc_mps2 / traj.fps**2))
+    runs = _tracklets(traj.positions, cfg.jump_acc(traj.fps))
     if not runs:
         return 0
     runs.sort(key=lambda r: int(r[0, 0]))

@@ -181,7 +181,7 @@ def test_a_fast_swing_at_50_hz_is_not_cut_where_a_jump_is():
     angle = 2 * np.pi * turns * t
     P = np.stack([0.5 * np.cos(angle), 0.5 * np.sin(angle), np.ones_like(t)], axis=1)[:, None, :]
     cfg = RelabelConfig()
-    split = max(cfg.split_acc_m, cfg.split_acc_mps2 / fps**2)
+    split = cfg.jump_acc(fps)
     assert np.linalg.norm(P[2:] - 2 * P[1:-1] + P[:-2], axis=2).max() > cfg.split_acc_m  # above the old cut
     assert len(_tracklets(P, split)) == 1
     P[50:, 0, 2] += 0.15
