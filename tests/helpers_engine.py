@@ -17,7 +17,7 @@ import numpy as np
 
 from mocap.camera import Rig
 from mocap.detections import Detections
-from mocap.synth import SynthSettings, marching_motion, motion_from_c3d, plan_take, rig_for_motion, ring_rig
+from mocap.synth import SynthSettings, marching_motion, motion_from_file, plan_take, rig_for_motion, ring_rig
 from mocap.synth.motion import Motion
 from mocap.synth.occlusion import Capsules
 from mocap.synth.wand import centroid_frames
@@ -57,7 +57,7 @@ def simulate(name: str, rig: Rig, motion: Motion, settings: SynthSettings | None
 def c3d_take(name: str, frames: int | None = None, start: int = 0, seed: int = 1,
              settings: SynthSettings | None = None) -> Take:
     """A real C3D motion (``C3D_TAKES``), windowed and centred, through its fitted rig."""
-    motion = motion_from_c3d(C3D_DIR / f"{name}.c3d").window(start, frames).centred()
+    motion = motion_from_file(C3D_DIR / f"{name}.c3d").window(start, frames).centred()
     return simulate(name, fitted_rig(motion, seed), motion, settings, seed=seed)
 
 

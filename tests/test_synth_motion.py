@@ -1,4 +1,4 @@
-"""Motion for synthetic takes: real C3D files (units, up axis, gaps), the marching body, capsule occlusion."""
+"""Motion for synthetic takes: real C3D and TRC files (units, up axis, gaps), the marching body, capsule occlusion."""
 
 from __future__ import annotations
 
@@ -7,8 +7,10 @@ import pytest
 
 from mocap.errors import MocapError
 from mocap.export.c3d import read_c3d, write_c3d
+from mocap.export.csv import write_csv
+from mocap.export.trc import read_trc, write_trc
 from mocap.synth.body import MARKERS, marching_body, marching_motion
-from mocap.synth.motion import UP_AXES, detect_up_axis, load_motion, motion_from_c3d
+from mocap.synth.motion import UP_AXES, detect_up_axis, load_motion, motion_from_file
 from mocap.synth.occlusion import Capsules, capsules_from_markers, occluded, segment_distance
 from mocap.trajectories import Trajectories
 from tests.conftest import require_shared_data
@@ -46,7 +48,7 @@ def test_tennis_player_stands_upright():
 
 @pytest.mark.parametrize("up", sorted(UP_AXES))
 def test_up_axis_is_detected_for_every_orientation(up):
-    motion = motion_from_c3d(require_shared_data("c3d") / "kinematics_tennis_serve_2players.c3d")
+    motion = motion_from_file(require_shared_data("c3d") / "kinematics_tennis_serve_2players.c3d")
     in_file_axes = motion.positions @ UP_AXES[up]  # inverse rotation: z-up -> a file with `up` up
     assert detect_up_axis(in_file_axes - [0.3, -0.2, 0.9], motion.labels) == up  # origin off the floor too
     body = marching_motion(240, seed=4)
@@ -65,8 +67,34 @@ def test_y_up_millimetre_file_with_gaps_round_trips(tmp_path):
     offset = np.nanmean(got - z_up, axis=(0, 1))
     np.testing.assert_allclose(got - offset, z_up, atol=1e-4)  # float32 mm storage
     assert offset[2] == pytest.approx(0.0, abs=1e-6)  # the floor was already at z = 0
-    forced = motion_from_c3d(tmp_path / "yup.c3d", up="y")
+    forced = motion_from_file(tmp_path / "yup.c3d", up="y")
     assert forced.info["up_axis"] == "y" and forced.info["up_axis_from"] == "--up"
+
+
+@pytest.mark.parametrize(("suffix", "writer"), [(".trc", write_trc), (".csv", write_csv)])
+def test_trc_and_csv_motion_gives_the_same_motion_as_c3d(tmp_path, suffix, writer):
+    labels, fps, z_up = marching_body(120, fps=100, n_markers=30, seed=5)
+    z_up[30:40, 2] = np.nan
+    traj = Trajectories(labels, fps, z_up @ UP_AXES["y"])  # a y-up recording, as OpenSim and Motive write
+    write_c3d(traj, tmp_path / "m.c3d")
+    writer(traj, tmp_path / f"m{suffix}")  # (y_up False: the axes are written as they are)
+    ref = motion_from_file(tmp_path / "m.c3d")
+    got = motion_from_file(tmp_path / f"m{suffix}")
+    assert got.labels == ref.labels and got.fps == ref.fps and got.info["up_axis"] == ref.info["up_axis"]
+    np.testing.assert_allclose(got.positions, ref.positions, atol=2e-4, equal_nan=True)  # text vs float32 mm
+
+
+def test_real_trc_file_loads_and_an_unsure_up_axis_is_reported(caplog):
+    """An upper-body marker set reaching forward spans more along x than along z: the guess is reported as one."""
+    path = require_shared_data("trc") / "markers.trc"
+    raw = read_trc(path)
+    with caplog.at_level("WARNING", logger="mocap.synth.motion"):
+        motion_from_file(path)
+    assert "the up axis is a guess" in caplog.text
+    motion = motion_from_file(path, up="z")
+    assert motion.labels == raw.labels and motion.fps == 100.0 and motion.n_frames == raw.n_frames
+    sternum, hip = (motion.positions[:, motion.labels.index(n), 2] for n in ("STER", "ASISl"))
+    assert np.median(sternum - hip) > 0.3  # the sternum 40 cm above the pelvis
 
 
 def test_bad_motion_files_raise_user_errors(tmp_path):
@@ -80,7 +108,7 @@ def test_bad_motion_files_raise_user_errors(tmp_path):
         load_motion(tmp_path / "empty.c3d")
     write_c3d(Trajectories(["a"], 100.0, np.ones((10, 1, 3))), tmp_path / "one.c3d")
     with pytest.raises(MocapError, match="--up"):
-        motion_from_c3d(tmp_path / "one.c3d", up="sideways")
+        motion_from_file(tmp_path / "one.c3d", up="sideways")
 
 
 def test_marching_body_is_a_marching_rigid_skeleton():
@@ -145,14 +173,14 @@ def test_a_capsule_hides_what_is_behind_it_but_not_markers_on_its_near_side():
 
 
 def test_marker_capsules_for_recorded_motion():
-    motion = motion_from_c3d(require_shared_data("c3d") / "kinematics_tennis_serve_2players.c3d")
+    motion = motion_from_file(require_shared_data("c3d") / "kinematics_tennis_serve_2players.c3d")
     caps = capsules_from_markers(motion.labels, motion.positions[:50])
     assert "Derrick torso" in caps.names and "Viktor torso" in caps.names
     assert len(caps) > 40 and np.isfinite(caps.a).all()
     k = caps.names.index("Derrick torso")
     assert 0.08 <= caps.radius[k] <= 0.16
     assert (caps.b[:, k, 2] > caps.a[:, k, 2] + 0.2).all()  # upright torso axis
-    walking = motion_from_c3d(require_shared_data("c3d") / "walkingOptiTrack.c3d")
+    walking = motion_from_file(require_shared_data("c3d") / "walkingOptiTrack.c3d")
     legs = capsules_from_markers(walking.labels, walking.positions[:50])
     assert not any("torso" in n for n in legs.names)  # leg clusters only: no torso to invent
 

@@ -15,7 +15,7 @@ from mocap.errors import MocapError
 from mocap.synth import (
     SynthSettings,
     marching_motion,
-    motion_from_c3d,
+    motion_from_file,
     render_take,
     rig_for_motion,
     ring_rig,
@@ -216,7 +216,7 @@ def test_failed_render_leaves_nothing_behind(tmp_path, monkeypatch):
 
 
 def test_real_motion_take_keeps_gaps(tmp_path):
-    motion = motion_from_c3d(require_shared_data("c3d") / "walkingOptiTrack.c3d")
+    motion = motion_from_file(require_shared_data("c3d") / "walkingOptiTrack.c3d")
     gappy = int(np.argmax((~np.isfinite(motion.positions[..., 0])).sum(axis=1) > 0))
     window = motion.window(max(0, gappy - 2), 6).centred()
     truth = simulate(ring_rig(), window, SynthSettings())

@@ -39,7 +39,7 @@ from machine_info import describe  # noqa: E402  (tools/ is on sys.path when run
 from mocap import kernels  # noqa: E402
 from mocap.evaluate import evaluate  # noqa: E402
 from mocap.reference import ReferenceTracker  # noqa: E402
-from mocap.synth import SynthSettings, marching_motion, motion_from_c3d, plan_take, ring_rig  # noqa: E402
+from mocap.synth import SynthSettings, marching_motion, motion_from_file, plan_take, ring_rig  # noqa: E402
 from mocap.synth.wand import centroid_frames  # noqa: E402
 from mocap.tracker import Tracker  # noqa: E402
 
@@ -48,7 +48,7 @@ def _take(args: argparse.Namespace):
     if args.motion == "body":
         motion = marching_motion(args.frames, 120.0, args.markers, seed=args.seed)
     else:
-        motion = motion_from_c3d(args.motion).window(0, args.frames).centred()
+        motion = motion_from_file(args.motion).window(0, args.frames).centred()
     rig = ring_rig(args.cameras, seed=args.seed)
     plan = plan_take(rig, motion, SynthSettings(seed=args.seed))
     return rig, plan.truth, centroid_frames(plan, seed=args.seed)

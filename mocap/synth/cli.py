@@ -16,7 +16,7 @@ import numpy as np
 from mocap.camera import Rig
 from mocap.errors import MocapError
 from mocap.synth.body import DEFAULT_MARKERS, marching_motion
-from mocap.synth.motion import UP_AXES, Motion, motion_from_c3d
+from mocap.synth.motion import UP_AXES, Motion, motion_from_file
 from mocap.synth.rig import DEFAULT_CAMERAS, DEFAULT_RADIUS_M, WALKWAY_MIN_LENGTH_M, rig_for_motion, ring_rig
 from mocap.synth.settings import FORMATS, SynthSettings
 from mocap.synth.writer import default_truth_path, render_take
@@ -42,9 +42,10 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
     src = parser.add_argument_group("motion and cameras")
     src.add_argument("--scene", choices=("body", "wand", "board"), default="body",
                      help="what to film: markers on a body (default), a calibration wand wave, or a board")
-    src.add_argument("--motion", type=Path, metavar="FILE.c3d",
-                     help="marker motion to film (any units, any up axis); default: the built-in marching body")
-    src.add_argument("--up", choices=sorted(UP_AXES), help="the C3D file's up axis (default: detected)")
+    src.add_argument("--motion", type=Path, metavar="FILE",
+                     help="marker motion to film: a C3D, TRC or Motive CSV file (any units, any up axis); default: "
+                          "the built-in marching body")
+    src.add_argument("--up", choices=sorted(UP_AXES), help="the motion file's up axis (default: detected)")
     src.add_argument("--frames", type=int, help=f"frames to render (default: the whole file, or "
                                                 f"{DEFAULT_BODY_FRAMES} for the built-in body)")
     src.add_argument("--start", type=int, default=0, help="first frame of the motion to render (default 0)")
@@ -109,7 +110,7 @@ def _motion(args: argparse.Namespace, settings: SynthSettings) -> Motion:
         motion = marching_motion(args.start + frames, args.fps or 120.0, args.markers, settings.seed,
                                  settings.marker_mm)
         return motion.window(args.start, frames)
-    motion = motion_from_c3d(args.motion, args.up)
+    motion = motion_from_file(args.motion, args.up)
     if args.fps is not None:
         motion = motion.resampled(args.fps)
     motion = motion.window(args.start, args.frames).centred()

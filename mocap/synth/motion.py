@@ -1,4 +1,5 @@
-"""Marker motion to render: loaded from any C3D (any units, any up axis), windowed, resampled.
+"""Marker motion to render: loaded from a C3D, TRC or Motive CSV file (any units, any up axis), windowed,
+resampled.
 
 World frame of every :class:`Motion`: z up, metres, the motion centred over the floor origin.
 """
@@ -15,10 +16,10 @@ from typing import Any
 import numpy as np
 
 from mocap.errors import MocapError
-from mocap.export.c3d import read_c3d
+from mocap.export.formats import read_trajectories
 from mocap.synth.occlusion import Capsules, capsules_from_markers
 
-__all__ = ["Motion", "as_motion", "load_motion", "motion_from_c3d", "detect_up_axis", "to_z_up", "UP_AXES"]
+__all__ = ["Motion", "as_motion", "load_motion", "motion_from_file", "detect_up_axis", "to_z_up", "UP_AXES"]
 
 log = logging.getLogger(__name__)
 
@@ -31,6 +32,7 @@ UP_AXES: dict[str, np.ndarray] = {
     "x": np.array([[0.0, 0, -1], [0, 1, 0], [1, 0, 0]]),
     "-x": np.array([[0.0, 0, 1], [0, 1, 0], [-1, 0, 0]]),
 }
+UNSURE_EXTENT_RATIO = 1.25  # up is a guess when no axis spans this many times the next one
 FLOOR_SNAP_M = 0.15  # a detected floor further than this from z = 0 is moved to z = 0
 
 
@@ -171,7 +173,12 @@ def detect_up_axis(positions: np.ndarray, labels: list[str] | None = None) -> st
             raise MocapError("too few marker samples to tell which axis is up; pass --up")
         axis = int(np.argmax(extent))
         sign = _floor_side(positions, axis)
-    return ("" if sign > 0 else "-") + "xyz"[axis]
+    up = ("" if sign > 0 else "-") + "xyz"[axis]
+    second = np.sort(extent)[-2]
+    if extent[axis] < UNSURE_EXTENT_RATIO * second:  # an upper-body marker set reaching forward: as wide as tall
+        log.warning("the up axis is a guess: the markers span %s m along x, y, z (the tallest axis is taken as up, "
+                    "%s); pass --up if the rendered subject lies on its side", np.round(extent, 2).tolist(), up)
+    return up
 
 
 def _floor_side(positions: np.ndarray, axis: int) -> float:
@@ -218,29 +225,29 @@ def _centre(positions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 def load_motion(path: str | os.PathLike, up: str | None = None) -> tuple[list[str], float, np.ndarray]:
-    """Marker motion from a C3D file, in the synthetic world frame.
+    """Marker motion from a C3D, TRC or Motive CSV file, in the synthetic world frame.
 
-    Units come from POINT:UNITS; the up axis is detected (:func:`detect_up_axis`) unless ``up``
+    Units come from the file (C3D: POINT:UNITS); the up axis is detected (:func:`detect_up_axis`) unless ``up``
     is given; the motion is centred horizontally on the origin (mid-range of the samples) and, if
     its floor is more than 15 cm from z = 0, lifted or lowered onto it. Gaps stay NaN.
 
     Args:
-        path: the C3D file.
+        path: the C3D, TRC or CSV file (by its suffix).
         up: the file's up axis ("x", "y", "z", "-x", "-y", "-z"); None to detect it.
 
     Returns:
         labels (M,), fps, positions (F, M, 3) in metres, z up.
     """
-    motion = motion_from_c3d(path, up)
+    motion = motion_from_file(path, up)
     return motion.labels, motion.fps, motion.positions
 
 
-def motion_from_c3d(path: str | os.PathLike, up: str | None = None) -> Motion:
+def motion_from_file(path: str | os.PathLike, up: str | None = None) -> Motion:
     """Like :func:`load_motion`, as a :class:`Motion` whose ``info`` records the up axis and the shift."""
     path = Path(path)
-    traj = read_c3d(path)
+    traj = read_trajectories(path)
     if traj.n_frames == 0 or traj.n_markers == 0:
-        raise MocapError(f"{path}: the C3D file holds no marker samples ({traj.n_frames} frames, "
+        raise MocapError(f"{path}: the file holds no marker samples ({traj.n_frames} frames, "
                          f"{traj.n_markers} markers); give a file with 3D points")
     valid = traj.valid
     if not valid.any():
