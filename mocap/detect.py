@@ -648,5 +648,6 @@ def detect(image: np.ndarray, *, threshold: float | None = None, min_area: int =
         cov.append(covs.reshape(-1, 2, 2))
         part.append(np.repeat(group, k))
     part = np.concatenate(part)
-    return Detections(np.concatenate(xy), stats.area[ids][part] / n_discs[part], roundness[part],
-                      floored_covariance(np.concatenate(cov)), flagged[part] | (n_discs[part] > 1))
+    split = n_discs[part] > 1  # each part fitted as a disc of its own: measured, not merged
+    return Detections(np.concatenate(xy), stats.area[ids][part] / n_discs[part], np.where(split, 1.0, roundness[part]),
+                      floored_covariance(np.concatenate(cov)), flagged[part] & ~split)

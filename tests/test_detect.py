@@ -185,7 +185,8 @@ def test_touching_pair_is_split(separation):
         sensor.draw(image, uv, np.full(2, 1.75), np.full(2, 150.0), rng)
         assert len(detect(image, threshold=30, refine="centroid")) == 1  # one blob above threshold...
         det = detect(image, threshold=30)
-        assert len(det) == 2 and det.merged.all()  # ... fitted as two markers
+        assert len(det) == 2  # ... fitted as two markers, each measured: not flagged merged, round as a disc
+        assert not det.merged.any() and (det.roundness == 1.0).all()
         errors.append(det.xy[match(det.xy, uv)] - uv)
     assert np.abs(np.concatenate(errors)).max() < 0.15
 

@@ -343,7 +343,7 @@ def test_detection_fit_kernel_is_the_numpy_one(both):
         np.testing.assert_allclose(g.cov, r.cov, rtol=0, atol=0.02 * np.abs(r.cov).max())
     dxy = np.concatenate(dxy)
     assert np.median(dxy) < 1e-6 and np.percentile(dxy, 99) < 2e-4 and dxy.max() < 2e-3
-    assert (np.concatenate([d.merged for d in ref]).sum()) >= 8  # the split fits were exercised
+    assert (np.concatenate([d.roundness for d in ref]) == 1.0).sum() >= 2  # a split fit was exercised (parts: 1.0)
 
 
 def test_detection_fit_kernel_on_a_degenerate_window(both):
