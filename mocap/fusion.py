@@ -17,6 +17,7 @@ when fewer do (:func:`new_points`). Their identities are decided by :func:`reide
 from __future__ import annotations
 
 import functools
+import heapq
 from dataclasses import dataclass
 
 import numpy as np
@@ -26,6 +27,8 @@ from mocap import kernels
 from mocap.geometry import inv2x2, inv3x3, reprojection_jacobians
 from mocap.pairs import CameraPairs
 from mocap.stereo import dist2, match_pairs, triangulate_matches
+
+SUPPORT_ROUNDS = 3  # new_points: greedy passes, each after dropping the supporting views triangulation rejected
 
 __all__ = ["Triangulated", "robust_triangulate", "repick", "new_points", "reidentify"]
 
@@ -255,6 +258,36 @@ class NewPoints:
         return NewPoints(self.X[index], self.cov[index], self.rms_px[index], self.det[index], self.strong[index])
 
 
+def _greedy_by_support(support: np.ndarray, nearest: np.ndarray, views: np.ndarray, dist: np.ndarray,
+                       shape: tuple[int, int]) -> list[int]:
+    """Candidates accepted greedily, most supporting cameras first, then smallest epipolar distance; each
+    detection once. A detection claimed by a better candidate leaves a later one's support, not the candidate
+    itself (a marker hidden in one camera lands within support_px of its neighbour's blob there), and the
+    candidate then queues again with the views it has left: a ghost that lost its third view to a real marker
+    must not outrank a real two-view point. ``support`` (C, L) is updated in place.
+
+    Returns: the accepted candidates' indices, in acceptance order.
+    """
+    queue = list(zip((-views).tolist(), dist.tolist(), range(len(views)), strict=True))
+    heapq.heapify(queue)
+    used = np.zeros(shape, dtype=bool)
+    chosen = []
+    while queue:  # over the (few) candidates
+        key, d, idx = heapq.heappop(queue)
+        cams = np.flatnonzero(support[:, idx])
+        taken = used[cams, nearest[cams, idx]]
+        left = int((~taken).sum())
+        if left < 2:
+            continue
+        if left < -key:
+            heapq.heappush(queue, (-left, d, idx))
+            continue
+        support[cams[taken], idx] = False
+        used[cams[~taken], nearest[cams[~taken], idx]] = True
+        chosen.append(idx)
+    return chosen
+
+
 def new_points(P: np.ndarray, pairs: CameraPairs, D: np.ndarray, cov: np.ndarray, free: np.ndarray,
                sizes: np.ndarray, epipolar_px: float, support_px: float, min_views: int,
                outlier_sigma: float, outlier_min_px: float, fresh: np.ndarray | None = None,
@@ -265,7 +298,9 @@ def new_points(P: np.ndarray, pairs: CameraPairs, D: np.ndarray, cov: np.ndarray
     into every camera; a camera supports it when a free detection lies within ``support_px``.
     Candidates are accepted greedily (most supporting cameras, then smallest epipolar distance),
     each detection used once (a candidate keeps those of its detections no better one took, if two or
-    more); a point is ``strong`` when supported by ``min_views`` cameras, or by every camera whose image
+    more, and queues again with that many; a supporting view the robust triangulation then rejects leaves
+    the support of the candidates of that point, and the greedy runs again, at most ``SUPPORT_ROUNDS``
+    times); a point is ``strong`` when supported by ``min_views`` cameras, or by every camera whose image
     it falls in when fewer than ``min_views`` do (cameras that saw nothing at all this frame do not
     count), but never by two alone when the rig has three or more: two fixed reflections that happen
     to match make a point only those two cameras frame just as well. The accepted point is
@@ -308,30 +343,30 @@ def new_points(P: np.ndarray, pairs: CameraPairs, D: np.ndarray, cov: np.ndarray
         cams = pairs.index[pair, side]
         nearest[cams, rows] = n
         support[cams, rows] = True
-    views = support.sum(axis=0)
     need = np.maximum(np.minimum(min_views, framed.sum(axis=0)), min(3, C))  # two views: never strong, if 3+ exist
-    order = np.lexsort((dist, -views))
-    used = np.zeros_like(free)
-    chosen = []
-    for idx in order:  # greedy over the (few) candidates: each detection once
-        cams = np.flatnonzero(support[:, idx])
-        taken = used[cams, nearest[cams, idx]]
-        # A detection claimed by a better candidate leaves this one's support, not the candidate itself:
-        # a marker hidden in one camera lands within support_px of its neighbour's blob there.
-        if (~taken).sum() < 2:
-            continue
-        support[cams[taken], idx] = False
-        used[cams[~taken], nearest[cams[~taken], idx]] = True
-        chosen.append(idx)
-    if not chosen:
-        return empty
-    sel = np.array(chosen)
-    det = np.where(support[:, sel], nearest[:, sel], -1).T  # (L', C)
     cams = np.arange(C)[None, :]
-    have = det >= 0
-    uv = np.where(have[..., None], D[cams, np.maximum(det, 0)], np.nan).swapaxes(0, 1)
-    S = np.where(have[..., None, None], cov[cams, np.maximum(det, 0)], np.eye(2)).swapaxes(0, 1)
-    tri = robust_triangulate(P, uv, S, X[sel], outlier_sigma, outlier_min_px)
+    for _ in range(SUPPORT_ROUNDS):
+        # A view the robust triangulation rejects leaves the support of every candidate built on that point's other
+        # views, and the greedy runs again: the detection (a neighbour's blob near a hidden marker's projection)
+        # is then free for its own marker.
+        accepted = support.copy()
+        chosen = _greedy_by_support(accepted, nearest, accepted.sum(axis=0), dist, free.shape)
+        if not chosen:
+            return empty
+        sel = np.array(chosen)
+        det = np.where(accepted[:, sel], nearest[:, sel], -1).T  # (L', C)
+        have = det >= 0
+        uv = np.where(have[..., None], D[cams, np.maximum(det, 0)], np.nan).swapaxes(0, 1)
+        S = np.where(have[..., None, None], cov[cams, np.maximum(det, 0)], np.eye(2)).swapaxes(0, 1)
+        tri = robust_triangulate(P, uv, S, X[sel], outlier_sigma, outlier_min_px)
+        rejected = have & ~tri.used  # (L', C)
+        if not rejected.any():
+            break
+        for k in np.flatnonzero(rejected.any(axis=1)):  # (rare) every candidate built on this point's views
+            kept = tri.used[k] & have[k]
+            same = (support[kept] & (nearest[kept] == det[k, kept][:, None])).any(axis=0)  # (L,)
+            for c in np.flatnonzero(rejected[k]):
+                support[c, same & (nearest[c] == det[k, c])] = False
     keep = np.isfinite(tri.X).all(axis=1) & (tri.used.sum(axis=1) >= 2)
     det = np.where(tri.used, det, -1)
     strong = tri.used.sum(axis=1) >= need[sel]

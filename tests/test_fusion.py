@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from mocap.fusion import new_points, reidentify, repick, robust_triangulate
+from mocap.fusion import _greedy_by_support, new_points, reidentify, repick, robust_triangulate
 from mocap.geometry import triangulate_weighted
 from mocap.pairs import camera_pairs
 
@@ -113,6 +113,48 @@ def test_new_points_recover_markers_and_reject_ghost_pairs(rig):
         used = pts.det[:, c][pts.det[:, c] >= 0]
         assert len(np.unique(used)) == len(used)
     assert not any(order[d] >= 6 for d in pts.det[pts.strong].ravel() if d >= 0)  # no ghost blob in a marker
+
+
+def test_a_candidate_that_lost_a_view_queues_again_with_the_views_it_has_left():
+    """Detection 0 of every camera. A real marker (cameras 2, 3, 4) is accepted first and takes camera 2's blob from
+    a ghost (cameras 0, 1, 2): the ghost, two views left, must not then outrank the real two-view point (cameras
+    0, 5, epipolar distance 0.004 px) that its camera-0 blob belongs to."""
+    support = np.zeros((6, 3), dtype=bool)
+    support[[2, 3, 4], 0] = True  # the marker
+    support[[0, 1, 2], 1] = True  # the ghost
+    support[[0, 5], 2] = True  # the two-view marker
+    nearest = np.zeros((6, 3), dtype=np.intp)
+    chosen = _greedy_by_support(support, nearest, support.sum(axis=0), np.array([0.1, 0.9, 0.004]), (6, 1))
+    assert chosen == [0, 2]
+    assert support[:, 0].sum() == 3 and support[:, 2].sum() == 2
+
+
+def test_new_points_free_a_blob_that_a_hidden_markers_point_claimed_and_rejected(rig):
+    """Marker 1 is hidden from camera 2, where its projection lands 1 px from marker 0's blob: within the support
+    tolerance, so the candidates of marker 1 (five views) claim that blob before marker 0's (two views: cameras 1
+    and 2 alone see it). The robust triangulation rejects the blob from marker 1's point; marker 0 then gets it."""
+    P = rig.projection_matrices()
+    pairs = camera_pairs(rig)
+    X1 = np.array([[0.1, 0.2, 1.0]])
+    uv1 = _ideal(rig, X1)[:, 0]
+    # marker 0: on camera 2's ray through uv1 + 1 px, 0.3 m nearer the camera: seen by cameras 1 and 2 only
+    target = uv1[2] + [1.0, 0.0]
+    M = P[2][:, :3]
+    ray = np.linalg.solve(M, np.r_[target, 1.0])
+    centre = -np.linalg.solve(M, P[2][:, 3])
+    X0 = centre + ray / np.linalg.norm(ray) * (np.linalg.norm(X1[0] - centre) - 0.3)
+    uv0 = _ideal(rig, X0[None])[:, 0]
+    D = np.full((len(rig), 2, 2), np.nan)
+    D[:, 0] = uv1
+    D[2, 0] = np.nan  # marker 1 hidden from camera 2
+    D[[1, 2], 1] = uv0[[1, 2]]
+    free = np.isfinite(D).all(axis=2)
+    cov = np.broadcast_to(np.eye(2) * 0.01**2, D.shape[:2] + (2, 2))
+    sizes = np.array([c.size for c in rig.cameras], dtype=float)
+    pts = new_points(P, pairs, D, cov, free, sizes, 1.5, 2.0, 3, 5.0, 0.3)
+    d = np.linalg.norm(pts.X[:, None] - np.array([X0, X1[0]])[None], axis=2)
+    assert len(pts.X) == 2 and (d.min(axis=0) < 1e-3).all()
+    assert pts.det[np.argmin(d[:, 0]), 2] == 1  # camera 2's blob is marker 0's
 
 
 def test_reidentify_follows_each_tracks_own_radius():
