@@ -707,7 +707,7 @@ class Tracker:
         high = np.fmax(cfg.suspect_m[1], cfg.n_sigma * noise)
         agree = np.linalg.norm(tri.X - t.x3[:, :3], axis=1) < np.clip(cfg.gate_scale * t.e3[:, 0], cfg.suspect_m[0],
                                                                       high)
-        meas.out = meas.ok & ((clean.sum(axis=1) >= 2) | agree)
+        meas.out = meas.ok & ((clean.sum(axis=1) >= 2) | (agree & clean.any(axis=1)))
         meas.X, meas.cov, meas.rms_px = tri.X, tri.cov, tri.rms_px
 
     def _deblend(self, fr: _Frame, crowded: np.ndarray, asg: np.ndarray, tri: Triangulated) -> np.ndarray:
