@@ -144,9 +144,18 @@ class _Plate:
 
 def _plates(median: np.ndarray, rigid: np.ndarray, seen: np.ndarray, tol: float) -> list[_Plate]:
     """The plates of one stretch of the take (step 1 of the module docstring), seen longest first, from its pair
-    statistics ``median`` and ``rigid`` (M, M) and its samples ``seen`` (F, M) bool."""
+    statistics ``median`` and ``rigid`` (M, M) and its samples ``seen`` (F, M) bool. Of overlapping
+    cliques, the larger is taken first, and of two as large the one of the earlier identities (member by member,
+    by first frame seen): the identity that has been on a marker from its start, not one that joined it later;
+    the order of the identities' columns does not matter."""
+
+    first = np.where(seen.any(axis=0), seen.argmax(axis=0), len(seen))  # (M,) each identity's first frame
+
+    def rank(clique: list[int]) -> tuple[int, list[int]]:
+        return -len(clique), sorted(first[clique].tolist())
+
     candidates, used = [], set()
-    for clique in sorted(_cliques(rigid), key=len, reverse=True):
+    for clique in sorted(_cliques(rigid), key=rank):
         members = np.array(sorted(set(clique) - used))
         if members.size < 3 or members.size < len(clique):
             continue

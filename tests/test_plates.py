@@ -10,7 +10,7 @@ from helpers_rigid import FRAMES, PLATE, SQUARE, TRIANGLE, columns_follow, movin
 
 from mocap.errors import MocapError
 from mocap.evaluate import evaluate
-from mocap.plates import PlateConfig, _destinations, _distances, _SortedPairs, label_plates
+from mocap.plates import PlateConfig, _destinations, _distances, _plates, _SortedPairs, label_plates
 from mocap.relabel import repair_identities
 from mocap.synth import SynthSettings, ring_rig
 from mocap.tracker import Tracker
@@ -172,3 +172,20 @@ def test_sorted_pairs_find_what_a_scan_finds():
         assert len(scan[0]) > 0 or distance == 0.0
         for a, b in zip(found, scan, strict=True):
             np.testing.assert_array_equal(a, b)
+
+
+@pytest.mark.parametrize("order", [[0, 1, 2, 3, 4], [4, 3, 2, 1, 0], [2, 4, 0, 3, 1]])
+def test_of_two_overlapping_plates_as_large_the_one_of_the_earlier_identities_is_taken_whatever_their_order(order):
+    """Identities 1-3 are rigid with 0 and with 4 (0-4 are not): two cliques of four. Identity 4 was on its marker
+    from the start, 0 only from frame 50 (a later identity that joined the plate): the plate with 4 must win
+    however the identities are numbered (the take's plates, and so its labels, once depended on the order in
+    which the tracker happened to number its tracks)."""
+    rng = np.random.default_rng(3)
+    points = rng.normal(scale=0.05, size=(5, 3))
+    median = np.linalg.norm(points[:, None] - points[None], axis=2)
+    rigid = ~np.eye(5, dtype=bool)
+    rigid[0, 4] = rigid[4, 0] = False
+    seen = np.ones((100, 5), dtype=bool)
+    seen[:50, 0] = False
+    plates = _plates(median[np.ix_(order, order)], rigid[np.ix_(order, order)], seen[:, order], 0.002)
+    assert [sorted(np.array(order)[p.members].tolist()) for p in plates] == [[1, 2, 3, 4]]
