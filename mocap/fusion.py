@@ -28,8 +28,6 @@ from mocap.geometry import inv2x2, inv3x3, reprojection_jacobians
 from mocap.pairs import CameraPairs
 from mocap.stereo import dist2, match_pairs, triangulate_matches
 
-SUPPORT_ROUNDS = 3  # new_points: greedy passes, each after dropping the supporting views triangulation rejected
-
 __all__ = ["Triangulated", "robust_triangulate", "repick", "new_points", "reidentify"]
 
 
@@ -258,6 +256,16 @@ class NewPoints:
         return NewPoints(self.X[index], self.cov[index], self.rms_px[index], self.det[index], self.strong[index])
 
 
+def _views(D: np.ndarray, cov: np.ndarray, det: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(C, L, 2) positions and (C, L, 2, 2) covariances of the detections ``det`` (L, C) (-1: none) of ``D``
+    (C, N, 2) and ``cov`` (C, N, 2, 2): NaN and the identity where a point has none, as triangulation takes them."""
+    cams = np.arange(D.shape[0])[None, :]
+    have = det >= 0
+    uv = np.where(have[..., None], D[cams, np.maximum(det, 0)], np.nan).swapaxes(0, 1)
+    S = np.where(have[..., None, None], cov[cams, np.maximum(det, 0)], np.eye(2)).swapaxes(0, 1)
+    return uv, S
+
+
 def _greedy_by_support(support: np.ndarray, nearest: np.ndarray, views: np.ndarray, dist: np.ndarray,
                        shape: tuple[int, int]) -> list[int]:
     """Candidates accepted greedily, most supporting cameras first, then smallest epipolar distance; each
@@ -298,11 +306,11 @@ def new_points(P: np.ndarray, pairs: CameraPairs, D: np.ndarray, cov: np.ndarray
     into every camera; a camera supports it when a free detection lies within ``support_px``.
     Candidates are accepted greedily (most supporting cameras, then smallest epipolar distance),
     each detection used once (a candidate keeps those of its detections no better one took, if two or
-    more, and queues again with that many; a supporting view the robust triangulation then rejects leaves
-    the support of the candidates of that point, and the greedy runs again, at most ``SUPPORT_ROUNDS``
-    times); a point is ``strong`` when supported by ``min_views`` cameras, or by every camera whose image
-    it falls in when fewer than ``min_views`` do (cameras that saw nothing at all this frame do not
-    count), but never by two alone when the rig has three or more: two fixed reflections that happen
+    more, and queues again with that many); a candidate's support is what a robust fit over its supporting
+    detections keeps (a merged blob's offset centroid, a hidden marker's neighbour near its projection do not
+    count, nor are they claimed); a point is ``strong`` when supported by ``min_views`` cameras, or by
+    every camera whose image it falls in when fewer than ``min_views`` do (cameras that saw nothing at all
+    this frame do not count), but never by two alone when the rig has three or more: two fixed reflections that happen
     to match make a point only those two cameras frame just as well. The accepted point is
     re-triangulated over its supporting detections with outlier rejection.
 
@@ -344,29 +352,16 @@ def new_points(P: np.ndarray, pairs: CameraPairs, D: np.ndarray, cov: np.ndarray
         nearest[cams, rows] = n
         support[cams, rows] = True
     need = np.maximum(np.minimum(min_views, framed.sum(axis=0)), min(3, C))  # two views: never strong, if 3+ exist
-    cams = np.arange(C)[None, :]
-    for _ in range(SUPPORT_ROUNDS):
-        # A view the robust triangulation rejects leaves the support of every candidate built on that point's other
-        # views, and the greedy runs again: the detection (a neighbour's blob near a hidden marker's projection)
-        # is then free for its own marker.
-        accepted = support.copy()
-        chosen = _greedy_by_support(accepted, nearest, accepted.sum(axis=0), dist, free.shape)
-        if not chosen:
-            return empty
-        sel = np.array(chosen)
-        det = np.where(accepted[:, sel], nearest[:, sel], -1).T  # (L', C)
-        have = det >= 0
-        uv = np.where(have[..., None], D[cams, np.maximum(det, 0)], np.nan).swapaxes(0, 1)
-        S = np.where(have[..., None, None], cov[cams, np.maximum(det, 0)], np.eye(2)).swapaxes(0, 1)
-        tri = robust_triangulate(P, uv, S, X[sel], outlier_sigma, outlier_min_px)
-        rejected = have & ~tri.used  # (L', C)
-        if not rejected.any():
-            break
-        for k in np.flatnonzero(rejected.any(axis=1)):  # (rare) every candidate built on this point's views
-            kept = tri.used[k] & have[k]
-            same = (support[kept] & (nearest[kept] == det[k, kept][:, None])).any(axis=0)  # (L,)
-            for c in np.flatnonzero(rejected[k]):
-                support[c, same & (nearest[c] == det[k, c])] = False
+    # A candidate's support is what a robust fit over it keeps: a blob near its projection that the fit rejects (a
+    # merged blob's offset centroid, a ghost's chance neighbour) neither ranks it nor is claimed by it.
+    support &= robust_triangulate(P, *_views(D, cov, np.where(support, nearest, -1).T), X, outlier_sigma,
+                                  outlier_min_px).used.T
+    chosen = _greedy_by_support(support, nearest, support.sum(axis=0), dist, free.shape)
+    if not chosen:
+        return empty
+    sel = np.array(chosen)
+    det = np.where(support[:, sel], nearest[:, sel], -1).T  # (L', C)
+    tri = robust_triangulate(P, *_views(D, cov, det), X[sel], outlier_sigma, outlier_min_px)
     keep = np.isfinite(tri.X).all(axis=1) & (tri.used.sum(axis=1) >= 2)
     det = np.where(tri.used, det, -1)
     strong = tri.used.sum(axis=1) >= need[sel]

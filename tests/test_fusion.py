@@ -131,8 +131,8 @@ def test_a_candidate_that_lost_a_view_queues_again_with_the_views_it_has_left():
 
 def test_new_points_free_a_blob_that_a_hidden_markers_point_claimed_and_rejected(rig):
     """Marker 1 is hidden from camera 2, where its projection lands 1 px from marker 0's blob: within the support
-    tolerance, so the candidates of marker 1 (five views) claim that blob before marker 0's (two views: cameras 1
-    and 2 alone see it). The robust triangulation rejects the blob from marker 1's point; marker 0 then gets it."""
+    tolerance, so the candidates of marker 1 (five views) would claim that blob before marker 0's (two views:
+    cameras 1 and 2 alone see it). A robust fit over marker 1's candidates rejects the blob; marker 0 gets it."""
     P = rig.projection_matrices()
     pairs = camera_pairs(rig)
     X1 = np.array([[0.1, 0.2, 1.0]])
