@@ -66,6 +66,7 @@ MIN_SHAPE_AREA = 9  # px: smaller blobs are too pixelated and noisy for a shape 
 ROUND_SPLIT = 0.85  # roundness below this: searched for two or more peaks (one round disc is ~1)
 AREA_MERGED = 2.5  # area above this many times the neighbours' median: flagged as merged
 MAX_DISCS = 4  # a blob is split into at most this many markers
+SPLIT_PART_AREA = 1.25  # a split blob's parts larger than this times their neighbours' median area: still merged
 FIT_MAX_AREA = 1000  # px: larger blobs (with a raised max_area) get the weighted centroid, not a fit
 FIT_ITERATIONS = 2  # Gauss-Newton steps for a single disc (from the weighted centroid)
 SPLIT_ITERATIONS = 6  # ... for two or more discs fitted jointly (from the peaks)
@@ -624,7 +625,8 @@ def detect(image: np.ndarray, *, threshold: float | None = None, min_area: int =
     sxx, sxy, syy = stats.second[ids].reshape(-1, 4)[:, [0, 1, 3]].T  # eigenvalues of the 2x2 moments:
     spread = np.sqrt(0.25 * (sxx - syy) ** 2 + sxy * sxy)
     roundness = np.sqrt(np.maximum(0.5 * (sxx + syy) - spread, 0.0) / np.maximum(0.5 * (sxx + syy) + spread, 1e-12))
-    too_big = stats.area[ids] > AREA_MERGED * _neighbour_median_area(stats.centroid[ids], stats.area[ids])
+    typical = _neighbour_median_area(stats.centroid[ids], stats.area[ids])  # (n,) px
+    too_big = stats.area[ids] > AREA_MERGED * typical
     elongated = roundness < ROUND_SPLIT
     flagged = too_big | ((roundness < ROUND_MERGED) & (stats.area[ids] >= MIN_SHAPE_AREA))
     if refine not in ("fit", "centroid"):
@@ -648,6 +650,9 @@ def detect(image: np.ndarray, *, threshold: float | None = None, min_area: int =
         cov.append(covs.reshape(-1, 2, 2))
         part.append(np.repeat(group, k))
     part = np.concatenate(part)
-    split = n_discs[part] > 1  # each part fitted as a disc of its own: measured, not merged
-    return Detections(np.concatenate(xy), stats.area[ids][part] / n_discs[part], np.where(split, 1.0, roundness[part]),
-                      floored_covariance(np.concatenate(cov)), flagged[part] & ~split)
+    # Each part of a split blob is fitted as a disc of its own: measured, not merged; unless the parts are larger
+    # than single markers nearby (three markers fitted as two discs: each centroid between two of them).
+    area = stats.area[ids][part] / n_discs[part]
+    split = (n_discs[part] > 1) & (area <= SPLIT_PART_AREA * typical[part])
+    return Detections(np.concatenate(xy), area, np.where(split, 1.0, roundness[part]),
+                      floored_covariance(np.concatenate(cov)), (flagged[part] | (n_discs[part] > 1)) & ~split)
