@@ -31,9 +31,10 @@ Stages, all vectorised over the blobs of a frame (no per-blob Python loop):
    than with a Gaussian edge (test). A fit that fails falls back to the intensity-weighted centroid.
 5. **Merged markers**: a blob with two or more local maxima separated by a clear saddle is split and
    fitted as that many discs jointly; a blob that is elongated (roundness below 0.7) or much larger than
-   its neighbours is flagged ``merged`` but kept whole. Limits: two markers closer than about their
-   radius (no saddle) stay one blob; two saturated markers joined by a saturated bridge are flagged, not
-   split.
+   its neighbours is flagged ``merged`` but kept whole. The parts of a split blob are not flagged (each is a
+   fitted disc), unless a part holds more light than 1.25x the markers nearby (three markers found as two).
+   Limits: two markers closer than about their radius (no saddle) stay one blob; two saturated markers joined
+   by a saturated bridge are flagged, not split.
 
 ROI mode (``rois``): only blobs whose centroid lies in one of the given boxes are measured and
 reported; the coarse 4x4 pass still covers the frame (it is ~5 % of the cost) so that a blob crossing a
@@ -66,7 +67,7 @@ MIN_SHAPE_AREA = 9  # px: smaller blobs are too pixelated and noisy for a shape 
 ROUND_SPLIT = 0.85  # roundness below this: searched for two or more peaks (one round disc is ~1)
 AREA_MERGED = 2.5  # area above this many times the neighbours' median: flagged as merged
 MAX_DISCS = 4  # a blob is split into at most this many markers
-SPLIT_PART_AREA = 1.25  # a split blob's parts larger than this times their neighbours' median area: still merged
+SPLIT_PART_FLUX = 1.25  # a split blob's parts brighter (summed) than this times their neighbours' median: merged
 FIT_MAX_AREA = 1000  # px: larger blobs (with a raised max_area) get the weighted centroid, not a fit
 FIT_ITERATIONS = 2  # Gauss-Newton steps for a single disc (from the weighted centroid)
 SPLIT_ITERATIONS = 6  # ... for two or more discs fitted jointly (from the peaks)
@@ -414,7 +415,8 @@ class _Blobs:
     """Per-blob sums over the thresholded pixels (blob ids 0..N-1, each with at least one pixel).
 
     Attributes:
-        area: (N,) pixel count; centroid: (N, 2) intensity-weighted, px; second: (N, 2, 2) weighted
+        area: (N,) pixel count; flux: (N,) grey levels above the background, summed; centroid: (N, 2)
+        intensity-weighted, px; second: (N, 2, 2) weighted
         second moments, px^2; centroid_cov: (N, 2, 2) noise covariance of that centroid per unit noise
         variance; peak: (N,) highest grey level; radius: (N,) radius of the area above half the peak, px;
         reach: (N,) farthest pixel from the centroid, px; saturated_radius: (N,) radius of the saturated area, px.
@@ -427,6 +429,7 @@ class _Blobs:
         wgt = np.maximum(pixels.grey - level, 1e-6)
         self.area = np.diff(np.append(starts, len(b))).astype(np.float64)
         m0 = np.add.reduceat(wgt, starts)
+        self.flux = m0
         self.centroid = np.stack([np.add.reduceat(wgt * x, starts), np.add.reduceat(wgt * y, starts)], 1) / m0[:, None]
         dx, dy = x - self.centroid[b, 0], y - self.centroid[b, 1]
         sums = np.stack([np.add.reduceat(v, starts) for v in (wgt * dx * dx, wgt * dx * dy, wgt * dy * dy,
@@ -625,8 +628,8 @@ def detect(image: np.ndarray, *, threshold: float | None = None, min_area: int =
     sxx, sxy, syy = stats.second[ids].reshape(-1, 4)[:, [0, 1, 3]].T  # eigenvalues of the 2x2 moments:
     spread = np.sqrt(0.25 * (sxx - syy) ** 2 + sxy * sxy)
     roundness = np.sqrt(np.maximum(0.5 * (sxx + syy) - spread, 0.0) / np.maximum(0.5 * (sxx + syy) + spread, 1e-12))
-    typical = _neighbour_median_area(stats.centroid[ids], stats.area[ids])  # (n,) px
-    too_big = stats.area[ids] > AREA_MERGED * typical
+    too_big = stats.area[ids] > AREA_MERGED * _neighbour_median_area(stats.centroid[ids], stats.area[ids])
+    typical = _neighbour_median_area(stats.centroid[ids], stats.flux[ids])  # (n,) (the median of any value)
     elongated = roundness < ROUND_SPLIT
     flagged = too_big | ((roundness < ROUND_MERGED) & (stats.area[ids] >= MIN_SHAPE_AREA))
     if refine not in ("fit", "centroid"):
@@ -650,9 +653,10 @@ def detect(image: np.ndarray, *, threshold: float | None = None, min_area: int =
         cov.append(covs.reshape(-1, 2, 2))
         part.append(np.repeat(group, k))
     part = np.concatenate(part)
-    # Each part of a split blob is fitted as a disc of its own: measured, not merged; unless the parts are larger
-    # than single markers nearby (three markers fitted as two discs: each centroid between two of them).
+    # Each part of a split blob is fitted as a disc of its own: measured, not merged; unless the parts hold more light
+    # than single markers nearby (three markers fitted as two discs: a centroid between two of them). (Light, not
+    # area: where halos join, the area between two markers rises above the threshold, their light hardly.)
     area = stats.area[ids][part] / n_discs[part]
-    split = (n_discs[part] > 1) & (area <= SPLIT_PART_AREA * typical[part])
+    split = (n_discs[part] > 1) & (stats.flux[ids][part] / n_discs[part] <= SPLIT_PART_FLUX * typical[part])
     return Detections(np.concatenate(xy), area, np.where(split, 1.0, roundness[part]),
                       floored_covariance(np.concatenate(cov)), (flagged[part] | (n_discs[part] > 1)) & ~split)

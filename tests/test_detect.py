@@ -193,9 +193,10 @@ def test_touching_pair_is_split(separation):
 
 def test_three_touching_markers_split_in_two_stay_flagged():
     """Triangles of three touching markers among isolated ones: where the split finds fewer discs than markers,
-    a part holds more than one marker and its centroid lies between them. Such parts (larger than the single
+    a part holds more than one marker and its centroid lies between them. Such parts (more light than the single
     markers nearby) stay flagged merged: of the detections more than 0.2 px from every marker, most are flagged
-    (without the area check 158 of 180 were not), and almost no detection on a marker is."""
+    (without the check 158 of 180 were not; by area instead of light, 62), and almost no detection on a marker
+    is."""
     sensor = Sensor()
     rng = np.random.default_rng(21)
     off = off_flagged = on = on_flagged = 0
@@ -215,7 +216,7 @@ def test_three_touching_markers_split_in_two_stay_flagged():
         far = np.linalg.norm(det.xy[:, None] - uv[None], axis=2).min(axis=1) > 0.2
         off, off_flagged = off + far.sum(), off_flagged + (far & det.merged).sum()
         on, on_flagged = on + (~far).sum(), on_flagged + (~far & det.merged).sum()
-    assert off > 100 and off_flagged > 0.6 * off
+    assert off > 100 and off_flagged > 0.7 * off
     assert on_flagged < 0.01 * on
 
 
