@@ -443,10 +443,11 @@ class _Blobs:
         self.reach = np.sqrt(np.maximum.reduceat(dx * dx + dy * dy, starts))
 
 
-def _neighbour_median_area(xy: np.ndarray, area: np.ndarray, k: int = 5) -> np.ndarray:
-    """(N,) median area of each blob's k nearest other blobs (inf with fewer than 2 others)."""
+def _neighbour_medians(xy: np.ndarray, values: np.ndarray, k: int = 5) -> np.ndarray:
+    """(N, V) median of each of the ``values`` (N, V) over each blob's k nearest other blobs (inf with fewer than 2
+    others)."""
     if len(xy) < 3:
-        return np.full(len(xy), np.inf)
+        return np.full(values.shape, np.inf)
     k = min(k, len(xy) - 1)
     if len(xy) <= _BRUTE_FORCE_NEIGHBOURS:
         d2 = ((xy[:, None, :] - xy[None, :, :]) ** 2).sum(axis=2)
@@ -454,7 +455,7 @@ def _neighbour_median_area(xy: np.ndarray, area: np.ndarray, k: int = 5) -> np.n
         nn = np.argpartition(d2, k - 1, axis=1)[:, :k]
     else:
         nn = cKDTree(xy).query(xy, k + 1)[1][:, 1:]
-    near = np.sort(area[nn], axis=1)
+    near = np.sort(values[nn], axis=1)  # (N, k, V)
     return 0.5 * (near[:, (k - 1) // 2] + near[:, k // 2])
 
 
@@ -628,8 +629,8 @@ def detect(image: np.ndarray, *, threshold: float | None = None, min_area: int =
     sxx, sxy, syy = stats.second[ids].reshape(-1, 4)[:, [0, 1, 3]].T  # eigenvalues of the 2x2 moments:
     spread = np.sqrt(0.25 * (sxx - syy) ** 2 + sxy * sxy)
     roundness = np.sqrt(np.maximum(0.5 * (sxx + syy) - spread, 0.0) / np.maximum(0.5 * (sxx + syy) + spread, 1e-12))
-    too_big = stats.area[ids] > AREA_MERGED * _neighbour_median_area(stats.centroid[ids], stats.area[ids])
-    typical = _neighbour_median_area(stats.centroid[ids], stats.flux[ids])  # (n,) (the median of any value)
+    typical_area, typical = _neighbour_medians(stats.centroid[ids], np.stack([stats.area[ids], stats.flux[ids]], 1)).T
+    too_big = stats.area[ids] > AREA_MERGED * typical_area
     elongated = roundness < ROUND_SPLIT
     flagged = too_big | ((roundness < ROUND_MERGED) & (stats.area[ids] >= MIN_SHAPE_AREA))
     if refine not in ("fit", "centroid"):
