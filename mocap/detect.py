@@ -416,10 +416,10 @@ class _Blobs:
 
     Attributes:
         area: (N,) pixel count; flux: (N,) grey levels above the background, summed; centroid: (N, 2)
-        intensity-weighted, px; second: (N, 2, 2) weighted
-        second moments, px^2; centroid_cov: (N, 2, 2) noise covariance of that centroid per unit noise
-        variance; peak: (N,) highest grey level; radius: (N,) radius of the area above half the peak, px;
-        reach: (N,) farthest pixel from the centroid, px; saturated_radius: (N,) radius of the saturated area, px.
+        intensity-weighted, px; second: (N, 2, 2) weighted second moments, px^2; centroid_cov: (N, 2, 2) noise
+        covariance of that centroid per unit noise variance; peak: (N,) highest grey level; radius: (N,) radius
+        of the area above half the peak, px; reach: (N,) farthest pixel from the centroid, px;
+        saturated_radius: (N,) radius of the saturated area, px.
     """
 
     def __init__(self, pixels: _Pixels, level: float) -> None:
@@ -629,7 +629,8 @@ def detect(image: np.ndarray, *, threshold: float | None = None, min_area: int =
     sxx, sxy, syy = stats.second[ids].reshape(-1, 4)[:, [0, 1, 3]].T  # eigenvalues of the 2x2 moments:
     spread = np.sqrt(0.25 * (sxx - syy) ** 2 + sxy * sxy)
     roundness = np.sqrt(np.maximum(0.5 * (sxx + syy) - spread, 0.0) / np.maximum(0.5 * (sxx + syy) + spread, 1e-12))
-    typical_area, typical = _neighbour_medians(stats.centroid[ids], np.stack([stats.area[ids], stats.flux[ids]], 1)).T
+    typical_area, typical_flux = _neighbour_medians(stats.centroid[ids],
+                                                    np.stack([stats.area[ids], stats.flux[ids]], axis=1)).T
     too_big = stats.area[ids] > AREA_MERGED * typical_area
     elongated = roundness < ROUND_SPLIT
     flagged = too_big | ((roundness < ROUND_MERGED) & (stats.area[ids] >= MIN_SHAPE_AREA))
@@ -658,6 +659,6 @@ def detect(image: np.ndarray, *, threshold: float | None = None, min_area: int =
     # than single markers nearby (three markers fitted as two discs: a centroid between two of them). (Light, not
     # area: where halos join, the area between two markers rises above the threshold, their light hardly.)
     area = stats.area[ids][part] / n_discs[part]
-    split = (n_discs[part] > 1) & (stats.flux[ids][part] / n_discs[part] <= SPLIT_PART_FLUX * typical[part])
+    split = (n_discs[part] > 1) & (stats.flux[ids][part] / n_discs[part] <= SPLIT_PART_FLUX * typical_flux[part])
     return Detections(np.concatenate(xy), area, np.where(split, 1.0, roundness[part]),
                       floored_covariance(np.concatenate(cov)), (flagged[part] | (n_discs[part] > 1)) & ~split)

@@ -310,8 +310,8 @@ def new_points(P: np.ndarray, pairs: CameraPairs, D: np.ndarray, cov: np.ndarray
     detections keeps (a merged blob's offset centroid, a hidden marker's neighbour near its projection do not
     count, nor are they claimed); a point is ``strong`` when supported by ``min_views`` cameras, or by
     every camera whose image it falls in when fewer than ``min_views`` do (cameras that saw nothing at all
-    this frame do not count), but never by two alone when the rig has three or more: two fixed reflections that happen
-    to match make a point only those two cameras frame just as well. The accepted point is
+    this frame do not count), but never by two alone when the rig has three or more: two fixed reflections
+    that happen to match make a point only those two cameras frame just as well. The accepted point is
     re-triangulated over its supporting detections with outlier rejection.
 
     Args:

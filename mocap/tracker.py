@@ -113,8 +113,8 @@ class TrackerConfig:
             this fraction of the track's image motion per frame (a shutter open that long) explains its shape.
         merged_variance_scale: centroid variance multiplier of blobs flagged as merged (by the detector,
             by ``round_merged``, or by two tracks predicted that close). A point is output only when two cameras
-            without such blobs support it, or it lies within ``suspect_m`` (clipped to ``gate_scale`` x the
-            running position error) of its prediction; otherwise it only updates its filter.
+            without such blobs support it, or one does and it lies within ``suspect_m`` (clipped to ``gate_scale`` x
+            the running position error) of its prediction; otherwise it only updates its filter.
         vague_px: a blob whose centroid std (RMS of the two axes) exceeds this, px, and 10x the frame's median
             std, is treated as merged too: a blob cut by the image border (std 2 px there) is no clean view.
         suspect_m: (low, high) bounds of that distance, m (high grows to ``n_sigma`` x the point's noise as its clean
@@ -699,11 +699,11 @@ class Tracker:
         clean = tri.used & ((~crowded & ~_gather(fr.merged, asg)) | split)
         # A point leaning on a possibly merged blob is output only if it agrees with the prediction, within its
         # noise as its clean views give it: a merged blob's own (large) std must not widen the gate it is judged by.
+        # A point from merged blobs alone never is: its filter may have followed those blobs' offset centroids.
         t = self._t
-        views = np.where(clean.any(axis=1)[:, None], clean, tri.used)
-        with np.errstate(invalid="ignore", divide="ignore"):  # the point's own noise, m
-            noise = (np.where(views, _gather(sigma, asg) * tri.depth.T / self._focal, 0.0).sum(axis=1)
-                     / views.sum(axis=1))
+        with np.errstate(invalid="ignore", divide="ignore"):  # the point's own noise, m (NaN without a clean view)
+            noise = (np.where(clean, _gather(sigma, asg) * tri.depth.T / self._focal, 0.0).sum(axis=1)
+                     / clean.sum(axis=1))
         high = np.fmax(cfg.suspect_m[1], cfg.n_sigma * noise)
         agree = np.linalg.norm(tri.X - t.x3[:, :3], axis=1) < np.clip(cfg.gate_scale * t.e3[:, 0], cfg.suspect_m[0],
                                                                       high)

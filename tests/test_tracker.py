@@ -475,6 +475,19 @@ def _circling_marker(rig: Rig, n_frames: int, seed: int, blob) -> tuple[np.ndarr
     return marker, frames
 
 
+def _tracked_error(rig: Rig, marker: np.ndarray, frames: list[list[Detections]]) -> np.ndarray:
+    """(F,) distance, m, of the one marker the tracker makes from ``frames`` to ``marker`` (F, 3) (NaN where not
+    output); asserts that one marker is made and that its first 50 frames (three clean views) are within 0.5 mm."""
+    tracker = Tracker(rig, 100.0)
+    for k, dets in enumerate(frames):
+        tracker.step(k, dets)
+    traj = tracker.finish()
+    assert traj.n_markers == 1
+    err = np.linalg.norm(traj.positions[:, 0] - marker, axis=1)
+    assert np.nanmax(err[:50]) < 0.0005  # m: three clean views
+    return err
+
+
 def test_a_blob_cut_by_the_image_border_is_no_clean_view(rig):
     """A marker seen cleanly by one camera only; a second camera has it cut by the image border (centroid std 2 px,
     1 px off) and a third merged with a neighbour. Counting the border blob as clean made a marker of these three
@@ -506,14 +519,7 @@ def test_merged_blobs_do_not_widen_the_gate_that_judges_them(rig):
             return [2.0 if c == 1 else -1.5, 1.0], 0.5, True
         return None
 
-    marker, frames = _circling_marker(rig, 160, 5, blob)
-    tracker = Tracker(rig, 100.0)
-    for k, dets in enumerate(frames):
-        tracker.step(k, dets)
-    traj = tracker.finish()
-    assert traj.n_markers == 1
-    err = np.linalg.norm(traj.positions[:, 0] - marker, axis=1)
-    assert np.nanmax(err[:50]) < 0.0005  # m: three clean views
+    err = _tracked_error(rig, *_circling_marker(rig, 160, 5, blob))
     late = err[72:]
     assert np.isfinite(late).sum() < 0.2 * len(late), f"{np.isfinite(late).sum()} of {len(late)} biased points output"
 
@@ -528,14 +534,7 @@ def test_a_point_from_merged_blobs_alone_is_not_output(rig):
             return ([0.0, 0.0], 0.02, False) if c < 3 else None
         return ([1.5, 0.5], 0.02, True) if c < 2 else None
 
-    marker, frames = _circling_marker(rig, 120, 9, blob)
-    tracker = Tracker(rig, 100.0)
-    for k, dets in enumerate(frames):
-        tracker.step(k, dets)
-    traj = tracker.finish()
-    assert traj.n_markers == 1
-    err = np.linalg.norm(traj.positions[:, 0] - marker, axis=1)
-    assert np.nanmax(err[:50]) < 0.0005  # m: three clean views
+    err = _tracked_error(rig, *_circling_marker(rig, 120, 9, blob))
     assert not np.isfinite(err[50:]).any(), f"{np.isfinite(err[50:]).sum()} points from merged blobs output"
 
 
