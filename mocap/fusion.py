@@ -266,8 +266,8 @@ def _views(D: np.ndarray, cov: np.ndarray, det: np.ndarray) -> tuple[np.ndarray,
     return uv, S
 
 
-def _greedy_by_support(support: np.ndarray, nearest: np.ndarray, views: np.ndarray, dist: np.ndarray,
-                       shape: tuple[int, int]) -> list[int]:
+def _greedy_by_support(support: np.ndarray, nearest: np.ndarray, dist: np.ndarray, shape: tuple[int, int]
+                       ) -> list[int]:
     """Candidates accepted greedily, most supporting cameras first, then smallest epipolar distance; each
     detection once. A detection claimed by a better candidate leaves a later one's support, not the candidate
     itself (a marker hidden in one camera lands within support_px of its neighbour's blob there), and the
@@ -276,7 +276,7 @@ def _greedy_by_support(support: np.ndarray, nearest: np.ndarray, views: np.ndarr
 
     Returns: the accepted candidates' indices, in acceptance order.
     """
-    queue = list(zip((-views).tolist(), dist.tolist(), range(len(views)), strict=True))
+    queue = list(zip((-support.sum(axis=0)).tolist(), dist.tolist(), range(len(dist)), strict=True))
     heapq.heapify(queue)
     used = np.zeros(shape, dtype=bool)
     chosen = []
@@ -356,7 +356,7 @@ def new_points(P: np.ndarray, pairs: CameraPairs, D: np.ndarray, cov: np.ndarray
     # merged blob's offset centroid, a ghost's chance neighbour) neither ranks it nor is claimed by it.
     support &= robust_triangulate(P, *_views(D, cov, np.where(support, nearest, -1).T), X, outlier_sigma,
                                   outlier_min_px).used.T
-    chosen = _greedy_by_support(support, nearest, support.sum(axis=0), dist, free.shape)
+    chosen = _greedy_by_support(support, nearest, dist, free.shape)
     if not chosen:
         return empty
     sel = np.array(chosen)

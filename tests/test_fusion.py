@@ -124,7 +124,7 @@ def test_a_candidate_that_lost_a_view_queues_again_with_the_views_it_has_left():
     support[[0, 1, 2], 1] = True  # the ghost
     support[[0, 5], 2] = True  # the two-view marker
     nearest = np.zeros((6, 3), dtype=np.intp)
-    chosen = _greedy_by_support(support, nearest, support.sum(axis=0), np.array([0.1, 0.9, 0.004]), (6, 1))
+    chosen = _greedy_by_support(support, nearest, np.array([0.1, 0.9, 0.004]), (6, 1))
     assert chosen == [0, 2]
     assert support[:, 0].sum() == 3 and support[:, 2].sum() == 2
 
