@@ -98,6 +98,8 @@ class TrackerConfig:
         weak_motion_sigma: ... or this many stds of the point's displacement if that is larger: two reflections
             whose rays cross 20 m away at 4 degrees make a point whose depth wanders by millimetres.
         min_separation_m: a new point closer than this to a measured track is that track's, not new.
+        one_marker_m: two tracks' points closer than this (or ``n_sigma`` x their combined std, at most half
+            ``marker_mm``) are one marker: only one of them keeps it (see ``Tracker._one_marker_one_track``).
         clutter_px: a free detection this close to a free one of the recent frames is not new (see
             ``_known_clutter``).
         clutter_frames: free detections are remembered for at most this many frames; then the memory is
@@ -156,6 +158,7 @@ class TrackerConfig:
     weak_motion_m: float = 0.003
     weak_motion_sigma: float = 4.0
     min_separation_m: float = 0.012
+    one_marker_m: float = 0.003
     clutter_px: float = 0.5
     clutter_frames: int = 30
     marker_mm: float = 14.0
@@ -573,6 +576,45 @@ class Tracker:
                 self._measure(fr, crowded, retry)
                 retry.keep(np.isin(np.arange(len(t)), rows))
                 meas.put(rows, retry)
+        self._one_marker_one_track(fr, crowded, meas)
+
+    def _one_marker_one_track(self, fr: _Frame, crowded: np.ndarray, meas: _Measurements) -> None:
+        """Two tracks whose points are one marker (closer than ``n_sigma`` x their combined noise, at least
+        ``one_marker_m``, at most a marker radius: no two marker centres are that close) split its blobs camera by
+        camera: the track of a hidden marker, coasting on a widened gate, took a neighbour's blobs where they lay
+        nearer its prediction in units of that gate. The marker stays with the track that measured it in the
+        previous frame (else the confirmed one) if its prediction is the nearer too; that track takes the other's
+        blobs where it has none and is measured again, and the other misses the frame. Two tracks alike on both
+        counts are left as they are: in a fast swing neither prediction tells (the identity repair sorts them)."""
+        t, cfg = self._t, self._cfg
+        rows = np.flatnonzero(meas.ok)
+        if rows.size < 2:
+            return
+        X = meas.X[rows]
+        gap = X[:, None, :] - X[None, :, :]
+        noise = _point_std(meas.cov[rows])
+        limit = np.clip(cfg.n_sigma * np.hypot(noise[:, None], noise[None, :]), cfg.one_marker_m,
+                        cfg.marker_mm / 2000.0)
+        i, j = np.nonzero(np.triu((gap * gap).sum(axis=2) < limit * limit, 1))
+        if i.size == 0:
+            return
+        rank = 2 * (t.since[rows] != 1) + (t.ident[rows] < 0)  # lower: the better claim
+        miss = np.linalg.norm(X - t.x3[rows, :3], axis=1)
+        first = rank[i] < rank[j]
+        sure = (rank[i] != rank[j]) & ((miss[i] < miss[j]) == first)
+        if not sure.any():
+            return
+        i, j, first = i[sure], j[sure], first[sure]
+        win, lose = np.where(first, i, j), np.where(first, j, i)
+        _, once = np.unique(lose, return_index=True)  # (a marker claimed by three tracks: rare)
+        win, lose = rows[win[once]], rows[lose[once]]
+        again = _Measurements.empty(len(t), self._C)
+        again.asg[win] = np.where(meas.asg[win] >= 0, meas.asg[win], meas.asg[lose])
+        meas.put(lose, _Measurements.empty(lose.size, self._C))
+        self._measure(fr, crowded, again)
+        win = np.unique(win)
+        again.keep(np.isin(np.arange(len(t)), win))
+        meas.put(win, again)
 
     def _neighbour_shift(self, meas: _Measurements, play: np.ndarray) -> np.ndarray:
         """(K, 3) m: per track the median prediction error of the measured tracks within ``neighbour_m`` of it

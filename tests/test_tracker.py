@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 from helpers_engine import body_take, crossing_positions, scripted_motion, simulate, swing_positions, walk_positions
 
+from mocap import tracker as tracker_module
 from mocap.camera import Rig
 from mocap.detections import Detections
 from mocap.errors import MocapError
@@ -575,3 +576,53 @@ def test_bad_input_is_a_user_error(rig):
         TrackerConfig(accel_damping=1.5)
     with pytest.raises(MocapError, match="2 detection sets for 6 cameras"):
         Tracker(rig, 100.0).step(0, [Detections.empty(), Detections.empty()])
+
+
+def test_a_marker_whose_blobs_two_tracks_split_stays_with_the_track_that_followed_it(rig, monkeypatch):
+    """The sprint start (seed 2, frame 491): the track of a hidden marker, coasting on its widened gate, took a
+    neighbour's blobs in four cameras while the neighbour's own track kept two; both made a point of the neighbour,
+    both were output, and the hidden marker's identity followed the neighbour from then on. Here the per-camera
+    assignment is made to split B's blobs that way (cameras 0-2 to A's coasting track) at one frame: B's point
+    stays with B's track, from all six cameras, and A's identity has no sample there and stays off B after it."""
+    fps, frames, split_at = 100.0, 60, 33
+    t = np.arange(frames) / fps
+    B = np.stack([0.2 * np.cos(t), 0.2 * np.sin(t), np.full_like(t, 1.2)], axis=1)
+    A = B + [0.0, 0.0, 0.04]
+    rng = np.random.default_rng(21)
+    takes = []
+    for k in range(frames):
+        pts = np.array([B[k], A[k]] if k < 30 else [B[k]])  # A hidden from frame 30
+        takes.append([Detections(cam.project(pts) + rng.normal(0.0, 0.02, (len(pts), 2)),
+                                 cov=np.tile(np.eye(2) * 0.02**2, (len(pts), 1, 1))) for cam in rig.cameras])
+    real_assign = tracker_module.assign
+
+    def run(rule: bool) -> tuple[np.ndarray, int, int]:
+        tracker = Tracker(rig, fps)
+        frame = [0]
+
+        def split_assign(q, eligible=None):
+            out = real_assign(q, eligible)
+            conf = np.flatnonzero(tracker._in_play() & (tracker._t.ident >= 0))
+            if frame[0] == split_at and len(conf) == len(q):  # the confirmed tracks' call
+                coasting, following = tracker._t.since[conf] > 1, tracker._t.since[conf] == 1
+                out[np.ix_(coasting, [0, 1, 2])] = 0  # B's blob (the only one) in cameras 0-2
+                out[np.ix_(following, [0, 1, 2])] = -1
+            return out
+
+        monkeypatch.setattr(tracker_module, "assign", split_assign)
+        if not rule:
+            monkeypatch.setattr(Tracker, "_one_marker_one_track", lambda self, fr, crowded, meas: None)
+        for k, dets in enumerate(takes):
+            frame[0] = k
+            tracker.step(k, dets)
+        monkeypatch.undo()
+        traj = tracker.finish()
+        on_b = np.linalg.norm(traj.positions - B[:, None], axis=2) < 0.001  # (F, S)
+        b_col = int(np.argmax(on_b[:30].sum(axis=0)))
+        return on_b, b_col, int(traj.camera_masks[split_at, b_col])
+
+    on_b, b_col, mask = run(rule=True)
+    assert on_b[split_at].sum() == 1 and on_b[split_at, b_col] and mask == 0b111111
+    assert on_b[:, b_col].all() and on_b.sum() == frames  # B under one identity throughout, nobody else on it
+    old, _, _ = run(rule=False)
+    assert old[split_at].sum() == 2  # for contrast: both identities output B at that frame
