@@ -66,7 +66,7 @@ ROUND_MERGED = 0.7  # roundness below this (and area >= MIN_SHAPE_AREA): flagged
 MIN_SHAPE_AREA = 9  # px: smaller blobs are too pixelated and noisy for a shape judgement
 ROUND_SPLIT = 0.85  # roundness below this: searched for two or more peaks (one round disc is ~1)
 AREA_MERGED = 2.5  # area above this many times the neighbours' median: flagged as merged
-MAX_DISCS = 4  # a blob is split into at most this many markers
+MAX_DISCS = 8  # a blob is split into at most this many markers
 SPLIT_PART_FLUX = 1.25  # a split blob's parts brighter (summed) than this times their neighbours' median: merged
 FIT_MAX_AREA = 1000  # px: larger blobs (with a raised max_area) get the weighted centroid, not a fit
 FIT_ITERATIONS = 2  # Gauss-Newton steps for a single disc (from the weighted centroid)
