@@ -416,8 +416,10 @@ class _Linker:
                 self.chains.append([])
                 self.ends.append(None)
                 self.memory.append({})
-            elif self.chains[c] and (g, c) in changes:
-                self.junction[c] = (len(self.chains[c]), dict(self.memory[c]), changes[g, c], start)
+            elif self.chains[c] and ((g, c) in changes or start - self.ends[c][0] > cfg.max_gap):
+                # (a link over a long gap that no distances measured: the tracker's re-identification in its
+                # widened radius, which a newcomer far from the marker may have taken)
+                self.junction[c] = (len(self.chains[c]), dict(self.memory[c]), changes.get((g, c), np.inf), start)
             self.chains[c].append(run)
             self.ends[c] = _end_state(self.P, run, at_start=False)
             self.owner[run[:, 0], run[:, 1]] = c
@@ -475,7 +477,9 @@ class _Linker:
         """The identity a tracklet starting at ``start`` takes back, if any: one re-linked after a gap within
         ``shape_max`` frames to a continuation whose distances changed by ``usurp_margin_m`` more than this
         tracklet's ``head`` distances differ from the identity's before the gap (and those by less than
-        ``shape_gate_m``). A newcomer next to a marker that had just vanished took its identity."""
+        ``shape_gate_m``), or whose distances could not be compared across a gap over ``max_gap``. A newcomer
+        next to a marker that had just vanished took its identity, or one far from it through the tracker's
+        widened re-identification radius."""
         cfg = self.cfg
         best, best_change = None, np.inf
         for c, (_, before, continued, frame) in self.junction.items():

@@ -172,6 +172,26 @@ def test_marker_back_takes_its_identity_back_from_a_newcomer():
     np.testing.assert_array_equal(traj.positions[100:, owner_of_0], P[100:, 0])
 
 
+def test_marker_back_takes_its_identity_back_from_a_far_newcomer():
+    """The whole sprint's ScapularSpineL, hidden for 57 frames: a forearm marker first seen 0.42 m from where it
+    vanished took its identity in the tracker (inside the widened re-identification radius); no distance to a
+    common neighbour measured that link. When the marker itself comes back, its distances fit the identity's from
+    before the gap, and it takes the identity back; the newcomer becomes an identity of its own."""
+    P = _segment()
+    far = P[:, 3] + np.array([0.0, 0.3, 0.15])  # a lone marker 0.3 m from the segment, moving with it
+    truth = np.concatenate([P, far[:, None]], axis=1)
+    seen = np.concatenate([P, np.full((P.shape[0], 1, 3), np.nan)], axis=1)
+    seen[40:, 0] = np.nan  # marker 0 vanishes at frame 40 ...
+    seen[60:, 0] = far[60:]  # ... its column follows the far newcomer from frame 60 (20 frames: over max_gap) ...
+    seen[100:, 5] = P[100:, 0]  # ... and the marker comes back at frame 100 as a new identity
+    traj = _traj(seen)
+    relink_tracklets(traj)
+    assert traj.n_markers == 6
+    assert _same_identities(traj, truth)
+    owner_of_0 = [c for c in range(traj.n_markers) if np.allclose(traj.positions[10, c], P[10, 0])][0]
+    np.testing.assert_array_equal(traj.positions[100:, owner_of_0], P[100:, 0])
+
+
 def test_a_fast_swing_at_50_hz_is_not_cut_where_a_jump_is():
     """A wrist on a 0.5 m circle at 3.2 turns per second (200 m/s^2, 80 mm/frame^2 at 50 Hz) is one tracklet
     at 50 Hz; a 150 mm jump off it cuts it. (Cut by 60 mm/frame^2 alone, a serve's fast arm was cut at each
