@@ -606,7 +606,9 @@ class Tracker:
             return
         i, j, first = i[sure], j[sure], first[sure]
         win, lose = np.where(first, i, j), np.where(first, j, i)
-        _, once = np.unique(lose, return_index=True)  # (a marker claimed by three tracks: rare)
+        top = ~np.isin(win, lose)  # (a marker claimed by three tracks, rare: the best one takes it)
+        win, lose = win[top], lose[top]
+        _, once = np.unique(lose, return_index=True)
         win, lose = rows[win[once]], rows[lose[once]]
         again = _Measurements.empty(len(t), self._C)
         again.asg[win] = np.where(meas.asg[win] >= 0, meas.asg[win], meas.asg[lose])
