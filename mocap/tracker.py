@@ -569,14 +569,19 @@ class Tracker:
         if short.size:
             again = assign(q[short], fr.valid & ~_taken(meas.asg, fr.valid.shape))
             enough = (again >= 0).sum(axis=1) >= 2
-            rows = short[enough]
-            if rows.size:
-                retry = _Measurements.empty(len(t), self._C)
-                retry.asg[rows] = again[enough]
-                self._measure(fr, crowded, retry)
-                retry.keep(np.isin(np.arange(len(t)), rows))
-                meas.put(rows, retry)
+            if enough.any():
+                self._measure_again(fr, crowded, meas, short[enough], again[enough])
         self._one_marker_one_track(fr, crowded, meas)
+
+    def _measure_again(self, fr: _Frame, crowded: np.ndarray, meas: _Measurements, rows: np.ndarray,
+                       asg: np.ndarray) -> None:
+        """Measure the tracks ``rows`` (sorted, unique) afresh from the detections ``asg`` (len(rows), C), into
+        ``meas``."""
+        again = _Measurements.empty(len(self._t), self._C)
+        again.asg[rows] = asg
+        self._measure(fr, crowded, again)
+        again.keep(np.isin(np.arange(len(self._t)), rows))
+        meas.put(rows, again)
 
     def _one_marker_one_track(self, fr: _Frame, crowded: np.ndarray, meas: _Measurements) -> None:
         """Two tracks whose points are one marker (closer than ``n_sigma`` x their combined noise, at least
@@ -610,13 +615,10 @@ class Tracker:
         win, lose = win[top], lose[top]
         _, once = np.unique(lose, return_index=True)
         win, lose = rows[win[once]], rows[lose[once]]
-        again = _Measurements.empty(len(t), self._C)
-        again.asg[win] = np.where(meas.asg[win] >= 0, meas.asg[win], meas.asg[lose])
+        win, first_loss = np.unique(win, return_index=True)  # (a winner with two losers takes the first one's blobs)
+        asg = np.where(meas.asg[win] >= 0, meas.asg[win], meas.asg[lose[first_loss]])
         meas.put(lose, _Measurements.empty(lose.size, self._C))
-        self._measure(fr, crowded, again)
-        win = np.unique(win)
-        again.keep(np.isin(np.arange(len(t)), win))
-        meas.put(win, again)
+        self._measure_again(fr, crowded, meas, win, asg)
 
     def _neighbour_shift(self, meas: _Measurements, play: np.ndarray) -> np.ndarray:
         """(K, 3) m: per track the median prediction error of the measured tracks within ``neighbour_m`` of it
