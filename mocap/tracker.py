@@ -593,17 +593,20 @@ class Tracker:
         counts are left as they are: in a fast swing neither prediction tells (the identity repair sorts them)."""
         t, cfg = self._t, self._cfg
         rows = np.flatnonzero(meas.ok)
-        if rows.size < 2:
+        rank = 2 * (t.since[rows] != 1) + (t.ident[rows] < 0)  # lower: the better claim
+        weak = np.flatnonzero(rank > 0)  # (a pair of equal claims is left alone: one of two must be weaker)
+        if rows.size < 2 or weak.size == 0:
             return
         X = meas.X[rows]
-        gap = X[:, None, :] - X[None, :, :]
+        gap = X[weak, None, :] - X[None, :, :]
         noise = _point_std(meas.cov[rows])
-        limit = np.clip(cfg.n_sigma * np.hypot(noise[:, None], noise[None, :]), cfg.one_marker_m,
+        limit = np.clip(cfg.n_sigma * np.hypot(noise[weak, None], noise[None, :]), cfg.one_marker_m,
                         cfg.marker_mm / 2000.0)
-        i, j = np.nonzero(np.triu((gap * gap).sum(axis=2) < limit * limit, 1))
+        w, j = np.nonzero((gap * gap).sum(axis=2) < limit * limit)
+        i = weak[w]
+        i, j = i[i != j], j[i != j]
         if i.size == 0:
             return
-        rank = 2 * (t.since[rows] != 1) + (t.ident[rows] < 0)  # lower: the better claim
         miss = np.linalg.norm(X - t.x3[rows, :3], axis=1)
         first = rank[i] < rank[j]
         sure = (rank[i] != rank[j]) & ((miss[i] < miss[j]) == first)
