@@ -368,27 +368,6 @@ def _settle(runs: list[tuple[int, np.ndarray]], dest: list[int], shape: tuple[in
             return final
 
 
-def _as_columns(extra: UnconfirmedPoints, P: np.ndarray, apart_m: float) -> tuple[np.ndarray, np.ndarray]:
-    """Unconfirmed points laid out as extra columns (F, K, 3) beside ``P`` (F, M, 3), leaving out any within
-    ``apart_m`` of a sample of ``P`` (a second measurement of a marker already there); and each point's
-    (row, column) slot, (n, 2), -1 where left out."""
-    F = len(P)
-    rows = extra.rows
-    inside = (rows >= 0) & (rows < F)
-    near = np.ones(len(rows), dtype=bool)
-    with np.errstate(invalid="ignore"):
-        near[inside] = (np.linalg.norm(P[rows[inside]] - extra.positions[inside, None], axis=2) < apart_m).any(axis=1)
-    keep = np.flatnonzero(~near)
-    order = keep[np.argsort(rows[keep], kind="stable")]
-    r = rows[order]
-    rank = np.arange(r.size) - np.searchsorted(r, r)  # 0, 1, ... among the kept points of one frame
-    E = np.full((F, int(rank.max()) + 1 if r.size else 0, 3), np.nan)
-    E[r, rank] = extra.positions[order]
-    slot = np.full((len(rows), 2), -1, dtype=np.intp)
-    slot[order] = np.stack([r, rank], axis=1)
-    return E, slot
-
-
 def label_plates(traj: Trajectories, config: PlateConfig | None = None, extra: UnconfirmedPoints | None = None
                  ) -> int:
     """Label the markers of rigid plates by their shape (see the module docstring), in place.
@@ -407,7 +386,7 @@ def label_plates(traj: Trajectories, config: PlateConfig | None = None, extra: U
     seen = np.isfinite(P[..., 0])
     if not plates:
         return 0
-    E, slot = _as_columns(extra, P, cfg.tolerance_m) if extra is not None and len(extra.rows) else (
+    E, slot = extra.as_columns(P, cfg.tolerance_m) if extra is not None and len(extra.rows) else (
         np.zeros((F, 0, 3)), np.zeros((0, 2), dtype=np.intp))
     everything = np.concatenate([P, E], axis=1)
     N = everything.shape[1]

@@ -35,7 +35,8 @@ the frames on both sides of a decision are known, and these identity errors are 
 
 A third pass, :mod:`mocap.reunite`, rejoins rigid clusters that come back after a long absence, far from
 every gate, by the distances between their markers; a fourth, :mod:`mocap.plates`, labels the markers of
-rigid plates frame by frame by the plate's shape.
+rigid plates frame by frame by the plate's shape; a fifth, :mod:`mocap.fill`, gives the tracker's unconfirmed
+points to the identities whose paths they continue.
 
 All passes only move whole samples between identity columns (positions, residuals and camera
 masks together), and the first deletes the second copy of a point; they never change a position.
@@ -50,6 +51,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
+from mocap.fill import fill_from_unconfirmed
 from mocap.plates import label_plates
 from mocap.reunite import reunite_clusters
 from mocap.trajectories import Trajectories, UnconfirmedPoints
@@ -120,13 +122,15 @@ class RelabelConfig:
 @dataclass
 class RelabelStats:
     """What the repair changed: duplicate samples deleted, tail permutations applied, fragments joined, cluster
-    members reunited, samples moved to the plate member their shape names."""
+    members reunited, samples moved to the plate member their shape names, unconfirmed points that joined an
+    identity's path."""
 
     duplicates: int = 0
     swaps: int = 0
     stitches: int = 0
     reunited: int = 0
     plate_samples: int = 0
+    filled: int = 0
 
 
 def _permute_tails(traj: Trajectories, start: int, order: np.ndarray, columns: np.ndarray) -> None:
@@ -588,8 +592,9 @@ def repair_identities(traj: Trajectories, config: RelabelConfig | None = None,
                       unconfirmed: UnconfirmedPoints | None = None) -> RelabelStats:
     """Duplicates dropped (:func:`drop_duplicates`), swap repair, fragment stitching, the reunion of rigid clusters
     back after a long absence (:mod:`mocap.reunite`), then the labelling of rigid plates by their shape
-    (:mod:`mocap.plates`), in place; empty identity columns are dropped. ``unconfirmed``: the tracker's points
-    without identity (:meth:`mocap.tracker.Tracker.unconfirmed`), which the plate labelling may give one.
+    (:mod:`mocap.plates`) and the fill from unconfirmed points (:mod:`mocap.fill`), in place; empty identity columns
+    are dropped. ``unconfirmed``: the tracker's points without identity (:meth:`mocap.tracker.Tracker.unconfirmed`),
+    which the plate labelling and the fill may give one.
 
     Labels of the remaining identities are renumbered ``M001``, ``M002`` ... in column order.
     """
@@ -601,6 +606,8 @@ def repair_identities(traj: Trajectories, config: RelabelConfig | None = None,
     stats.stitches = relink_tracklets(traj, config)
     stats.reunited = reunite_clusters(traj)
     stats.plate_samples = label_plates(traj, extra=unconfirmed)
+    if unconfirmed is not None:
+        stats.filled = fill_from_unconfirmed(traj, unconfirmed)
     if stats.reunited or stats.plate_samples:
         keep = np.isfinite(traj.positions[..., 0]).any(axis=0)
         traj.positions, traj.residuals, traj.camera_masks = (traj.positions[:, keep], traj.residuals[:, keep],

@@ -87,3 +87,24 @@ class UnconfirmedPoints:
     positions: np.ndarray
     residuals: np.ndarray
     camera_masks: np.ndarray
+
+    def as_columns(self, P: np.ndarray, apart_m: float) -> tuple[np.ndarray, np.ndarray]:
+        """The points laid out as extra columns (F, K, 3) beside the samples ``P`` (F, M, 3), m, leaving out any
+        within ``apart_m`` of a sample of their frame (a second measurement of a marker already there); and each
+        point's (row, column) slot, (n, 2), -1 where left out."""
+        F = len(P)
+        rows = self.rows
+        inside = (rows >= 0) & (rows < F)
+        near = np.ones(len(rows), dtype=bool)
+        with np.errstate(invalid="ignore"):
+            near[inside] = (np.linalg.norm(P[rows[inside]] - self.positions[inside, None], axis=2)
+                            < apart_m).any(axis=1)
+        keep = np.flatnonzero(~near)
+        order = keep[np.argsort(rows[keep], kind="stable")]
+        r = rows[order]
+        rank = np.arange(r.size) - np.searchsorted(r, r)  # 0, 1, ... among the kept points of one frame
+        E = np.full((F, int(rank.max()) + 1 if r.size else 0, 3), np.nan)
+        E[r, rank] = self.positions[order]
+        slot = np.full((len(rows), 2), -1, dtype=np.intp)
+        slot[order] = np.stack([r, rank], axis=1)
+        return E, slot
