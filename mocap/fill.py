@@ -65,11 +65,11 @@ def fill_from_unconfirmed(traj: Trajectories, extra: UnconfirmedPoints, config: 
     source[slot[placed, 0], slot[placed, 1]] = placed
     added = 0
     for _ in range(cfg.max_passes):
-        pred = _predicted(P, cfg.reach_frames)  # (F, M, 3)
-        rows = np.flatnonzero(np.isfinite(pred[..., 0]).any(axis=1) & np.isfinite(E[..., 0]).any(axis=1))
+        rows = np.flatnonzero(np.isfinite(E[..., 0]).any(axis=1))  # frames with points left
         if rows.size == 0:
             break
-        d = np.linalg.norm(pred[rows][:, :, None] - E[rows][:, None], axis=3)  # (R, M, K)
+        pred = _predicted(P, rows, cfg.reach_frames)  # (R, M, 3)
+        d = np.linalg.norm(pred[:, :, None] - E[rows][:, None], axis=3)  # (R, M, K)
         d = np.where(np.isfinite(d), d, np.inf)
         point = d.argmin(axis=2)  # (R, M) nearest point to each prediction
         best = np.take_along_axis(d, point[..., None], axis=2)[..., 0]
@@ -92,33 +92,36 @@ def fill_from_unconfirmed(traj: Trajectories, extra: UnconfirmedPoints, config: 
     return added
 
 
-def _predicted(P: np.ndarray, reach: int) -> np.ndarray:
-    """(F, M, 3) each identity's position at the frames where ``P`` (F, M, 3) has no sample, from its samples at most
-    ``reach`` frames away: interpolated between the nearest samples on both sides, else extrapolated from the two
-    nearest on one side (at most ``reach`` frames apart); NaN where neither is possible and at the samples."""
+def _predicted(P: np.ndarray, rows: np.ndarray, reach: int) -> np.ndarray:
+    """(R, M, 3) each identity's position at the frames ``rows`` (R,) where ``P`` (F, M, 3) has no sample, from its
+    samples at most ``reach`` frames away: interpolated between the nearest samples on both sides, else extrapolated
+    from the two nearest on one side (at most ``reach`` frames apart); NaN where neither is possible and at samples."""
     F, M = P.shape[:2]
     seen = np.isfinite(P[..., 0])
     before = _latest(seen)  # (F, M) latest sample at or before each frame, -1 if none
     after = F - 1 - _latest(seen[::-1])[::-1]  # earliest at or after, F if none
-    frame = np.arange(F)[:, None]
-    a1 = np.vstack([np.full((1, M), -1), before[:-1]])  # latest sample before the frame
-    b1 = np.vstack([after[1:], np.full((1, M), F)])  # earliest sample after it
-    a2 = np.where(a1 > 0, np.take_along_axis(before, np.maximum(a1 - 1, 0), axis=0), -1)
-    b2 = np.where(b1 < F - 1, np.take_along_axis(after, np.minimum(b1 + 1, F - 1), axis=0), F)
-    near_a = ~seen & (a1 >= 0) & (frame - a1 <= reach)
-    near_b = ~seen & (b1 < F) & (b1 - frame <= reach)
-    pred = np.full((F, M, 3), np.nan)
+    cols = np.arange(M)
+    frame = rows[:, None]
+    a1 = np.where(rows[:, None] > 0, before[np.maximum(rows - 1, 0)], -1)  # (R, M) latest sample before the frame
+    b1 = np.where(rows[:, None] < F - 1, after[np.minimum(rows + 1, F - 1)], F)  # earliest after it
+    a2 = np.where(a1 > 0, before[np.maximum(a1 - 1, 0), cols], -1)  # the sample before that
+    b2 = np.where(b1 < F - 1, after[np.minimum(b1 + 1, F - 1), cols], F)
+    free = ~seen[rows]
+    near_a = free & (a1 >= 0) & (frame - a1 <= reach)
+    near_b = free & (b1 < F) & (b1 - frame <= reach)
+    pred = np.full((len(rows), M, 3), np.nan)
     for use, p1, p2 in ((near_a & (a2 >= 0) & (a1 - a2 <= reach), a1, a2),
                         (near_b & (b2 < F) & (b2 - b1 <= reach), b1, b2)):
-        f, m = np.nonzero(use & ~np.isfinite(pred[..., 0]))
-        x1, x2 = P[p1[f, m], m], P[p2[f, m], m]
-        pred[f, m] = x1 + (x1 - x2) * ((f - p1[f, m]) / (p1[f, m] - p2[f, m]))[:, None]
-    f, m = np.nonzero(near_a & near_b)
-    w = ((f - a1[f, m]) / (b1[f, m] - a1[f, m]))[:, None]
-    pred[f, m] = (1 - w) * P[a1[f, m], m] + w * P[b1[f, m], m]
+        r, m = np.nonzero(use & ~np.isfinite(pred[..., 0]))
+        x1, x2 = P[p1[r, m], m], P[p2[r, m], m]
+        pred[r, m] = x1 + (x1 - x2) * ((rows[r] - p1[r, m]) / (p1[r, m] - p2[r, m]))[:, None]
+    r, m = np.nonzero(near_a & near_b)
+    w = ((rows[r] - a1[r, m]) / (b1[r, m] - a1[r, m]))[:, None]
+    pred[r, m] = (1 - w) * P[a1[r, m], m] + w * P[b1[r, m], m]
     return pred
 
 
 def _latest(seen: np.ndarray) -> np.ndarray:
-    """(F, M) index of the latest True of ``seen`` (F, M) at or before each frame, -1 if none."""
-    return np.maximum.accumulate(np.where(seen, np.arange(len(seen))[:, None], -1), axis=0)
+    """(F, M) int32 index of the latest True of ``seen`` (F, M) at or before each frame, -1 if none."""
+    index = np.where(seen, np.arange(len(seen), dtype=np.int32)[:, None], np.int32(-1))
+    return np.maximum.accumulate(index, axis=0)
