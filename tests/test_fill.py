@@ -95,3 +95,12 @@ def test_a_marker_back_in_bursts_shorter_than_the_confirmation_is_output_in_ever
           f"switches {before.switches} -> {after.switches}, IDF1 {before.idf1:.4f} -> {after.idf1:.4f}")
     assert found[0] <= 3 and found[1] == bursts.size and stats.filled >= bursts.size - 3
     assert after.switches == 0 and after.idf1 > before.idf1 and after.ghost_rate == 0
+
+
+def test_points_that_repeat_samples_or_lie_outside_the_take_add_nothing():
+    a = _line(10, (0.0, 0.0, 1.0), (0.003, 0.0, 0.0))
+    traj = Trajectories(["M001"], 100.0, a.copy()[:, None])
+    repeats = _unconfirmed(np.array([2, 5, -1, 10]), np.r_[a[[2, 5]] + 0.0005, a[[0, 9]]])
+    assert fill_from_unconfirmed(traj, repeats) == 0
+    np.testing.assert_array_equal(traj.positions[:, 0], a)
+    assert fill_from_unconfirmed(traj, _unconfirmed(np.zeros(0, dtype=np.intp), np.zeros((0, 3)))) == 0
