@@ -1,4 +1,4 @@
-"""Markers of rigid plates are labelled by the plate's shape (offline, the identity repair's last pass).
+"""Markers of rigid plates are labelled by the plate's shape (offline, a pass of the identity repair).
 
 A plate of three or more markers (an arm cluster, a steering wheel) that is hidden and comes back in pieces
 is where frame-to-frame tracking mixes identities up: every returning marker is near every lost one, and
@@ -29,7 +29,9 @@ On finished trajectories (after :mod:`mocap.relabel` and :mod:`mocap.reunite`), 
    longest first;
 5. gives the tracker's unconfirmed points (:meth:`mocap.tracker.Tracker.unconfirmed`: a marker the recording
    has only every other frame never makes the tracker's confirmation), voted alongside in step 2, to the
-   member they were voted for, where its identity has no sample.
+   member they were voted for, where its identity has no sample and the point would not make it jump (an
+   acceleration above ``jump_acc`` with its samples next to it: a mirror image of a plate in a shiny floor has the
+   plate's shape).
 
 Only whole samples move between identity columns; positions are never changed.
 """
@@ -37,6 +39,7 @@ Only whole samples move between identity columns; positions are never changed.
 from __future__ import annotations
 
 import itertools
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -368,12 +371,33 @@ def _settle(runs: list[tuple[int, np.ndarray]], dest: list[int], shape: tuple[in
             return final
 
 
-def label_plates(traj: Trajectories, config: PlateConfig | None = None, extra: UnconfirmedPoints | None = None
-                 ) -> int:
+def _jumps(P: np.ndarray, rows: np.ndarray, member: np.ndarray, X: np.ndarray, limit: float) -> np.ndarray:
+    """(n,) bool: points ``X`` (n, 3) placed in ``P`` (F, M, 3) at (``rows``, ``member``) make an acceleration above
+    ``limit``, m/frame^2: with the identity's samples on both sides, else the two on one side, else the one next to
+    it (as if at rest); False where it has no sample within two frames."""
+    F = len(P)
+
+    def at(offset: int) -> np.ndarray:
+        f = rows + offset
+        inside = (f >= 0) & (f < F)
+        out = np.full((len(rows), 3), np.nan)
+        out[inside] = P[f[inside], member[inside]]
+        return out
+
+    before, after, before2, after2 = at(-1), at(1), at(-2), at(2)
+    acc = np.full(len(rows), np.nan)
+    for change in (after - 2 * X + before, X - 2 * before + before2, X - 2 * after + after2, X - before, X - after):
+        acc = np.where(np.isnan(acc), np.linalg.norm(change, axis=1), acc)
+    return acc > limit
+
+
+def label_plates(traj: Trajectories, config: PlateConfig | None = None, extra: UnconfirmedPoints | None = None,
+                 jump_acc: float = math.inf) -> int:
     """Label the markers of rigid plates by their shape (see the module docstring), in place.
 
     ``extra``: the tracker's unconfirmed points; one voted for a plate member joins that member's identity
-    where it has no sample (step 5).
+    where it has no sample (step 5), unless it makes an acceleration above ``jump_acc``, m/frame^2, with that identity's
+    samples next to it.
 
     Returns the number of samples moved to another identity or added.
     """
@@ -426,6 +450,8 @@ def label_plates(traj: Trajectories, config: PlateConfig | None = None, extra: U
             other = (held[near] == member[:, None]) & (np.arange(M)[None, :] != member[:, None])
             free &= ~other.any(axis=1)
         k, member = k[free], member[free]
+        calm = ~_jumps(traj.positions, extra.rows[k], member, extra.positions[k], jump_acc)
+        k, member = k[calm], member[calm]
         traj.positions[extra.rows[k], member] = extra.positions[k]
         traj.residuals[extra.rows[k], member] = extra.residuals[k]
         traj.camera_masks[extra.rows[k], member] = extra.camera_masks[k]

@@ -605,7 +605,8 @@ def repair_identities(traj: Trajectories, config: RelabelConfig | None = None,
     stats.swaps = repair_swaps(traj, config)
     stats.stitches = relink_tracklets(traj, config)
     stats.reunited = reunite_clusters(traj)
-    stats.plate_samples = label_plates(traj, extra=unconfirmed)
+    jump = (config or RelabelConfig()).jump_acc(traj.fps)
+    stats.plate_samples = label_plates(traj, extra=unconfirmed, jump_acc=jump)
     if unconfirmed is not None:
         stats.filled = fill_from_unconfirmed(traj, unconfirmed)
     if stats.reunited or stats.plate_samples:

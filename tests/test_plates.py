@@ -14,7 +14,7 @@ from mocap.plates import PlateConfig, _destinations, _distances, _plates, _Sorte
 from mocap.relabel import repair_identities
 from mocap.synth import SynthSettings, ring_rig
 from mocap.tracker import Tracker
-from mocap.trajectories import Trajectories
+from mocap.trajectories import Trajectories, UnconfirmedPoints
 
 HIDDEN, BACK = 360, 400  # the plate is hidden from frame 360 and comes back, a marker every 5 frames, from 400
 
@@ -132,6 +132,31 @@ def test_a_plate_marker_back_flickering_is_given_its_points_the_tracker_never_co
           f"{before.switches} -> {after.switches}, IDF1 {before.idf1:.4f} -> {after.idf1:.4f}")
     assert found[0] <= 5 and found[1] >= 35 and stats.plate_samples >= 35
     assert after.switches <= before.switches and after.idf1 > before.idf1 and after.ghost_rate == 0
+
+
+def test_a_plate_mirrored_in_the_floor_is_not_given_to_the_plate_where_it_jumps():
+    """The plate is hidden for one frame, where its mirror image in a shiny floor (the same distances) is seen and
+    never confirmed: that image would make the plate's identities jump 2 m for a frame. The plate itself seen
+    there (unconfirmed) is given to them."""
+    rng = np.random.default_rng(19)
+    truth = np.concatenate([moving(PLATE, rng, 0.0), skin(2, rng)], axis=1)  # the plate at z ~ 1 m
+    plate = np.arange(len(PLATE))
+    P = truth.copy()
+    P[300, plate] = np.nan
+    mirror = truth[300, plate] * (1.0, 1.0, -1.0)
+
+    def label(points: np.ndarray, jump_acc: float) -> tuple[int, np.ndarray]:
+        traj = Trajectories([f"M{k + 1:03d}" for k in range(P.shape[1])], 100.0, P.copy())
+        n = len(points)
+        extra = UnconfirmedPoints(np.full(n, 300), points, np.full(n, 0.1), np.ones(n, dtype=np.uint32))
+        return label_plates(traj, extra=extra, jump_acc=jump_acc), traj.positions[300, plate]
+
+    assert label(mirror, np.inf)[0] == len(PLATE)  # the shape alone names the image's points
+    added, got = label(mirror, 0.06)
+    assert added == 0 and np.isnan(got).all()
+    added, got = label(truth[300, plate], 0.06)
+    assert added == len(PLATE)
+    np.testing.assert_array_equal(got, truth[300, plate])
 
 
 def test_a_short_tracklet_between_disagreeing_neighbours_follows_the_one_its_own_votes_name():
