@@ -373,8 +373,9 @@ def _settle(runs: list[tuple[int, np.ndarray]], dest: list[int], shape: tuple[in
 
 def _jumps(P: np.ndarray, rows: np.ndarray, member: np.ndarray, X: np.ndarray, limit: float) -> np.ndarray:
     """(n,) bool: points ``X`` (n, 3) placed in ``P`` (F, M, 3) at (``rows``, ``member``) make an acceleration above
-    ``limit``, m/frame^2: with the identity's samples on both sides, else the two on one side, else the one next to
-    it or, failing that, the one two frames away (as if at rest); False where it has no sample within two frames."""
+    ``limit``, m/frame^2: with the identity's samples on both sides (one frame away, else two: a marker seen every
+    other frame), else the two on one side, else the one next to it or, failing that, the one two frames away (as if
+    at rest); False where it has no sample within two frames."""
     F = len(P)
 
     def at(offset: int) -> np.ndarray:
@@ -386,8 +387,8 @@ def _jumps(P: np.ndarray, rows: np.ndarray, member: np.ndarray, X: np.ndarray, l
 
     before, after, before2, after2 = at(-1), at(1), at(-2), at(2)
     acc = np.full(len(rows), np.nan)
-    for change in (after - 2 * X + before, X - 2 * before + before2, X - 2 * after + after2, X - before, X - after,
-                   (X - before2) / 4, (X - after2) / 4):
+    for change in (after - 2 * X + before, X - 2 * before + before2, X - 2 * after + after2,
+                   (after2 - 2 * X + before2) / 4, X - before, X - after, (X - before2) / 4, (X - after2) / 4):
         acc = np.where(np.isnan(acc), np.linalg.norm(change, axis=1), acc)
     return acc > limit
 

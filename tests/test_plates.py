@@ -10,7 +10,7 @@ from helpers_rigid import FRAMES, PLATE, SQUARE, TRIANGLE, columns_follow, movin
 
 from mocap.errors import MocapError
 from mocap.evaluate import evaluate
-from mocap.plates import PlateConfig, _destinations, _distances, _plates, _SortedPairs, label_plates
+from mocap.plates import PlateConfig, _destinations, _distances, _jumps, _plates, _SortedPairs, label_plates
 from mocap.relabel import repair_identities
 from mocap.synth import SynthSettings, ring_rig
 from mocap.tracker import Tracker
@@ -158,6 +158,18 @@ def test_a_plate_mirrored_in_the_floor_is_not_given_to_the_plate_where_it_jumps(
     added, got = label(truth[300, plate], 0.06)
     assert added == len(PLATE)
     np.testing.assert_array_equal(got, truth[300, plate])
+
+
+def test_a_fast_marker_seen_every_other_frame_does_not_jump_between_its_samples():
+    """0.2 m per frame, samples two frames apart: a point on its path is no jump; one 0.3 m off it is; with a sample
+    on one side only, the point is judged as if the marker were at rest there."""
+    path = np.arange(10)[:, None] * np.array([0.2, 0.0, 0.0])  # (10, 3)
+    P = np.full((10, 1, 3), np.nan)
+    P[[2, 6], 0] = path[[2, 6]]
+    rows, member = np.array([4, 4, 8]), np.zeros(3, dtype=np.intp)
+    X = np.stack([path[4], path[4] + (0.0, 0.3, 0.0), path[8]])
+    np.testing.assert_array_equal(_jumps(P, rows, member, X, 0.06), [False, True, True])
+    np.testing.assert_array_equal(_jumps(P, rows, member, X, np.inf), [False, False, False])
 
 
 def test_a_short_tracklet_between_disagreeing_neighbours_follows_the_one_its_own_votes_name():
