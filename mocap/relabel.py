@@ -23,9 +23,10 @@ the frames on both sides of a decision are known, and these identity errors are 
   much they changed, over any gap up to ``shape_max_s``: distances within a segment do not depend on
   how it moved meanwhile, and they tell apart markers a few centimetres apart that come back in turn.
   Otherwise the cost is how well the constant-velocity extrapolations of both ends agree across a
-  short gap. Distances are kept per identity (not per output column), so a neighbour that was itself
-  relinked still counts. A cluster that comes back in view together (a leg's markers after the leg was
-  hidden) is assigned jointly: the distances between its own markers must match those between the
+  short gap; over a longer one (up to ``lone_max_s``), one attached marker nearby seen at both ends is enough
+  when its distance held to a few millimetres. Distances are kept per identity (not per output column), so a
+  neighbour that was itself relinked still counts. A cluster that comes back in view together (a leg's markers
+  after the leg was hidden) is assigned jointly: the distances between its own markers must match those between the
   identities they take, which no marker-by-marker cost can check. The tracker's own link is
   preferred and kept across any gap unless the distances clearly disagree (``shape_refuse_m``: a new
   marker next to a hidden one took its identity); it is the fallback when nothing else fits. A newcomer
@@ -92,6 +93,11 @@ class RelabelConfig:
             (a newcomer next to it) when its distances fit the identity's from before by this much better, m.
         duplicate_m: two identities' samples of one frame closer than this are one marker (below any marker's
             diameter: two markers' centres cannot be this close), m.
+        lone_gate_m: a tracklet back after a gap too long to extrapolate (over ``max_gap`` frames) with one attached
+            identity seen at both ends, not ``shape_min``, is linked by that one distance when it changed less
+            than this, m ...
+        lone_reach_m: ... that neighbour is nearer than this (a nearer neighbour's sphere holds fewer markers), m ...
+        lone_max_s: ... and the gap is at most this long, s.
     """
 
     swap_ratio: float = 0.25
@@ -112,6 +118,9 @@ class RelabelConfig:
     cluster_margin_m: float = 0.001
     usurp_margin_m: float = 0.003
     duplicate_m: float = 0.003
+    lone_gate_m: float = 0.003
+    lone_reach_m: float = 0.1
+    lone_max_s: float = 1.0
 
     def jump_acc(self, fps: float) -> float:
         """The acceleration, m/frame^2, above which a track jumped at ``fps`` Hz (``split_acc_m`` and
@@ -379,6 +388,7 @@ class _Linker:
     def __init__(self, P: np.ndarray, shape_max: int, cfg: RelabelConfig, fps: float) -> None:
         self.P, self.shape_max, self.cfg = P, shape_max, cfg
         self.acc_per_frame2 = cfg.stitch_acc_mps2 / (fps * fps)  # m/frame^2
+        self.lone_max = int(round(cfg.lone_max_s * fps))  # frames
         self.chains: list[list[np.ndarray]] = []
         self.ends: list[tuple[int, np.ndarray, np.ndarray]] = []
         self.memory: list[dict[int, np.ndarray]] = []
@@ -445,7 +455,8 @@ class _Linker:
                 assigned: dict[int, int], refused: set[tuple[int, int]], changes: dict[tuple[int, int], float]
                 ) -> None:
         """Marker by marker (Hungarian): by the change of the distances to attached identities where they
-        can be compared, else by how the extrapolations of both ends across the gap agree."""
+        can be compared (over a gap beyond ``max_gap``, one near attached identity is enough if its distance held
+        within ``lone_gate_m``), else by how the extrapolations of both ends across the gap agree."""
         cfg = self.cfg
         cost = np.full((len(group), len(open_chains)), np.inf)
         for g, run in enumerate(group):
@@ -462,6 +473,11 @@ class _Linker:
                         continue
                     if change > cfg.shape_refuse_m:
                         refused.add((g, c))
+                        continue
+                elif len(pairs) == 1 and cfg.max_gap < gap <= self.lone_max and pairs[0][0] < cfg.lone_reach_m:
+                    change = abs(pairs[0][0] - pairs[0][1])
+                    if change < cfg.lone_gate_m:
+                        cost[g, j] = (cfg.own_link_weight if same else 1.0) * change
                         continue
                 miss = 0.5 * (np.linalg.norm(pe + ve * gap - p0) + np.linalg.norm(p0 - v0 * gap - pe))
                 speed = 0.5 * (np.linalg.norm(ve) + np.linalg.norm(v0))

@@ -244,3 +244,22 @@ def test_repair_counts_the_duplicates_it_dropped():
     stats = repair_identities(traj)
     assert stats.duplicates == 5
     assert traj.n_markers == 6 and _same_identities(traj, P)
+
+
+def test_marker_back_with_one_neighbour_is_relinked_by_that_distance():
+    """The sprint start's ForearmL Marker3, hidden 43 frames (over max_gap), comes back while its neighbour Marker4
+    is hidden too, and the tracker gives it Marker4's identity (hidden 10 frames: its extrapolation still reaches).
+    Only one attached marker is seen at both ends; its distance, unchanged, links the marker to its own identity,
+    and Marker4, back later, gets its own by its two distances. Without that rule the two swap identities."""
+    P = _segment()[:, :3]  # N (0), A (1) 60 mm from N, B (2) 50 mm from N and 78 mm from A
+    seen = np.concatenate([P, np.full((P.shape[0], 1, 3), np.nan)], axis=1)
+    seen[40:, 1] = np.nan  # A hidden from frame 40 ...
+    seen[74:, 2] = np.nan  # ... B from frame 74 ...
+    seen[84:, 2] = P[84:, 1]  # ... A back at frame 84 in B's column ...
+    seen[120:, 3] = P[120:, 2]  # ... and B back at frame 120 as a new identity
+    traj = _traj(seen)
+    relink_tracklets(traj)
+    assert traj.n_markers == 3 and _same_identities(traj, P)
+    without = _traj(seen)
+    relink_tracklets(without, RelabelConfig(lone_gate_m=0.0))
+    assert not _same_identities(without, P)
