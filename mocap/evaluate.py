@@ -29,6 +29,7 @@ from typing import Any
 
 import motmetrics as mm
 import numpy as np
+from scipy.ndimage import binary_dilation
 from scipy.optimize import linear_sum_assignment
 
 from mocap.atomic import atomic_write_bytes, check_output_path
@@ -36,6 +37,7 @@ from mocap.camera import Rig, load_rig, parse_rig
 from mocap.crlb import crlb_covariance
 from mocap.errors import MocapError
 from mocap.export.c3d import read_c3d
+from mocap.relabel import RelabelConfig
 from mocap.trajectories import Trajectories
 from mocap.truth import Truth, load_truth
 
@@ -87,6 +89,8 @@ class EvalReport:
     rmse_axis_mm: list[float]
     switches: int
     switches_per_10k: float
+    reference_jumps: int  # truth marker-frames where the truth itself jumps (a label swap in the recording)
+    switches_at_reference_jumps: int  # of ``switches``, those within 2 frames of a jump of their truth marker
     idf1: float
     idp: float
     idr: float
@@ -124,6 +128,10 @@ class EvalReport:
             f"identity     {self.switches} ID switches ({f(self.switches_per_10k, 2)} per 10,000 marker-frames)   "
             f"IDF1 {f(self.idf1, 4)}   IDP {f(self.idp, 4)}   IDR {f(self.idr, 4)}   MOTA {f(self.mota, 4)}",
         ]
+        if self.reference_jumps:
+            lines.append(
+                f"truth jumps  {self.reference_jumps} truth marker-frames jump (the recording swapped labels); "
+                f"{self.switches_at_reference_jumps} of the ID switches are within 2 frames of one")
         if per_marker:
             width = max([len(m.label) for m in self.per_marker] + [6])
             lines.append(f"{'marker':<{width}}  complete %   RMSE mm  switches  identity %")
@@ -272,7 +280,9 @@ def evaluate(traj: Trajectories, truth: Truth, rig: Rig | None = None, gate_mm: 
     rmse = math.sqrt(sq.mean()) if n_match else math.nan
     out_points = int(traj.valid.sum())
     mot = _mot_summary(acc)
-    switch_oids = _switch_objects(acc)
+    switch_frames, switch_oids = _switch_events(acc)
+    jumps = _reference_jumps(truth_pos / 1000.0, float(truth.fps))
+    near_jump = binary_dilation(jumps, structure=np.ones((2 * _JUMP_REACH + 1, 1), dtype=bool))  # (F, M)
 
     crlb = math.nan
     rig = rig if rig is not None else rig_from_truth(truth)
@@ -325,6 +335,8 @@ def evaluate(traj: Trajectories, truth: Truth, rig: Rig | None = None, gate_mm: 
         rmse_axis_mm=np.sqrt((m.error**2).mean(axis=0)).tolist() if n_match else [math.nan] * 3,
         switches=int(mot["num_switches"]),
         switches_per_10k=_ratio(1e4 * mot["num_switches"], n_req),
+        reference_jumps=int(jumps.sum()),
+        switches_at_reference_jumps=int(near_jump[switch_frames, switch_oids].sum()),
         idf1=mot["idf1"],
         idp=mot["idp"],
         idr=mot["idr"],
@@ -359,10 +371,25 @@ def _identified(acc: mm.MOTAccumulator, n_markers: int) -> np.ndarray:
     return out
 
 
-def _switch_objects(acc: mm.MOTAccumulator) -> np.ndarray:
-    """(S,) truth marker index of every ID switch py-motmetrics counted."""
+def _switch_events(acc: mm.MOTAccumulator) -> tuple[np.ndarray, np.ndarray]:
+    """(S,) frame and (S,) truth marker index of every ID switch py-motmetrics counted."""
     events = acc.mot_events
-    return events.loc[events["Type"] == "SWITCH", "OId"].to_numpy(dtype=np.intp)
+    switches = events.loc[events["Type"] == "SWITCH"]
+    return (switches.index.get_level_values("FrameId").to_numpy(dtype=np.intp),
+            switches["OId"].to_numpy(dtype=np.intp))
+
+
+_JUMP_REACH = 2  # frames: a switch this near a jump of its truth marker is put down to the jump
+
+
+def _reference_jumps(truth_pos: np.ndarray, fps: float) -> np.ndarray:
+    """(F, M) bool: truth samples (``truth_pos`` (F, M, 3), m) whose acceleration (second difference) exceeds what a
+    marker can do at ``fps`` (the identity repair's jump threshold, :meth:`RelabelConfig.jump_acc`): the recording
+    gave the label to another marker there. An output that follows the markers counts ID switches at such frames."""
+    jumps = np.zeros(truth_pos.shape[:2], dtype=bool)
+    acc = np.linalg.norm(truth_pos[2:] - 2 * truth_pos[1:-1] + truth_pos[:-2], axis=2)
+    jumps[1:-1] = np.nan_to_num(acc) > RelabelConfig().jump_acc(fps)
+    return jumps
 
 
 # ---------------------------------------------------------------------------- CLI

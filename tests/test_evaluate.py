@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import copy
 import json
 import math
 
@@ -97,6 +98,7 @@ def test_swapped_labels_count_two_switches(truth: Truth) -> None:
     # py-motmetrics counts a SWITCH per truth object whose matched hypothesis changes: markers 0
     # and 1 each change output track once (they are >= 0.2 m apart, beyond the gate) -> 2.
     assert report.switches == 2
+    assert report.reference_jumps == report.switches_at_reference_jumps == 0  # the truth moves smoothly
     assert [m.switches for m in report.per_marker] == [1, 1] + [0] * (len(truth.labels) - 2)
     req = required(truth)
     assert report.switches_per_10k == pytest.approx(2e4 / req.sum())
@@ -112,6 +114,23 @@ def test_swapped_labels_count_two_switches(truth: Truth) -> None:
     assert [m.identity for m in report.per_marker[2:]] == [1.0] * (len(truth.labels) - 2)
     halves = (req[:k, :2] if req[:k, :2].sum() >= req[k:, :2].sum() else req[k:, :2]).sum(axis=0)
     assert [m.identified for m in report.per_marker[:2]] == halves.tolist()
+
+
+def test_switches_at_a_label_swap_in_the_truth_are_put_down_to_it(truth: Truth) -> None:
+    req = required(truth)
+    both = req[:, 0] & req[:, 1]
+    k = next(f for f in range(10, truth.n_frames - 10) if both[f - 1:f + 2].all())
+    swapped = copy.deepcopy(truth)
+    swapped.positions[k, [0, 1]] = swapped.positions[k, [1, 0]]  # the recording swapped two labels for one frame
+    report = evaluate(output_of(truth.positions), swapped)  # the output follows the markers
+    assert report.switches == 4  # markers 0 and 1 change track at frame k and back at k + 1
+    assert report.switches_at_reference_jumps == 4
+    assert report.reference_jumps == 6  # both markers' second differences at k - 1, k and k + 1
+    assert "4 of the ID switches are within 2 frames" in report.table()
+    own = truth.positions.copy()
+    own[k + 5:, [2, 3]] = own[k + 5:, [3, 2]]  # a real swap of the output, away from the truth's jump
+    report = evaluate(output_of(own), swapped)
+    assert report.switches == 6 and report.switches_at_reference_jumps == 4
 
 
 def test_restarted_track_is_one_switch_and_a_gap_none(truth: Truth) -> None:
