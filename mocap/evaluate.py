@@ -44,6 +44,7 @@ from mocap.truth import Truth, load_truth
 __all__ = ["EvalReport", "MarkerScore", "evaluate", "rig_from_truth", "configure_parser", "run"]
 
 _MOT_METRICS = ["num_switches", "idf1", "idp", "idr", "mota"]
+_JUMP_REACH = 2  # frames: a switch this near a jump of its truth marker is put down to the jump
 
 
 @dataclass
@@ -377,9 +378,6 @@ def _switch_events(acc: mm.MOTAccumulator) -> tuple[np.ndarray, np.ndarray]:
     switches = events.loc[events["Type"] == "SWITCH"]
     return (switches.index.get_level_values("FrameId").to_numpy(dtype=np.intp),
             switches["OId"].to_numpy(dtype=np.intp))
-
-
-_JUMP_REACH = 2  # frames: a switch this near a jump of its truth marker is put down to the jump
 
 
 def _reference_jumps(truth_pos: np.ndarray, fps: float) -> np.ndarray:
