@@ -129,6 +129,9 @@ class TrackerConfig:
             other (when it has two clean cameras too) its mirror image about the first, checked against them (see
             ``_deblend``) ...
         deblend_px: ... with this std added, px (unequal blobs, a third marker's halo).
+        withhold_merged_depth: a point seen cleanly by one camera only, its other views merged blobs that another
+            live track's image lies in too, is not output (it still updates its filter): its depth along that
+            camera's ray rests on the merged centroid, up to a marker radius off (see ``_depth_on_merged_blobs``).
         noisy_point_m: a track whose last point's std exceeds this (m) gets proportionally more 3D process
             noise (up to 10x ``jerk_std_3d``): noisy points (small, far markers) must not make the filter lag.
     """
@@ -174,6 +177,7 @@ class TrackerConfig:
     neighbour_min: int = 2
     deblend: bool = True
     deblend_px: float = 0.1
+    withhold_merged_depth: bool = True
 
     def __post_init__(self) -> None:
         for name in ("confirm_frames", "new_min_views"):
@@ -757,7 +761,31 @@ class Tracker:
         agree = np.linalg.norm(tri.X - t.x3[:, :3], axis=1) < np.clip(cfg.gate_scale * t.e3[:, 0], cfg.suspect_m[0],
                                                                       high)
         meas.out = meas.ok & ((clean.sum(axis=1) >= 2) | (agree & clean.any(axis=1)))
+        if cfg.withhold_merged_depth:
+            meas.out[self._depth_on_merged_blobs(fr, asg, clean, tri)] = False
         meas.X, meas.cov, meas.rms_px = tri.X, tri.cov, tri.rms_px
+
+    def _depth_on_merged_blobs(self, fr: _Frame, asg: np.ndarray, clean: np.ndarray, tri: Triangulated
+                               ) -> np.ndarray:
+        """Tracks (indices) seen cleanly by one camera only (``clean`` (K, C)) whose other views (``asg`` (K, C))
+        hold merged blobs that another live track's predicted image lies in too (within a marker's image diameter
+        + ``merge_px``): two markers' blob, its centroid between them, up to a marker radius off. Their depth along
+        the clean camera's ray rests on that centroid alone, and their filter follows its offset frame after
+        frame until the drifted prediction "agrees" with the points (the lying markers.trc take: CLAVm output 7 mm
+        off for 60 frames; the whole sprint: points 3-10 mm off). A flat blob no other track explains (a streak, a
+        sphere's oblique image) is one marker's, and is left to the agreement test."""
+        cfg, t = self._cfg, self._t
+        merged_view = tri.used & _gather(fr.merged, asg)
+        rows = np.flatnonzero((clean.sum(axis=1) == 1) & merged_view.any(axis=1))
+        if rows.size == 0:
+            return rows
+        live = np.flatnonzero(t.since <= 1)
+        proj, depth = project_ideal(self._P, t.x3[live, :3])  # (C, L, 2), (C, L)
+        r_i, cams = np.nonzero(merged_view[rows])
+        blob = fr.D[cams, asg[rows[r_i], cams]]  # (m, 2) px
+        reach = self._focal[cams, None] * cfg.marker_mm / 1000.0 / depth[cams] + cfg.merge_px  # (m, L) px
+        partner = (np.linalg.norm(proj[cams] - blob[:, None], axis=2) < reach) & (live[None] != rows[r_i, None])
+        return rows[np.unique(r_i[partner.any(axis=1)])]
 
     def _deblend(self, fr: _Frame, crowded: np.ndarray, asg: np.ndarray, tri: Triangulated) -> np.ndarray:
         """Two markers merged into one blob, one of them well measured elsewhere: the other's image is the blob's
