@@ -670,6 +670,11 @@ class Tracker:
         pred[depth <= 0] = np.nan
         return pred, radius, depth
 
+    def _merge_reach(self, focal: np.ndarray, depth: np.ndarray) -> np.ndarray:
+        """Px: a marker's image diameter at ``depth`` (m) for a camera of ``focal`` (px), plus ``merge_px`` (arrays
+        broadcast): two markers' images closer than this may be one merged blob."""
+        return focal * self._cfg.marker_mm / 1000.0 / depth + self._cfg.merge_px
+
     def _crowded(self, pred: np.ndarray, play: np.ndarray, depth: np.ndarray, asg: np.ndarray) -> np.ndarray:
         """(K, C) bool: another track in play, seen by that camera within ``hidden_frames``, is predicted within a
         marker's image diameter + ``merge_px`` (a marker hidden from a camera merges with nothing in its image),
@@ -684,7 +689,7 @@ class Tracker:
         diag = np.arange(len(play))
         d2[:, diag, diag] = np.inf
         with np.errstate(invalid="ignore", divide="ignore"):
-            reach = self._focal[:, None] * self._cfg.marker_mm / 1000.0 / depth.T + self._cfg.merge_px  # (C, K)
+            reach = self._merge_reach(self._focal[:, None], depth.T)  # (C, K)
             close = np.flatnonzero(d2 < (reach * reach)[:, :, None])  # the few close pairs (flat: 2x faster)
         c, k = np.divmod(close, d2.shape[1] * d2.shape[2])
         k, j = np.divmod(k, d2.shape[2])
@@ -774,7 +779,7 @@ class Tracker:
         frame until the drifted prediction "agrees" with the points (the lying markers.trc take: CLAVm output 7 mm
         off for 60 frames; the whole sprint: points 3-10 mm off). A flat blob no other track explains (a streak, a
         sphere's oblique image) is one marker's, and is left to the agreement test."""
-        cfg, t = self._cfg, self._t
+        t = self._t
         merged_view = tri.used & _gather(fr.merged, asg)
         rows = np.flatnonzero((clean.sum(axis=1) == 1) & merged_view.any(axis=1))
         if rows.size == 0:
@@ -783,7 +788,7 @@ class Tracker:
         proj, depth = project_ideal(self._P, t.x3[live, :3])  # (C, L, 2), (C, L)
         r_i, cams = np.nonzero(merged_view[rows])
         blob = fr.D[cams, asg[rows[r_i], cams]]  # (m, 2) px
-        reach = self._focal[cams, None] * cfg.marker_mm / 1000.0 / depth[cams] + cfg.merge_px  # (m, L) px
+        reach = self._merge_reach(self._focal[cams, None], depth[cams])  # (m, L)
         partner = (np.linalg.norm(proj[cams] - blob[:, None], axis=2) < reach) & (live[None] != rows[r_i, None])
         return rows[np.unique(r_i[partner.any(axis=1)])]
 
@@ -818,7 +823,7 @@ class Tracker:
             if fr.S[c, j, 0, 0] + fr.S[c, j, 1, 1] > 2.0 * cfg.vague_px**2 * cfg.merged_variance_scale:
                 continue  # a vague blob (cut by the border), not two markers' merge
             u = fr.D[c, j]
-            reach = self._focal[c] * cfg.marker_mm / 1000.0 / depth[c] + cfg.merge_px  # (P,) px
+            reach = self._merge_reach(self._focal[c], depth[c])  # (P,)
             near = (np.linalg.norm(uvp[c] - u, axis=1) < reach) & (asg[partners, c] < 0) & (partners != k)
             if near.sum() != 1:
                 continue
