@@ -519,6 +519,35 @@ def _disc_offsets(half: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return out
 
 
+def _seeded_peaks(seeds: np.ndarray, ids: np.ndarray, eligible: np.ndarray, owners: _Owners, stats: _Blobs,
+                  peaks: tuple[np.ndarray, np.ndarray, np.ndarray], n_discs: np.ndarray
+                  ) -> tuple[tuple[np.ndarray, np.ndarray, np.ndarray], np.ndarray, np.ndarray]:
+    """Seeds (S, 2) px as the peaks of the ``eligible`` blobs (of ``ids``) that own the pixels of two or more
+    (up to ``MAX_DISCS``) of them. Returns the peaks (blob, x, y sorted by blob), ``n_discs`` and (len(ids),) bool:
+    the blobs seeded."""
+    seeded = np.zeros(len(ids), bool)
+    cand = np.flatnonzero(eligible)
+    if cand.size == 0:
+        return peaks, n_discs, seeded
+    reach = float(stats.reach[ids[cand]].max()) + 1.0
+    dist, near = cKDTree(stats.centroid[ids[cand]]).query(seeds, distance_upper_bound=reach)
+    hit = np.flatnonzero(np.isfinite(dist))
+    hit = hit[owners.owns(ids[cand[near[hit]]], np.rint(seeds[hit, 0]).astype(np.int64),
+                          np.rint(seeds[hit, 1]).astype(np.int64))]
+    which = cand[near[hit]]  # index into ids
+    count = np.bincount(which, minlength=len(ids))
+    seeded = (count >= 2) & (count <= MAX_DISCS)
+    if not seeded.any():
+        return peaks, n_discs, seeded
+    use = seeded[which]
+    keep = ~np.isin(peaks[0], ids[seeded])
+    blob = np.concatenate([peaks[0][keep], ids[which[use]]])
+    order = np.argsort(blob, kind="stable")
+    px = np.concatenate([peaks[1][keep], seeds[hit[use], 0]])
+    py = np.concatenate([peaks[2][keep], seeds[hit[use], 1]])
+    return (blob[order], px[order], py[order]), np.where(seeded, count, n_discs), seeded
+
+
 def _disc_starts(blobs: np.ndarray, k: int, origin: np.ndarray, peaks: tuple[np.ndarray, np.ndarray, np.ndarray],
                  stats: _Blobs, level: float) -> np.ndarray:
     """(N, 1 + 5k) starting parameters: offset 0; per disc: centre (relative to ``origin`` (N, 2)), height,
@@ -553,9 +582,10 @@ def _measure(image: np.ndarray, owners: _Owners, blobs: np.ndarray, k: int, radi
     centroid.
 
     Returns:
-        centres (N, k, 2) px and their covariances (N, k, 2, 2) px^2. A fit that fails (no usable pixel, not
-        finite, or a centre that wandered more than max(1.5 px, its radius) from its start) falls back to the start:
-        the weighted centroid (k = 1) or the peaks (k > 1), with the centroid's noise covariance.
+        centres (N, k, 2) px, their covariances (N, k, 2, 2) px^2 and (N,) whether a disc's fit failed. A fit that
+        fails (no usable pixel, not finite, or a centre that wandered more than max(1.5 px, its radius) from its
+        start) falls back to the start: the weighted centroid (k = 1) or the peaks (k > 1), with the centroid's
+        noise covariance.
     """
     n = len(blobs)
     origin, seg, count, ox, oy, values = _window(stats.centroid[blobs], radius, image, owners, blobs, t, level)
@@ -577,11 +607,13 @@ def _measure(image: np.ndarray, owners: _Owners, blobs: np.ndarray, k: int, radi
     bad = (~np.isfinite(offset).all(axis=2) | ~np.isfinite(cov).all(axis=(2, 3)) | vague
            | (np.hypot(*offset.transpose(2, 0, 1)) > np.maximum(1.5, disc[:, :, 3])))
     start_xy = start[:, 1:].reshape(n, k, 5)[:, :, :2] + origin[:, None]
-    return (start_xy + np.where(bad[:, :, None], 0.0, offset), np.where(bad[:, :, None, None], fallback_cov, cov))
+    return (start_xy + np.where(bad[:, :, None], 0.0, offset), np.where(bad[:, :, None, None], fallback_cov, cov),
+            bad.any(axis=1))
 
 
 def detect(image: np.ndarray, *, threshold: float | None = None, min_area: int = 2, max_area: int = 1000,
-           rois: np.ndarray | None = None, noise_sigma: float | None = None, refine: str = "fit") -> Detections:
+           rois: np.ndarray | None = None, noise_sigma: float | None = None, refine: str = "fit",
+           seeds: np.ndarray | None = None) -> Detections:
     """Find bright blobs and measure their sub-pixel centres.
 
     Args:
@@ -597,6 +629,9 @@ def detect(image: np.ndarray, *, threshold: float | None = None, min_area: int =
             "centroid" (the intensity-weighted centroid of the thresholded pixels: several times faster,
             2-3x the noise of the fit, merged blobs flagged but not split). Blobs larger than
             ``FIT_MAX_AREA`` always get the centroid.
+        seeds: optional (S, 2) predicted marker positions (distorted px, e.g. a tracker's): a blob flagged merged
+            with no saddle to split it at, holding two or more seeds (up to ``MAX_DISCS``), is fitted as that many
+            discs started from them; if any of those fits fails it is measured whole, as without seeds.
 
     Returns:
         :class:`Detections`: centroids (distorted px), area (px above threshold; the parts of a split
@@ -647,13 +682,26 @@ def detect(image: np.ndarray, *, threshold: float | None = None, min_area: int =
     peaks = _peaks(image, _Pixels(pixels.blob[sel], pixels.x[sel], pixels.y[sel], pixels.grey[sel], presorted=True),
                    level, sigma)
     n_discs = np.minimum(np.maximum(np.bincount(peaks[0], minlength=len(stats.area))[ids], 1), MAX_DISCS)
+    seeded = np.zeros(len(ids), bool)
+    if seeds is not None and len(seeds):
+        peaks, n_discs, seeded = _seeded_peaks(np.asarray(seeds, dtype=np.float64).reshape(-1, 2), ids,
+                                               fit & flagged & (n_discs == 1), owners, stats, peaks, n_discs)
     radius = stats.reach[ids] + SKIRT
     for k in np.unique(n_discs[fit]):
         group = np.flatnonzero(fit & (n_discs == k))
-        centres, covs = _measure(image, owners, ids[group], int(k), radius[group], peaks, stats, level, sigma, t)
+        centres, covs, failed = _measure(image, owners, ids[group], int(k), radius[group], peaks, stats, level,
+                                         sigma, t)
+        whole = failed & seeded[group]  # a seeded split that failed: measured whole below
+        n_discs[group[whole]] = 1
+        xy.append(centres[~whole].reshape(-1, 2))
+        cov.append(covs[~whole].reshape(-1, 2, 2))
+        part.append(np.repeat(group[~whole], k))
+    again = np.flatnonzero(seeded & (n_discs == 1))
+    if again.size:
+        centres, covs, _ = _measure(image, owners, ids[again], 1, radius[again], peaks, stats, level, sigma, t)
         xy.append(centres.reshape(-1, 2))
         cov.append(covs.reshape(-1, 2, 2))
-        part.append(np.repeat(group, k))
+        part.append(again)
     part = np.concatenate(part)
     # Each part of a split blob is fitted as a disc of its own: measured, not merged; unless the parts hold more light
     # than single markers nearby (three markers fitted as two discs: a centroid between two of them). (Light, not

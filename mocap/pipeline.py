@@ -97,12 +97,13 @@ def _detection_frames(source: Any, kind: str, tracker: Tracker, opts: Reconstruc
         rois = None
         if opts.roi_scan_every > 0 and (frame_index - opts.start) % opts.roi_scan_every != 0:
             rois = tracker.predicted_rois()
+        seeds = tracker.predicted_centres()
         dets = []
         for c, image in enumerate(images):
             if image is None:  # undecodable frame: the take reader has logged it
                 dets.append(Detections.empty())
             else:
-                dets.append(detect(image, rois=None if rois is None else rois[c]))
+                dets.append(detect(image, rois=None if rois is None else rois[c], seeds=seeds[c]))
         yield frame_index, dets
 
 

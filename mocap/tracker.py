@@ -397,6 +397,7 @@ class Tracker:
         self._unconfirmed: UnconfirmedPoints | None = None
         self._clutter: deque[np.ndarray] = deque(maxlen=max(cfg.clutter_frames, 1))  # recent free detections
         self._first: int | None = None
+        self._next_views: list[tuple[np.ndarray, np.ndarray, np.ndarray]] | None = None  # _next_images, this step's
         self._last = -1
         self._outlier_px = cfg.outlier_start_px  # camera rejection floor, px (follows the residual level)
         self._rms_px = cfg.outlier_start_px / max(cfg.outlier_rms_factor, 1.0)  # typical reprojection RMS, px
@@ -410,6 +411,7 @@ class Tracker:
         if self._first is None:
             self._first = frame_index
         self._last = max(self._last, frame_index)
+        self._next_views = None
         t, C = self._t, self._C
         fr = self._prepare(detections)
         t.since += 1
@@ -435,21 +437,37 @@ class Tracker:
 
     def predicted_rois(self) -> list[np.ndarray]:
         """Per camera (K, 4) int ``x0, y0, x1, y1`` search windows (distorted pixels) for the next frame."""
+        cfg = self._cfg
+        out = []
+        for c, (uv, depth, r3) in enumerate(self._next_images()):
+            r = np.clip(r3 * self._focal[c] / depth, cfg.gate_floor_px, cfg.gate_max_px) + 2.0
+            box = np.concatenate([uv - r[:, None], uv + r[:, None]], axis=1)
+            w, h = self._rig.cameras[c].size
+            out.append(np.clip(np.round(box), 0, [w - 1, h - 1, w - 1, h - 1]).astype(np.int64))
+        return out
+
+    def predicted_centres(self) -> list[np.ndarray]:
+        """Per camera (K, 2) predicted marker positions (distorted pixels) in the next frame: the seeds with which
+        :func:`mocap.detect.detect` splits a merged blob that shows no saddle."""
+        return [uv for uv, _, _ in self._next_images()]
+
+    def _next_images(self) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
+        """Per camera, the live tracks' predictions for the next frame in front of it: distorted pixels (K, 2),
+        depths (K,) m and 3D search radii (K,) m (computed once per step: the windows and the seeds share it)."""
+        if self._next_views is not None:
+            return self._next_views
         t, cfg = self._t, self._cfg
         live = (t.since <= cfg.coast_frames) & ((t.ident >= 0) | (t.since == 0))
         x3, _ = predict(t.x3[live], t.P3[live], self._F3, self._Q3)
         r3 = np.minimum(self._running.radius(*t.e3[live].T, t.since[live] + 1, self._dt, cfg.gate_floor_m),
                         cfg.reid_max_m)
-        out = []
-        for c, cam in enumerate(self._rig.cameras):
+        self._next_views = []
+        for cam in self._rig.cameras:
             uv = cam.project(x3[:, :3])
             depth = cam.world_to_camera(x3[:, :3])[:, 2]
             ok = np.isfinite(uv).all(axis=1) & (depth > 0)
-            r = np.clip(r3[ok] * self._focal[c] / depth[ok], cfg.gate_floor_px, cfg.gate_max_px) + 2.0
-            box = np.concatenate([uv[ok] - r[:, None], uv[ok] + r[:, None]], axis=1)
-            w, h = cam.size
-            out.append(np.clip(np.round(box), 0, [w - 1, h - 1, w - 1, h - 1]).astype(np.int64))
-        return out
+            self._next_views.append((uv[ok], depth[ok], r3[ok]))
+        return self._next_views
 
     def unconfirmed(self) -> UnconfirmedPoints:
         """The points measured by tentative tracks that never got an identity, after :meth:`finish`."""

@@ -249,6 +249,34 @@ def test_unresolvable_pair_is_flagged():
     assert not det.merged[~pair].any()
 
 
+@pytest.mark.parametrize("separation", [2.5, 3.0])
+def test_a_merged_pair_with_no_saddle_is_split_at_predicted_seeds(separation):
+    """Two markers 2.5-3 px apart make one blob with no saddle between them: flagged merged and measured whole, its
+    centroid between them. Given the markers' predicted positions (a tracker's, 0.3 px off) as seeds, it is fitted
+    as two discs started there: both found to 0.05 px, not flagged, their stated std near their scatter. A round
+    blob that holds two seeds (one marker, two predictions) is measured as without them."""
+    sensor = Sensor()
+    rng = np.random.default_rng(int(separation * 10))
+    errors, stated = [], []
+    for _ in range(20):
+        image = sensor.background_frame(SHAPE, rng)
+        angle = rng.uniform(0, np.pi)
+        uv = rng.uniform(100, 300, 2) + np.outer([-0.5, 0.5], separation * np.array([np.cos(angle), np.sin(angle)]))
+        lone = rng.uniform([350, 100], [550, 300])
+        sensor.draw(image, np.vstack([uv, lone]), np.full(3, 1.75), np.full(3, 150.0), rng)
+        whole = detect(image)
+        assert len(whole) == 2 and whole.merged.sum() == 1  # the pair, flagged, and the lone marker
+        det = detect(image, seeds=np.vstack([uv + rng.normal(0.0, 0.3, (2, 2)), lone + [[0.4, 0.0], [-0.4, 0.0]]]))
+        assert len(det) == 3 and not det.merged.any()
+        single = np.linalg.norm(det.xy - lone, axis=1) < 1.0
+        np.testing.assert_array_equal(det.xy[single], whole.xy[~whole.merged])
+        errors.append(det.xy[~single][match(det.xy[~single], uv)] - uv)
+        stated.append(np.sqrt(0.5 * (det.cov[~single, 0, 0] + det.cov[~single, 1, 1])))
+    err = np.linalg.norm(np.concatenate(errors), axis=1)
+    assert err.max() < 0.05
+    assert 0.6 < np.concatenate(stated).mean() / np.sqrt(0.5 * np.mean(err**2)) < 1.6
+
+
 def test_roi_mode_finds_the_same_blobs_as_a_full_scan():
     sensor = Sensor()
     rng = np.random.default_rng(4)
