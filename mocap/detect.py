@@ -34,7 +34,9 @@ Stages, all vectorised over the blobs of a frame (no per-blob Python loop):
    its neighbours is flagged ``merged`` but kept whole. The parts of a split blob are not flagged (each is a
    fitted disc), unless a part holds more light than 1.25x the markers nearby (three markers found as two).
    Limits: two markers closer than about their radius (no saddle) stay one blob; two saturated markers joined
-   by a saturated bridge are flagged, not split.
+   by a saturated bridge are flagged, not split. A tracker that knows where its markers will be passes them as
+   ``seeds``: a flagged blob holding two or more of them is fitted as that many discs started there (kept only
+   if every disc's fit succeeds), so such a pair is measured after all.
 
 ROI mode (``rois``): only blobs whose centroid lies in one of the given boxes are measured and
 reported; the coarse 4x4 pass still covers the frame (it is ~5 % of the cost) so that a blob crossing a
