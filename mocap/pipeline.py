@@ -2,7 +2,8 @@
 
 Frame by frame: read every camera's frame -> detect blobs (full frame, or only the tracker's
 predicted windows between periodic full scans; merged blobs split at the tracker's predicted
-positions) -> :class:`mocap.tracker.Tracker` -> live MCAP log. At the end: C3D / TRC / CSV. Memory stays flat apart from the output arrays.
+positions) -> :class:`mocap.tracker.Tracker` -> live MCAP log. At the end: C3D / TRC / CSV.
+Memory stays flat apart from the output arrays.
 """
 
 from __future__ import annotations

@@ -792,11 +792,12 @@ class Tracker:
                                ) -> np.ndarray:
         """Tracks (indices) seen cleanly by one camera only (``clean`` (K, C)) whose other views (``asg`` (K, C))
         hold merged blobs that another live track's predicted image lies in too (within a marker's image diameter
-        + ``merge_px``): two markers' blob, its centroid between them, up to a marker radius off. Their depth along
-        the clean camera's ray rests on that centroid alone, and their filter follows its offset frame after
-        frame until the drifted prediction "agrees" with the points (the lying markers.trc take: CLAVm output 7 mm
-        off for 60 frames; the whole sprint: points 3-10 mm off). A flat blob no other track explains (a streak, a
-        sphere's oblique image) is one marker's, and is left to the agreement test."""
+        + ``merge_px``), that track holding no other blob there: two markers' blob, its centroid between them, up to
+        a marker radius off. Their depth along the clean camera's ray rests on that centroid alone, and their filter
+        follows its offset frame after frame until the drifted prediction "agrees" with the points (the lying
+        markers.trc take replayed from its centroids: CLAVm output 7 mm off for 60 frames). A flat blob no other
+        track explains (a streak, a sphere's oblique image), or one beside a partner's own blob (the parts of
+        joined halos), is one marker's, and is left to the agreement test."""
         t = self._t
         merged_view = tri.used & _gather(fr.merged, asg)
         rows = np.flatnonzero((clean.sum(axis=1) == 1) & merged_view.any(axis=1))
@@ -805,9 +806,12 @@ class Tracker:
         live = np.flatnonzero(t.since <= 1)
         proj, depth = project_ideal(self._P, t.x3[live, :3])  # (C, L, 2), (C, L)
         r_i, cams = np.nonzero(merged_view[rows])
-        blob = fr.D[cams, asg[rows[r_i], cams]]  # (m, 2) px
+        j = asg[rows[r_i], cams]  # (m,) the merged blobs
+        blob = fr.D[cams, j]  # (m, 2) px
         reach = self._merge_reach(self._focal[cams, None], depth[cams])  # (m, L)
         partner = (np.linalg.norm(proj[cams] - blob[:, None], axis=2) < reach) & (live[None] != rows[r_i, None])
+        own = asg[live[None], cams[:, None]]  # (m, L) the partners' blobs there
+        partner &= (own < 0) | (own == j[:, None])  # (a partner with a blob of its own: two blobs, not one merged)
         return rows[np.unique(r_i[partner.any(axis=1)])]
 
     def _deblend(self, fr: _Frame, crowded: np.ndarray, asg: np.ndarray, tri: Triangulated) -> np.ndarray:
