@@ -689,21 +689,22 @@ def detect(image: np.ndarray, *, threshold: float | None = None, min_area: int =
         peaks, n_discs, seeded = _seeded_peaks(np.asarray(seeds, dtype=np.float64).reshape(-1, 2), ids,
                                                fit & flagged & (n_discs == 1), owners, stats, peaks, n_discs)
     radius = stats.reach[ids] + SKIRT
+    groups = []  # (blobs (N,) of ids, centres (N, k, 2), covariances (N, k, 2, 2)) per fitted disc count
     for k in np.unique(n_discs[fit]):
         group = np.flatnonzero(fit & (n_discs == k))
         centres, covs, failed = _measure(image, owners, ids[group], int(k), radius[group], peaks, stats, level,
                                          sigma, t)
         whole = failed & seeded[group]  # a seeded split that failed: measured whole below
         n_discs[group[whole]] = 1
-        xy.append(centres[~whole].reshape(-1, 2))
-        cov.append(covs[~whole].reshape(-1, 2, 2))
-        part.append(np.repeat(group[~whole], k))
+        groups.append((group[~whole], centres[~whole], covs[~whole]))
     again = np.flatnonzero(seeded & (n_discs == 1))
     if again.size:
-        centres, covs, _ = _measure(image, owners, ids[again], 1, radius[again], peaks, stats, level, sigma, t)
+        groups.append((again, *_measure(image, owners, ids[again], 1, radius[again], peaks, stats, level, sigma,
+                                        t)[:2]))
+    for group, centres, covs in groups:  # (N, k, ...) per group
         xy.append(centres.reshape(-1, 2))
         cov.append(covs.reshape(-1, 2, 2))
-        part.append(again)
+        part.append(np.repeat(group, centres.shape[1]))
     part = np.concatenate(part)
     # Each part of a split blob is fitted as a disc of its own: measured, not merged; unless the parts hold more light
     # than single markers nearby (three markers fitted as two discs: a centroid between two of them). (Light, not
