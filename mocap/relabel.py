@@ -54,6 +54,7 @@ from scipy.optimize import linear_sum_assignment
 
 from mocap.fill import fill_from_unconfirmed
 from mocap.plates import label_plates
+from mocap.quickstats import quick_median
 from mocap.reunite import reunite_clusters
 from mocap.trajectories import Trajectories, UnconfirmedPoints
 
@@ -277,14 +278,6 @@ def _end_state(P: np.ndarray, run: np.ndarray, at_start: bool) -> tuple[int, np.
     return int(frame), pos, pos - P[run[-2][0], run[-2][1]]
 
 
-def _median(v: np.ndarray) -> float:
-    """``np.median`` of a short 1-D array, the same number without its overhead (called for every pair of identities
-    at every link)."""
-    s = np.sort(v)
-    n = len(s)
-    return float((s[(n - 1) // 2] + s[n // 2]) / 2)
-
-
 def _chain_distances(P: np.ndarray, samples: np.ndarray, owner: np.ndarray, chain: int, cfg: RelabelConfig
                      ) -> dict[int, np.ndarray]:
     """Distances from a tracklet's samples (n, 2) (frame, column) to the identities (chains) seen in the same
@@ -304,7 +297,7 @@ def _chain_distances(P: np.ndarray, samples: np.ndarray, owner: np.ndarray, chai
     out = {}
     for start, end in zip(np.append(0, ends[:-1]), ends, strict=True):
         v = values[max(start, end - cfg.shape_window):end]
-        if _median(v) < cfg.shape_radius_m:
+        if quick_median(v) < cfg.shape_radius_m:
             out[int(others[start])] = v
     return out
 
@@ -368,7 +361,7 @@ def _comparable(memory: dict[int, np.ndarray], head: dict[int, np.ndarray], chai
                 ) -> list[tuple[float, float]]:
     """(then, now) median distances, m, to the identities steady in both an identity's ``memory`` and a
     tracklet's ``head`` (the identity ``chain`` itself left out)."""
-    return [(_median(memory[o]), _median(h)) for o, h in head.items()
+    return [(quick_median(memory[o]), quick_median(h)) for o, h in head.items()
             if o != chain and _steady(h, cfg) and _steady(memory.get(o), cfg)]
 
 
@@ -554,7 +547,7 @@ class _Linker:
                 if common.size < 3:
                     continue
                 v = np.linalg.norm(P[common, fa[0, 1]] - P[common, fb[0, 1]], axis=1)
-                middle = _median(v)
+                middle = quick_median(v)
                 if middle < cfg.shape_radius_m and _steady(v, cfg):
                     within[a, b] = within[b, a] = middle
         members = sorted({a for a, _ in within})
@@ -572,7 +565,7 @@ class _Linker:
                     return np.inf
                 pairs = _comparable(memory[c], heads[g], c, cfg)
                 relations += len(pairs)
-                inside = [(_median(memory[c][choice[m]]), within[g, h]) for m, h in enumerate(members)
+                inside = [(quick_median(memory[c][choice[m]]), within[g, h]) for m, h in enumerate(members)
                           if m != k and (g, h) in within and _steady(memory[c].get(choice[m]), cfg)]
                 relations += 0.5 * len(inside)
                 pairs += inside

@@ -6,7 +6,6 @@ import numpy as np
 
 from mocap.relabel import (
     RelabelConfig,
-    _median,
     _tracklets,
     drop_duplicates,
     relink_tracklets,
@@ -206,13 +205,6 @@ def test_a_fast_swing_at_50_hz_is_not_cut_where_a_jump_is():
     assert len(_tracklets(P, split)) == 1
     P[50:, 0, 2] += 0.15
     assert len(_tracklets(P, split)) == 2
-
-
-def test_short_median_is_numpys():
-    rng = np.random.default_rng(2)
-    for n in range(1, 9):
-        v = rng.uniform(0.0, 0.3, n)
-        assert _median(v) == float(np.median(v))
 
 
 def test_a_marker_held_by_two_identities_stays_with_the_one_it_continues():
