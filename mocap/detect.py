@@ -48,13 +48,14 @@ from __future__ import annotations
 
 import functools
 import math
+import threading
 
 import cv2
 import numpy as np
 from scipy import special
 from scipy.spatial import cKDTree
 
-from mocap import kernels
+from mocap import detect_kernels, kernels
 from mocap.detections import Detections, floored_covariance
 
 __all__ = ["background_level", "detect", "K_SIGMA", "MIN_CONTRAST"]
@@ -204,15 +205,54 @@ class _Owners:
         return inside & (self.labels.take(index) == self.local[blobs])
 
 
-def _label_blobs(image: np.ndarray, t: int, cell_labels: np.ndarray, boxes: np.ndarray) -> tuple[_Pixels, _Owners]:
-    """Label the blobs of each group of cells in a stacked mosaic of patches.
+class _OwnerImage:
+    """Which blob owns a pixel, from the compiled labelling's scratch image (:func:`_owner_scratch`)."""
+
+    def __init__(self, owner: np.ndarray, stamp: int) -> None:
+        self.owner, self.stamp = owner, stamp
+
+    def owns(self, blobs: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+        """(T,) bool: pixel (x, y) (T,) int belongs to blob ``blobs`` (T,)."""
+        h, w = self.owner.shape
+        inside = (x >= 0) & (y >= 0) & (x < w) & (y < h)
+        index = np.minimum(np.maximum(y, 0), h - 1) * w + np.minimum(np.maximum(x, 0), w - 1)
+        return inside & (self.owner.ravel().take(index) == self.stamp + blobs + 1)
+
+
+_AnyOwners = _Owners | _OwnerImage
+_SCRATCH = threading.local()  # per thread: {(H, W): [owner image (H, W) int64, calls so far]}
+
+
+def _owner_scratch(shape: tuple[int, int]) -> tuple[np.ndarray, int]:
+    """This thread's owner image for frames of ``shape`` and a stamp new to this call (a multiple of 2^32 above
+    every stamp in the image)."""
+    store = _SCRATCH.__dict__.setdefault("images", {})
+    if shape not in store:
+        store[shape] = [np.zeros(shape, np.int64), 0]
+    entry = store[shape]
+    entry[1] += 1
+    return entry[0], entry[1] << 32
+
+
+def _label_blobs(image: np.ndarray, t: int, cell_labels: np.ndarray, boxes: np.ndarray
+                 ) -> tuple[_Pixels, _AnyOwners, np.ndarray]:
+    """Label the blobs of each group of cells in a stacked mosaic of patches (compiled: by flood fill in the
+    frame, the same blobs in the same order).
 
     Returns:
-        pixels: every blob pixel (blob ids 0..N-1); owners: which blob owns a pixel.
+        pixels: every blob pixel (blob ids 0..N-1); owners: which blob owns a pixel; starts (N,): each blob's
+        first pixel.
     """
     h, w = image.shape
     side = CELL * (np.maximum(boxes[:, 3] - boxes[:, 1], boxes[:, 4] - boxes[:, 2]) + 1) + 2 * MARGIN
     bucket = np.maximum(16, 2 ** np.ceil(np.log2(side))).astype(np.int64)  # few distinct patch sizes
+    if kernels.HAVE_NUMBA:
+        owner, stamp = _owner_scratch((h, w))
+        starts, x, y, grey = detect_kernels.label_blobs(
+            image, t, kernels.contiguous(cell_labels, np.int32), kernels.contiguous(
+                boxes[np.argsort(bucket, kind="stable")], np.int64), CELL, owner, stamp)
+        blob = np.repeat(np.arange(len(starts) - 1), np.diff(starts))
+        return _Pixels(blob, x, y, grey, presorted=True), _OwnerImage(owner, stamp), starts[:-1]
     parts, owners = [], []
     n_blobs = n_labels = 0
     for size in np.unique(bucket):
@@ -239,7 +279,7 @@ def _label_blobs(image: np.ndarray, t: int, cell_labels: np.ndarray, boxes: np.n
         n_blobs += n - 1
         n_labels += labels.size
     pixels = _Pixels(*(np.concatenate(a) for a in zip(*parts, strict=True)))
-    return pixels, _Owners(*(np.concatenate(a) for a in zip(*owners, strict=True)))
+    return pixels, _Owners(*(np.concatenate(a) for a in zip(*owners, strict=True))), _runs(pixels.blob)[0]
 
 
 # --------------------------------------------------------------------------- blob model fit
@@ -253,7 +293,7 @@ def _fit_discs(values: np.ndarray, ox: np.ndarray, oy: np.ndarray, seg: np.ndarr
     (``DAMPING``); a centre moves at most ``MAX_STEP`` px per step. Pixel arithmetic is float32 (centres are
     relative to the window, so float32 resolves 1e-6 px); the normal equations are solved in float64.
     The windows' pixels of all blobs lie one after another in flat (T,) arrays (no padding). With the compiled
-    kernels on, :func:`mocap.kernels.fit_discs` does the same blob by blob in float64.
+    kernels on, :func:`mocap.detect_kernels.fit_discs` does the same blob by blob in float64.
 
     Args:
         values: (T,) grey levels minus the frame's background level.
@@ -269,7 +309,7 @@ def _fit_discs(values: np.ndarray, ox: np.ndarray, oy: np.ndarray, seg: np.ndarr
     """
     if kernels.HAVE_NUMBA:
         params = kernels.contiguous(params)
-        cov = kernels.fit_discs(values, ox, oy, np.append(starts, len(seg)), params, iterations, _EDGE_TABLES,
+        cov = detect_kernels.fit_discs(values, ox, oy, np.append(starts, len(seg)), params, iterations, _EDGE_TABLES,
                                 _EDGE_STEPS, float(_Z_RES), float(_Z_ORIGIN), float(_Z_LAST), _MIN_FOOTPRINT, DAMPING,
                                 *_BOUNDS_F64)
         pos = (1 + 5 * np.arange((params.shape[1] - 1) // 5)[:, None] + np.arange(2)).ravel()
@@ -424,9 +464,17 @@ class _Blobs:
         saturated_radius: (N,) radius of the saturated area, px.
     """
 
-    def __init__(self, pixels: _Pixels, level: float) -> None:
+    def __init__(self, pixels: _Pixels, starts: np.ndarray, level: float) -> None:
         b = pixels.blob
-        starts, _ = _runs(b)
+        if kernels.HAVE_NUMBA:
+            sums = detect_kernels.blob_sums(np.append(starts, len(b)), pixels.x, pixels.y, pixels.grey, level,
+                                            _SATURATED)
+            self.area, self.flux, self.peak, self.radius, self.saturated_radius, self.reach = sums[
+                :, [0, 1, 10, 11, 12, 13]].T
+            self.centroid = sums[:, 2:4]
+            self.second = sums[:, [4, 5, 5, 6]].reshape(-1, 2, 2)
+            self.centroid_cov = sums[:, [7, 8, 8, 9]].reshape(-1, 2, 2)
+            return
         x, y = pixels.x.astype(np.float64), pixels.y.astype(np.float64)
         wgt = np.maximum(pixels.grey - level, 1e-6)
         self.area = np.diff(np.append(starts, len(b))).astype(np.float64)
@@ -461,7 +509,7 @@ def _neighbour_medians(xy: np.ndarray, values: np.ndarray, k: int = 5) -> np.nda
     return 0.5 * (near[:, (k - 1) // 2] + near[:, k // 2])
 
 
-def _window(centre: np.ndarray, radius: np.ndarray, image: np.ndarray, owners: _Owners, own: np.ndarray, t: int,
+def _window(centre: np.ndarray, radius: np.ndarray, image: np.ndarray, owners: _AnyOwners, own: np.ndarray, t: int,
             level: float) -> tuple[np.ndarray, ...]:
     """Round fit windows: the usable pixels within ``radius`` (N,) px of each ``centre`` (N, 2), one window after
     another.
@@ -521,7 +569,7 @@ def _disc_offsets(half: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return out
 
 
-def _seeded_peaks(seeds: np.ndarray, ids: np.ndarray, eligible: np.ndarray, owners: _Owners, stats: _Blobs,
+def _seeded_peaks(seeds: np.ndarray, ids: np.ndarray, eligible: np.ndarray, owners: _AnyOwners, stats: _Blobs,
                   peaks: tuple[np.ndarray, np.ndarray, np.ndarray], n_discs: np.ndarray
                   ) -> tuple[tuple[np.ndarray, np.ndarray, np.ndarray], np.ndarray, np.ndarray]:
     """Seeds (S, 2) px as the peaks of the ``eligible`` blobs (of ``ids``) that own the pixels of two or more
@@ -577,7 +625,7 @@ def _disc_starts(blobs: np.ndarray, k: int, origin: np.ndarray, peaks: tuple[np.
     return start
 
 
-def _measure(image: np.ndarray, owners: _Owners, blobs: np.ndarray, k: int, radius: np.ndarray,
+def _measure(image: np.ndarray, owners: _AnyOwners, blobs: np.ndarray, k: int, radius: np.ndarray,
              peaks: tuple[np.ndarray, np.ndarray, np.ndarray], stats: _Blobs, level: float, sigma: float, t: int
              ) -> tuple[np.ndarray, np.ndarray]:
     """Fit ``k`` discs to each blob in ``blobs`` (N,) on the pixels within ``radius`` (N,) px of its
@@ -652,8 +700,8 @@ def detect(image: np.ndarray, *, threshold: float | None = None, min_area: int =
     cell_labels, boxes = _groups(cells, None if rois is None else _roi_cells(rois, cells.shape))
     if len(boxes) == 0:
         return Detections.empty()
-    pixels, owners = _label_blobs(image, t, cell_labels, boxes)
-    stats = _Blobs(pixels, level)
+    pixels, owners, starts = _label_blobs(image, t, cell_labels, boxes)
+    stats = _Blobs(pixels, starts, level)
     keep = (stats.area >= min_area) & (stats.area <= max_area)
     if rois is not None:
         r = np.asarray(rois, dtype=np.float64).reshape(-1, 4)

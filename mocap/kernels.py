@@ -1,11 +1,12 @@
-"""Compiled kernels of the tracker's and the detector's hot per-frame loops (numba, optional), and the switch that
+"""Compiled kernels of the tracker's hot per-frame loops (numba, optional), and the switch that
 selects them.
 
 The numpy functions (:mod:`mocap.fusion`, :mod:`mocap.ekf`, :mod:`mocap.stereo`, the tracker's stages) are
 the reference; each kernel here computes the same numbers with one loop over the points, tracks or filters
 (one call per stage and frame instead of dozens of numpy calls on small arrays) and the callers switch to it
 where :data:`HAVE_NUMBA` is true. The same arithmetic in the same order, so results agree to rounding
-(BLAS sums products in its own order: ~1e-16 relative). Install with ``pip install 'mocap[fast]'``.
+(BLAS sums products in its own order: ~1e-16 relative). The detector's kernels are in :mod:`mocap.detect_kernels`.
+Install with ``pip install 'mocap[fast]'``.
 
 :data:`HAVE_NUMBA` is false when numba cannot be imported or the environment variable ``MOCAP_NO_NUMBA`` is
 set to anything but ``0`` (tests and benchmarks use it to run the numpy path). Kernels are compiled on first
@@ -23,8 +24,7 @@ import os
 import numpy as np
 
 __all__ = ["HAVE_NUMBA", "REASON", "announce", "contiguous", "robust_triangulate", "gauss_newton", "update_position",
-           "repick", "predict", "update_tracks", "epipolar_consistency", "gate", "search_regions", "crowded",
-           "fit_discs"]
+           "repick", "predict", "update_tracks", "epipolar_consistency", "gate", "search_regions", "crowded"]
 
 _log = logging.getLogger("mocap")
 
@@ -635,135 +635,3 @@ def crowded(pred, play, seen, depth, asg, focal, marker_mm, merge_px):
                     if own < 0 or other < 0 or own == other:
                         out[k, c] = True
     return out
-
-
-@_jit
-def _cholesky(A):
-    """In place: the lower Cholesky factor of the symmetric (n, n) ``A``; False if it is not positive definite."""
-    n = A.shape[0]
-    for j in range(n):
-        d = A[j, j]
-        for k in range(j):
-            d -= A[j, k] * A[j, k]
-        if not d > 0.0:
-            return False
-        d = math.sqrt(d)
-        A[j, j] = d
-        for i in range(j + 1, n):
-            v = A[i, j]
-            for k in range(j):
-                v -= A[i, k] * A[j, k]
-            A[i, j] = v / d
-    return True
-
-
-@_jit
-def _cholesky_solve(L, b, out):
-    """``out`` = x with L L^T x = b (``L`` from :func:`_cholesky`)."""
-    n = L.shape[0]
-    for i in range(n):
-        v = b[i]
-        for k in range(i):
-            v -= L[i, k] * out[k]
-        out[i] = v / L[i, i]
-    for i in range(n - 1, -1, -1):
-        v = out[i]
-        for k in range(i + 1, n):
-            v -= L[k, i] * out[k]
-        out[i] = v / L[i, i]
-
-
-@_jit
-def fit_discs(values, ox, oy, starts, params, iterations, tables, steps, z_res, z_origin, z_last, min_footprint,
-              damping, step_bound, low, high):
-    """Detection's ``_fit_discs`` (:mod:`mocap.detect`), blob by blob, pixel by pixel, in float64 (the numpy one
-    runs its pixel arithmetic in float32: centres agree to ~1e-6 px). ``starts`` (N + 1,): each blob's first pixel
-    and the end; ``params`` (N, 1 + 5K) float64 starts, updated in place; the edge ``tables``/``steps`` and the
-    bounds as in :mod:`mocap.detect`. Returns the unscaled covariance (N, 1 + 5K, 1 + 5K) of the last step."""
-    n, n_par = params.shape
-    n_discs = (n_par - 1) // 5
-    half = tables.shape[0] // 2
-    cov_out = np.empty((n, n_par, n_par))
-    J = np.empty(n_par)
-    jtj = np.empty((n_par, n_par))
-    grad = np.empty(n_par)
-    z = np.empty(4)
-    t = np.empty(4)
-    dt = np.empty(4)
-    lhs, damped = np.empty((n_par, n_par)), np.empty((n_par, n_par))
-    step, unit, column = np.empty(n_par), np.empty(n_par), np.empty(n_par)
-    for b in range(n):
-        for step_no in range(iterations):
-            jtj[:] = 0.0
-            grad[:] = 0.0
-            for p in range(starts[b], starts[b + 1]):
-                model = params[b, 0]
-                J[0] = 1.0
-                for k in range(n_discs):
-                    q = 1 + 5 * k
-                    cx, cy, amp, r, s = (params[b, q], params[b, q + 1], params[b, q + 2], params[b, q + 3],
-                                         params[b, q + 4])
-                    dx, dy = ox[p] - cx, oy[p] - cy
-                    rho = math.sqrt(dx * dx + dy * dy)
-                    inv_rho = 1.0 / max(rho, 1e-6)
-                    a = max(abs(dx) * inv_rho, min_footprint)  # the pixel's footprint across the edge
-                    bb = max(abs(dy) * inv_rho, min_footprint)
-                    inv_s = 1.0 / s
-                    depth = r - rho
-                    inside = depth > 0.0
-                    centre = depth * (z_res * inv_s) + z_origin
-                    half_sum, half_diff = (a + bb) * (0.5 * z_res * inv_s), abs(a - bb) * (0.5 * z_res * inv_s)
-                    z[0], z[1] = centre + half_sum, centre + half_diff
-                    z[2], z[3] = centre - half_diff, centre - half_sum
-                    for i in range(4):
-                        zi = min(max(z[i], 0.0), z_last)
-                        cell = int(zi)  # (zi >= 0: the floor)
-                        index = cell + (half if inside else 0)
-                        dt[i] = steps[index]
-                        t[i] = tables[index] + (zi - cell) * dt[i]
-                        z[i] = (zi - z_origin) * dt[i]  # z T'(z), scaled as the numpy one
-                    sum_t = (t[0] + t[3]) - (t[1] + t[2])
-                    scale = s / (a * bb)
-                    f = sum_t * scale * s + (1.0 if inside else 0.0)
-                    slope = ((dt[0] + dt[3]) - (dt[1] + dt[2])) * (scale * z_res) * amp
-                    model += amp * f
-                    J[q + 2] = f
-                    J[q + 4] = amp * scale * (2.0 * sum_t - ((z[0] + z[3]) - (z[1] + z[2])))
-                    J[q + 3] = slope
-                    J[q] = slope * inv_rho * dx
-                    J[q + 1] = slope * inv_rho * dy
-                resid = values[p] - model
-                for i in range(n_par):
-                    grad[i] += J[i] * resid
-                    for j in range(i, n_par):
-                        jtj[i, j] += J[i] * J[j]
-            for i in range(n_par):
-                for j in range(i):
-                    jtj[i, j] = jtj[j, i]
-            if step_no < iterations - 1:
-                damped[:] = jtj
-                for i in range(n_par):
-                    damped[i, i] = damped[i, i] * (1.0 + damping) + 1e-9
-                lhs[:] = damped  # (factored in place)
-                if _cholesky(lhs):
-                    _cholesky_solve(lhs, grad, step)
-                else:
-                    step[:] = np.linalg.solve(damped, grad)
-            else:  # the last step is undamped: its inverse is also the covariance
-                lhs[:] = jtj
-                if _cholesky(lhs):
-                    for i in range(n_par):
-                        unit[:] = 0.0
-                        unit[i] = 1.0
-                        _cholesky_solve(lhs, unit, column)
-                        cov_out[b, :, i] = column
-                else:  # a degenerate window
-                    cov_out[b] = np.linalg.pinv(jtj)
-                step[:] = cov_out[b] @ grad
-            params[b, 0] += step[0]
-            for k in range(n_discs):
-                for i in range(5):
-                    q = 1 + 5 * k + i
-                    v = params[b, q] + min(max(step[q], -step_bound[i]), step_bound[i])
-                    params[b, q] = min(max(v, low[i]), high[i])
-    return cov_out

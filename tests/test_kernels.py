@@ -355,3 +355,22 @@ def test_detection_fit_kernel_on_a_degenerate_window(both):
     for out in both(lambda: _fit_discs(values, ox, oy, np.zeros(1, np.intp), np.zeros(1, np.intp), params, 2)):
         assert out[0].shape == (1, 6) and out[1].shape == (1, 2, 2)
         assert np.isfinite(out[0]).all() and np.isfinite(out[1]).all()
+
+
+def test_detection_labelling_and_blob_sums_are_the_numpy_ones(both):
+    """The compiled labelling (flood fill in the frame) finds the numpy mosaic's blobs in the same order, with the
+    same pixels: with the weighted centroid (no fit), detections agree to rounding, full frame and in boxes, and
+    blobs cut by the image border or by a box's edge included."""
+    rng = np.random.default_rng(12)
+    frames = [_blob_frame(rng) for _ in range(4)]
+    border = frames[0].copy()
+    border[:3, 100:110] = border[200:206, :4] = border[-2:, -5:] = 255  # blobs on the edges and in the corner
+    frames.append(border)
+    rois = np.array([[0, 0, 300, 200], [250, 150, 639, 479], [600, 0, 700, 50]])
+    found = []
+    for kwargs in ({"refine": "centroid"}, {"refine": "centroid", "rois": rois}):
+        ref, got = both(lambda images, kw: [detect(im, **kw) for im in images], frames, kwargs)
+        for r, g in zip(ref, got, strict=True):
+            _same(r, g, rtol=1e-12)
+        found.append(sum(len(d) for d in ref))
+    assert found[0] > 200 and 60 < found[1] < found[0]
