@@ -48,7 +48,6 @@ from __future__ import annotations
 
 import functools
 import math
-import threading
 
 import cv2
 import numpy as np
@@ -187,57 +186,29 @@ class _Owners:
 
     Attributes:
         labels: (L,) int32, every patch's labels (0: no blob), patches one after another; each blob's patch
-        starts at ``base`` (N,), has its top-left pixel at ``x0``, ``y0`` (N,) and ``size`` (N,) columns and
-        rows; ``local`` (N,) is the blob's label there.
+        starts at ``base`` (N,), has its top-left pixel at ``x0``, ``y0`` (N,), ``width`` columns and ``height``
+        rows (N,); ``local`` (N,) is the blob's label there.
     """
 
-    def __init__(self, labels: np.ndarray, base: np.ndarray, x0: np.ndarray, y0: np.ndarray, size: np.ndarray,
-                 local: np.ndarray) -> None:
-        self.labels, self.base, self.x0, self.y0, self.size, self.local = labels, base, x0, y0, size, local
+    def __init__(self, labels: np.ndarray, base: np.ndarray, x0: np.ndarray, y0: np.ndarray, width: np.ndarray,
+                 height: np.ndarray, local: np.ndarray) -> None:
+        self.labels, self.base, self.x0, self.y0, self.local = labels, base, x0, y0, local
+        self.width, self.height = width, height
 
     def owns(self, blobs: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
         """(T,) bool: pixel (x, y) (T,) int belongs to blob ``blobs`` (T,)."""
-        size = self.size[blobs]
+        width, height = self.width[blobs], self.height[blobs]
         rx, ry = x - self.x0[blobs], y - self.y0[blobs]
-        inside = (rx >= 0) & (ry >= 0) & (rx < size) & (ry < size)
-        index = self.base[blobs] + np.minimum(np.maximum(ry, 0), size - 1) * size + np.minimum(
-            np.maximum(rx, 0), size - 1)
+        inside = (rx >= 0) & (ry >= 0) & (rx < width) & (ry < height)
+        index = self.base[blobs] + np.minimum(np.maximum(ry, 0), height - 1) * width + np.minimum(
+            np.maximum(rx, 0), width - 1)
         return inside & (self.labels.take(index) == self.local[blobs])
 
 
-class _OwnerImage:
-    """Which blob owns a pixel, from the compiled labelling's scratch image (:func:`_owner_scratch`)."""
-
-    def __init__(self, owner: np.ndarray, stamp: int) -> None:
-        self.owner, self.stamp = owner, stamp
-
-    def owns(self, blobs: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
-        """(T,) bool: pixel (x, y) (T,) int belongs to blob ``blobs`` (T,)."""
-        h, w = self.owner.shape
-        inside = (x >= 0) & (y >= 0) & (x < w) & (y < h)
-        index = np.minimum(np.maximum(y, 0), h - 1) * w + np.minimum(np.maximum(x, 0), w - 1)
-        return inside & (self.owner.ravel().take(index) == self.stamp + blobs + 1)
-
-
-_AnyOwners = _Owners | _OwnerImage
-_SCRATCH = threading.local()  # per thread: {(H, W): [owner image (H, W) int64, calls so far]}
-
-
-def _owner_scratch(shape: tuple[int, int]) -> tuple[np.ndarray, int]:
-    """This thread's owner image for frames of ``shape`` and a stamp new to this call (a multiple of 2^32 above
-    every stamp in the image)."""
-    store = _SCRATCH.__dict__.setdefault("images", {})
-    if shape not in store:
-        store[shape] = [np.zeros(shape, np.int64), 0]
-    entry = store[shape]
-    entry[1] += 1
-    return entry[0], entry[1] << 32
-
-
 def _label_blobs(image: np.ndarray, t: int, cell_labels: np.ndarray, boxes: np.ndarray
-                 ) -> tuple[_Pixels, _AnyOwners, np.ndarray]:
-    """Label the blobs of each group of cells in a stacked mosaic of patches (compiled: by flood fill in the
-    frame, the same blobs in the same order).
+                 ) -> tuple[_Pixels, _Owners, np.ndarray]:
+    """Label the blobs of each group of cells in a stacked mosaic of patches (compiled: by flood fill in each
+    group's box, the same blobs in the same order).
 
     Returns:
         pixels: every blob pixel (blob ids 0..N-1); owners: which blob owns a pixel; starts (N,): each blob's
@@ -247,12 +218,11 @@ def _label_blobs(image: np.ndarray, t: int, cell_labels: np.ndarray, boxes: np.n
     side = CELL * (np.maximum(boxes[:, 3] - boxes[:, 1], boxes[:, 4] - boxes[:, 2]) + 1) + 2 * MARGIN
     bucket = np.maximum(16, 2 ** np.ceil(np.log2(side))).astype(np.int64)  # few distinct patch sizes
     if kernels.HAVE_NUMBA:
-        owner, stamp = _owner_scratch((h, w))
-        starts, x, y, grey = detect_kernels.label_blobs(
+        starts, x, y, grey, *owners = detect_kernels.label_blobs(
             image, t, kernels.contiguous(cell_labels, np.int32), kernels.contiguous(
-                boxes[np.argsort(bucket, kind="stable")], np.int64), CELL, owner, stamp)
+                boxes[np.argsort(bucket, kind="stable")], np.int64), CELL)
         blob = np.repeat(np.arange(len(starts) - 1), np.diff(starts))
-        return _Pixels(blob, x, y, grey, presorted=True), _OwnerImage(owner, stamp), starts[:-1]
+        return _Pixels(blob, x, y, grey, presorted=True), _Owners(*owners), starts[:-1]
     parts, owners = [], []
     n_blobs = n_labels = 0
     for size in np.unique(bucket):
@@ -275,7 +245,7 @@ def _label_blobs(image: np.ndarray, t: int, cell_labels: np.ndarray, boxes: np.n
         patch = np.zeros(n - 1, np.int64)
         patch[local - 1] = p
         owners.append((labels.ravel(), n_labels + patch * ((size + 1) * size), xs[patch, 0], ys[patch, 0],
-                       np.full(n - 1, size), np.arange(1, n, dtype=np.int32)))
+                       np.full(n - 1, size), np.full(n - 1, size), np.arange(1, n, dtype=np.int32)))
         n_blobs += n - 1
         n_labels += labels.size
     pixels = _Pixels(*(np.concatenate(a) for a in zip(*parts, strict=True)))
@@ -509,7 +479,7 @@ def _neighbour_medians(xy: np.ndarray, values: np.ndarray, k: int = 5) -> np.nda
     return 0.5 * (near[:, (k - 1) // 2] + near[:, k // 2])
 
 
-def _window(centre: np.ndarray, radius: np.ndarray, image: np.ndarray, owners: _AnyOwners, own: np.ndarray, t: int,
+def _window(centre: np.ndarray, radius: np.ndarray, image: np.ndarray, owners: _Owners, own: np.ndarray, t: int,
             level: float) -> tuple[np.ndarray, ...]:
     """Round fit windows: the usable pixels within ``radius`` (N,) px of each ``centre`` (N, 2), one window after
     another.
@@ -526,6 +496,13 @@ def _window(centre: np.ndarray, radius: np.ndarray, image: np.ndarray, owners: _
     half = _WINDOW_HALVES[np.searchsorted(_WINDOW_HALVES, reach.max())]
     all_ox, all_oy, all_r2 = _disc_offsets(int(half))
     count = np.searchsorted(all_r2, reach * reach, side="right")  # (N,) >= 1
+    if kernels.HAVE_NUMBA:
+        seg, ox, oy, values = detect_kernels.window(
+            origin, kernels.contiguous(centre), kernels.contiguous(radius), count, all_ox, all_oy, image,
+            kernels.contiguous(owners.labels, np.int32), *(kernels.contiguous(a, np.int64) for a in (
+                owners.base, owners.x0, owners.y0, owners.width, owners.height)),
+            kernels.contiguous(owners.local, np.int32), kernels.contiguous(own, np.int64), t, level, _SATURATED)
+        return origin, seg, np.bincount(seg, minlength=len(count)), ox, oy, values
     starts = np.cumsum(count) - count
     seg = np.repeat(np.arange(len(count)), count)
     nearest = np.arange(len(seg)) - starts[seg]
@@ -569,7 +546,7 @@ def _disc_offsets(half: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return out
 
 
-def _seeded_peaks(seeds: np.ndarray, ids: np.ndarray, eligible: np.ndarray, owners: _AnyOwners, stats: _Blobs,
+def _seeded_peaks(seeds: np.ndarray, ids: np.ndarray, eligible: np.ndarray, owners: _Owners, stats: _Blobs,
                   peaks: tuple[np.ndarray, np.ndarray, np.ndarray], n_discs: np.ndarray
                   ) -> tuple[tuple[np.ndarray, np.ndarray, np.ndarray], np.ndarray, np.ndarray]:
     """Seeds (S, 2) px as the peaks of the ``eligible`` blobs (of ``ids``) that own the pixels of two or more
@@ -625,7 +602,7 @@ def _disc_starts(blobs: np.ndarray, k: int, origin: np.ndarray, peaks: tuple[np.
     return start
 
 
-def _measure(image: np.ndarray, owners: _AnyOwners, blobs: np.ndarray, k: int, radius: np.ndarray,
+def _measure(image: np.ndarray, owners: _Owners, blobs: np.ndarray, k: int, radius: np.ndarray,
              peaks: tuple[np.ndarray, np.ndarray, np.ndarray], stats: _Blobs, level: float, sigma: float, t: int
              ) -> tuple[np.ndarray, np.ndarray]:
     """Fit ``k`` discs to each blob in ``blobs`` (N,) on the pixels within ``radius`` (N,) px of its

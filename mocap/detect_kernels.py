@@ -14,64 +14,61 @@ import numpy as np
 
 from mocap.kernels import _jit
 
-__all__ = ["label_blobs", "blob_sums", "fit_discs"]
+__all__ = ["label_blobs", "blob_sums", "window", "fit_discs"]
 
 
 # ---------------------------------------------------------------------------------------------- labelling
 @_jit
-def _bright_in_boxes(image, t, cell_labels, boxes, cell):
-    """Number of pixels brighter than ``t`` in each group's own cells, summed over ``boxes`` (G, 5)."""
-    h, w = image.shape
-    total = 0
-    for g in range(boxes.shape[0]):
-        label = boxes[g, 0]
-        for y in range(cell * boxes[g, 2], min(cell * (boxes[g, 4] + 1), h)):
-            for x in range(cell * boxes[g, 1], min(cell * (boxes[g, 3] + 1), w)):
-                if image[y, x] > t and cell_labels[y // cell, x // cell] == label:
-                    total += 1
-    return total
-
-
-@_jit
-def label_blobs(image, t, cell_labels, boxes, cell, owner, stamp):
+def label_blobs(image, t, cell_labels, boxes, cell):
     """8-connected blobs of the pixels brighter than ``t`` within each group of cells, group by group in the
     order of ``boxes`` (G, 5) ``label, cx0, cy0, cx1, cy1``, each group's blobs in the raster order of their first
     pixel (the numpy path's order: its mosaic labels patches in that order).
 
-    ``owner`` (H, W) int64 is a scratch image kept between calls: a blob pixel gets ``stamp + blob + 1`` (``stamp``
-    a multiple of 2^32, new for every call), so nothing needs clearing.
-
     Returns:
         starts (N + 1,): each blob's first pixel and the end; x, y (T,) int64, each blob's pixels in raster order;
-        grey (T,) uint8.
+        grey (T,) uint8; and which blob owns a pixel, as ``mocap.detect._Owners`` holds it: ``labels`` (L,) int32
+        (every group's box of pixels one after another, blob id + 1 or 0) and per blob (N,) its box's ``base``
+        index there, top-left ``x0``, ``y0``, ``width`` and ``height``, and its label there ``local`` (N,) int32.
     """
     h, w = image.shape
-    total = _bright_in_boxes(image, t, cell_labels, boxes, cell)
-    xs = np.empty(total, np.int64)
-    ys = np.empty(total, np.int64)
-    starts = np.empty(total + 1, np.int64)
-    n = 0
-    end = 0
-    for g in range(boxes.shape[0]):
-        label = boxes[g, 0]
-        for y0 in range(cell * boxes[g, 2], min(cell * (boxes[g, 4] + 1), h)):
-            for x0 in range(cell * boxes[g, 1], min(cell * (boxes[g, 3] + 1), w)):
-                if image[y0, x0] <= t or cell_labels[y0 // cell, x0 // cell] != label or owner[y0, x0] > stamp:
+    n_groups = boxes.shape[0]
+    gx0, gy0 = np.empty(n_groups, np.int64), np.empty(n_groups, np.int64)
+    gw, gh, gbase = np.empty(n_groups, np.int64), np.empty(n_groups, np.int64), np.empty(n_groups, np.int64)
+    total = area = 0
+    for g in range(n_groups):
+        gx0[g], gy0[g] = cell * boxes[g, 1], cell * boxes[g, 2]
+        gw[g] = min(cell * (boxes[g, 3] + 1), w) - gx0[g]
+        gh[g] = min(cell * (boxes[g, 4] + 1), h) - gy0[g]
+        gbase[g] = area
+        area += gw[g] * gh[g]
+        for y in range(gy0[g], gy0[g] + gh[g]):
+            for x in range(gx0[g], gx0[g] + gw[g]):
+                if image[y, x] > t and cell_labels[y // cell, x // cell] == boxes[g, 0]:
+                    total += 1
+    labels = np.zeros(area, np.int32)
+    xs, ys = np.empty(total, np.int64), np.empty(total, np.int64)
+    starts, group = np.empty(total + 1, np.int64), np.empty(total, np.int64)
+    n = end = 0
+    for g in range(n_groups):
+        label, x_lo, y_lo, pw, ph, base = boxes[g, 0], gx0[g], gy0[g], gw[g], gh[g], gbase[g]
+        for y0 in range(y_lo, y_lo + ph):
+            for x0 in range(x_lo, x_lo + pw):
+                if (image[y0, x0] <= t or cell_labels[y0 // cell, x0 // cell] != label
+                        or labels[base + (y0 - y_lo) * pw + x0 - x_lo] != 0):
                     continue
-                starts[n] = end  # a new blob: breadth-first over its pixels, the list itself the queue
-                mark = stamp + n + 1
-                owner[y0, x0] = mark
+                starts[n], group[n] = end, g  # a new blob: breadth-first over its pixels, the list itself the queue
+                labels[base + (y0 - y_lo) * pw + x0 - x_lo] = n + 1
                 xs[end], ys[end] = x0, y0
                 end += 1
                 head = starts[n]
                 while head < end:
                     px, py = xs[head], ys[head]
                     head += 1
-                    for qy in range(max(py - 1, 0), min(py + 2, h)):
-                        for qx in range(max(px - 1, 0), min(px + 2, w)):
-                            if (owner[qy, qx] <= stamp and image[qy, qx] > t
-                                    and cell_labels[qy // cell, qx // cell] == label):
-                                owner[qy, qx] = mark
+                    for qy in range(max(py - 1, y_lo), min(py + 2, y_lo + ph)):
+                        for qx in range(max(px - 1, x_lo), min(px + 2, x_lo + pw)):
+                            at = base + (qy - y_lo) * pw + qx - x_lo
+                            if labels[at] == 0 and image[qy, qx] > t and cell_labels[qy // cell, qx // cell] == label:
+                                labels[at] = n + 1
                                 xs[end], ys[end] = qx, qy
                                 end += 1
                 order = np.argsort(ys[starts[n]:end] * w + xs[starts[n]:end])  # (distinct keys)
@@ -82,7 +79,9 @@ def label_blobs(image, t, cell_labels, boxes, cell, owner, stamp):
     grey = np.empty(end, np.uint8)
     for i in range(end):
         grey[i] = image[ys[i], xs[i]]
-    return starts[: n + 1], xs[:end], ys[:end], grey
+    g = group[:n]
+    return (starts[: n + 1], xs[:end], ys[:end], grey, labels, gbase[g], gx0[g], gy0[g], gw[g], gh[g],
+            np.arange(1, n + 1).astype(np.int32))
 
 
 @_jit
@@ -128,6 +127,53 @@ def blob_sums(starts, xs, ys, grey, level, saturated):
         out[b, 12] = math.sqrt(sat / math.pi)
         out[b, 13] = math.sqrt(reach2)
     return out
+
+
+# ---------------------------------------------------------------------------------------------- fit windows
+@_jit
+def window(origin, centre, radius, count, all_ox, all_oy, image, labels, base, bx0, by0, width, height, local, own, t,
+           level, saturated):
+    """The numpy ``_window``'s usable pixels: of the first ``count`` (N,) offsets ``all_ox``, ``all_oy`` around each
+    ``origin`` (N, 2) int, those on the image, within ``radius`` (N,) of ``centre`` (N, 2), not ``saturated`` and,
+    brighter than ``t``, owned by blob ``own`` (N,) (``labels`` ... ``local``: ``mocap.detect._Owners``).
+
+    Returns:
+        seg (T,) int64, ox, oy (T,) float32 offsets from the origin, values (T,) float32 grey minus ``level``.
+    """
+    h, w = image.shape
+    n = origin.shape[0]
+    total = 0
+    for b in range(n):
+        total += count[b]
+    seg = np.empty(total, np.int64)
+    ox = np.empty(total, np.float32)
+    oy = np.empty(total, np.float32)
+    values = np.empty(total, np.float32)
+    lvl = np.float32(level)
+    end = 0
+    for b in range(n):
+        x0, y0 = origin[b, 0], origin[b, 1]
+        fx, fy = centre[b, 0] - x0, centre[b, 1] - y0
+        r2 = radius[b] * radius[b]
+        blob = own[b]
+        for i in range(count[b]):
+            x, y = x0 + all_ox[i], y0 + all_oy[i]
+            if x < 0 or y < 0 or x >= w or y >= h:
+                continue
+            dx, dy = all_ox[i] - fx, all_oy[i] - fy
+            grey = image[y, x]
+            if dx * dx + dy * dy > r2 or grey >= saturated:
+                continue
+            if grey > t:  # another blob's pixel?
+                rx, ry = x - bx0[blob], y - by0[blob]
+                if (rx < 0 or ry < 0 or rx >= width[blob] or ry >= height[blob]
+                        or labels[base[blob] + ry * width[blob] + rx] != local[blob]):
+                    continue
+            seg[end] = b
+            ox[end], oy[end] = all_ox[i], all_oy[i]
+            values[end] = np.float32(grey) - lvl
+            end += 1
+    return seg[:end], ox[:end], oy[:end], values[:end]
 
 
 # ---------------------------------------------------------------------------------------------- disc fit
