@@ -383,6 +383,10 @@ def _peaks(image: np.ndarray, pixels: _Pixels, level: float, sigma: float
     h, w = image.shape
     starts, b_of = _runs(pixels.blob)
     ids = pixels.blob[starts]
+    if kernels.HAVE_NUMBA:
+        blob, px, py = detect_kernels.peaks(np.append(starts, len(b_of)), kernels.contiguous(pixels.x, np.int64),
+                                            kernels.contiguous(pixels.y, np.int64), image, level, sigma, 2 * MAX_DISCS)
+        return ids[blob], px, py
     x0, y0 = np.minimum.reduceat(pixels.x, starts) - 1, np.minimum.reduceat(pixels.y, starts) - 1
     bw = int((np.maximum.reduceat(pixels.x, starts) - x0).max()) + 2  # box with a 1 px margin
     bh = int((np.maximum.reduceat(pixels.y, starts) - y0).max()) + 2

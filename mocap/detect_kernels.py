@@ -14,7 +14,7 @@ import numpy as np
 
 from mocap.kernels import _jit
 
-__all__ = ["label_blobs", "blob_sums", "window", "fit_discs"]
+__all__ = ["label_blobs", "blob_sums", "peaks", "window", "fit_discs"]
 
 
 # ---------------------------------------------------------------------------------------------- labelling
@@ -127,6 +127,75 @@ def blob_sums(starts, xs, ys, grey, level, saturated):
         out[b, 12] = math.sqrt(sat / math.pi)
         out[b, 13] = math.sqrt(reach2)
     return out
+
+
+# ---------------------------------------------------------------------------------------------- peaks
+@_jit
+def _smooth(image, x, y):
+    """The 3x3 mean of ``image`` around (x, y) (pixels beyond the border repeat it), in float32 as numpy's."""
+    h, w = image.shape
+    total = 0
+    for qy in range(y - 1, y + 2):
+        for qx in range(x - 1, x + 2):
+            total += image[min(max(qy, 0), h - 1), min(max(qx, 0), w - 1)]
+    return np.float32(total) * np.float32(1.0 / 9.0)
+
+
+@_jit
+def peaks(starts, xs, ys, image, level, sigma, keep):
+    """The numpy ``_peaks``: significant local maxima of each blob's 3x3-smoothed profile; ``starts`` (N + 1,),
+    ``xs``, ``ys`` (T,) the blobs' pixels as :func:`label_blobs` gives them; at most ``keep`` maxima per blob are
+    compared. Returns blob (M,) (0..N-1), x, y (M,) float64, by blob, highest first."""
+    n = starts.shape[0] - 1
+    total = starts[n] - starts[0]
+    mb, mx, my = np.empty(total, np.int64), np.empty(total, np.int64), np.empty(total, np.int64)
+    mv = np.empty(total, np.float32)
+    first = np.empty(n + 1, np.int64)
+    m = 0
+    far = 0.0
+    for b in range(n):
+        first[b] = m
+        for i in range(starts[b], starts[b + 1]):
+            x, y = xs[i], ys[i]
+            v = _smooth(image, x, y)
+            top = True
+            for dy in range(-1, 2):
+                for dx in range(-1, 2):
+                    if (dx != 0 or dy != 0) and _smooth(image, x + dx, y + dy) > v:
+                        top = False
+            if not top:
+                continue
+            at = m  # insert: highest first, ties in raster order (the pixels come in raster order)
+            while at > first[b] and mv[at - 1] < v:
+                mb[at], mx[at], my[at], mv[at] = mb[at - 1], mx[at - 1], my[at - 1], mv[at - 1]
+                at -= 1
+            mb[at], mx[at], my[at], mv[at] = b, x, y, v
+            m += 1
+        m = min(m, first[b] + keep)
+        for i in range(first[b], m):
+            for j in range(first[b], i):
+                far = max(far, math.hypot(mx[i] - mx[j], my[i] - my[j]))
+    first[n] = m
+    n_steps = 2 * int(math.ceil(far))
+    significant = np.ones(m, np.bool_)
+    for b in range(n):
+        for i in range(first[b], first[b + 1]):
+            for j in range(first[b], i):
+                dist = math.hypot(mx[i] - mx[j], my[i] - my[j])
+                if dist < 2.0:
+                    significant[i] = False
+                    break
+                lowest = np.float32(np.inf)
+                for k in range(n_steps + 1):
+                    step = k / n_steps
+                    lowest = min(lowest, _smooth(image, int(np.rint(mx[i] + (mx[j] - mx[i]) * step)),
+                                                 int(np.rint(my[i] + (my[j] - my[i]) * step))))
+                pv_i, pv_j = np.float64(mv[i]), np.float64(mv[j])
+                if min(pv_i, pv_j) - np.float64(lowest) <= max(4.0 * sigma, 0.1 * (pv_i - level)):
+                    significant[i] = False
+                    break
+    keep_out = np.flatnonzero(significant)
+    return mb[keep_out], mx[keep_out].astype(np.float64), my[keep_out].astype(np.float64)
 
 
 # ---------------------------------------------------------------------------------------------- fit windows
