@@ -131,7 +131,11 @@ def background_level(image: np.ndarray) -> tuple[float, float]:
         (level, sigma), grey levels: the median and ``median - 15.87th percentile`` of every 4th pixel
         of every 4th row, interpolated within integer levels (sigma includes the 8-bit rounding).
     """
-    hist = cv2.calcHist([np.ascontiguousarray(image[::4, ::4])], [0], None, [256], [0, 256]).ravel().astype(np.float64)
+    if kernels.HAVE_NUMBA:
+        hist = detect_kernels.subsampled_histogram(image, 4)
+    else:
+        hist = cv2.calcHist([np.ascontiguousarray(image[::4, ::4])], [0], None, [256], [0, 256]).ravel().astype(
+            np.float64)
     cum = np.cumsum(hist) / hist.sum()
     level = _quantile_from_histogram(cum, 0.5)
     return level, level - _quantile_from_histogram(cum, 0.15866)
@@ -147,19 +151,22 @@ def _max_pool(image: np.ndarray) -> np.ndarray:
     return cv2.dilate(pooled, _ROW_KERNEL, anchor=(0, 0))
 
 
-def _groups(cells: np.ndarray, roi_cells: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
-    """8-connected groups of candidate cells.
+def _groups(image: np.ndarray, t: int, rois: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
+    """8-connected groups of the cells holding a pixel brighter than ``t`` (those touching one of ``rois`` if given).
 
     Returns:
         labels: (Hc, Wc) int32 group label per cell (0: none).
         boxes: (G, 5) int ``label, cx0, cy0, cx1, cy1`` inclusive cell bounds of each kept group.
     """
-    # Grana's algorithm: 3x faster here than OpenCV's default with statistics on one thread
-    n, labels, stats, _ = cv2.connectedComponentsWithStatsWithAlgorithm(cells, 8, cv2.CV_32S, cv2.CCL_GRANA)
-    left, top, width, height = stats[1:, :4].astype(np.int64).T
-    boxes = np.stack([np.arange(1, n), left, top, left + width - 1, top + height - 1], axis=1)
-    if roi_cells is not None:
-        boxes = boxes[np.bincount(labels[roi_cells], minlength=n)[1:] > 0]
+    if kernels.HAVE_NUMBA:
+        labels, boxes = detect_kernels.coarse_groups(image, t, CELL)
+    else:  # Grana's algorithm: 3x faster here than OpenCV's default with statistics on one thread
+        cells = (_max_pool(image)[:, ::CELL] > t).astype(np.uint8)
+        n, labels, stats, _ = cv2.connectedComponentsWithStatsWithAlgorithm(cells, 8, cv2.CV_32S, cv2.CCL_GRANA)
+        left, top, width, height = stats[1:, :4].astype(np.int64).T
+        boxes = np.stack([np.arange(1, n), left, top, left + width - 1, top + height - 1], axis=1)
+    if rois is not None:
+        boxes = boxes[np.bincount(labels[_roi_cells(rois, labels.shape)], minlength=len(boxes) + 1)[1:] > 0]
     return labels, boxes
 
 
@@ -677,8 +684,7 @@ def detect(image: np.ndarray, *, threshold: float | None = None, min_area: int =
     t = max(0, math.floor(threshold if threshold is not None else level + max(K_SIGMA * sigma, MIN_CONTRAST)))
     if t >= _SATURATED or (rois is not None and len(rois) == 0):
         return Detections.empty()
-    cells = (_max_pool(image)[:, ::CELL] > t).astype(np.uint8)
-    cell_labels, boxes = _groups(cells, None if rois is None else _roi_cells(rois, cells.shape))
+    cell_labels, boxes = _groups(image, t, rois)
     if len(boxes) == 0:
         return Detections.empty()
     pixels, owners, starts = _label_blobs(image, t, cell_labels, boxes)

@@ -14,7 +14,88 @@ import numpy as np
 
 from mocap.kernels import _jit
 
-__all__ = ["label_blobs", "blob_sums", "peaks", "window", "fit_discs"]
+__all__ = ["subsampled_histogram", "coarse_groups", "label_blobs", "blob_sums", "peaks", "window", "fit_discs"]
+
+
+# ---------------------------------------------------------------------------------------------- coarse search
+@_jit
+def subsampled_histogram(image, step):
+    """(256,) float64 counts of the grey levels of every ``step``-th pixel of every ``step``-th row."""
+    h, w = image.shape
+    counts = np.zeros(256, np.int64)
+    for y in range(0, h, step):
+        for x in range(0, w, step):
+            counts[image[y, x]] += 1
+    return counts.astype(np.float64)
+
+
+@_jit
+def coarse_groups(image, t, cell):
+    """The numpy ``_max_pool`` + ``_groups``: cells (``cell`` x ``cell`` px, the last row and column of cells
+    cut by the border) holding a pixel brighter than ``t``, and their 8-connected groups, labelled as OpenCV's
+    Grana algorithm labels them: in the raster order of their first 2x2 block of cells.
+
+    Returns:
+        labels (Hc, Wc) int32 (0: no group) and boxes (G, 5) int64 ``label, cx0, cy0, cx1, cy1`` (inclusive).
+    """
+    h, w = image.shape
+    hc, wc = (h + cell - 1) // cell, (w + cell - 1) // cell
+    hot = np.zeros((hc, wc), np.bool_)
+    hot_row = np.zeros(hc, np.bool_)
+    level = np.uint8(min(t, 255))
+    for y in range(h):
+        src = image[y]
+        bright = False
+        for x in range(w):  # (a branch-free reduction the compiler vectorises: most rows hold no marker)
+            bright |= src[x] > level
+        if bright:
+            hot_row[y // cell] = True
+            for x in range(w):
+                if src[x] > level:
+                    hot[y // cell, x // cell] = True
+    rows = np.flatnonzero(hot_row)
+    n_hot = 0
+    for cy in rows:
+        for cx in range(wc):
+            n_hot += hot[cy, cx]
+    labels = np.zeros((hc, wc), np.int32)
+    queue_x, queue_y = np.empty(n_hot, np.int64), np.empty(n_hot, np.int64)
+    boxes = np.empty((n_hot, 5), np.int64)
+    first_block = np.empty(n_hot, np.int64)
+    n = 0
+    for cy in rows:
+        for cx in range(wc):
+            if not hot[cy, cx] or labels[cy, cx] != 0:
+                continue
+            n += 1
+            labels[cy, cx] = n
+            boxes[n - 1] = (n, cx, cy, cx, cy)
+            first_block[n - 1] = (cy // 2) * wc + cx // 2
+            queue_x[0], queue_y[0] = cx, cy
+            head, end = 0, 1
+            while head < end:
+                px, py = queue_x[head], queue_y[head]
+                head += 1
+                boxes[n - 1, 1] = min(boxes[n - 1, 1], px)
+                boxes[n - 1, 3] = max(boxes[n - 1, 3], px)
+                boxes[n - 1, 4] = max(boxes[n - 1, 4], py)
+                first_block[n - 1] = min(first_block[n - 1], (py // 2) * wc + px // 2)
+                for qy in range(max(py - 1, 0), min(py + 2, hc)):
+                    for qx in range(max(px - 1, 0), min(px + 2, wc)):
+                        if hot[qy, qx] and labels[qy, qx] == 0:
+                            labels[qy, qx] = n
+                            queue_x[end], queue_y[end] = qx, qy
+                            end += 1
+    order = np.argsort(first_block[:n])  # (distinct: the cells of a 2x2 block touch)
+    new_label = np.zeros(n + 1, np.int32)
+    for rank in range(n):
+        new_label[order[rank] + 1] = rank + 1
+    for cy in rows:
+        for cx in range(wc):
+            labels[cy, cx] = new_label[labels[cy, cx]]
+    boxes = boxes[order]
+    boxes[:, 0] = np.arange(1, n + 1)
+    return labels, boxes
 
 
 # ---------------------------------------------------------------------------------------------- labelling
@@ -283,6 +364,85 @@ def _cholesky_solve(L, b, out):
 
 
 @_jit
+def _disc_terms(dx, dy, amp, r, s, tables, steps, half, z_res, z_origin, z_last, min_footprint):
+    """One blurred disc at a pixel (dx, dy) px from its centre: its edge profile ``f`` and the derivatives of
+    ``amp * f`` by the centre's x and y, the radius ``r`` and the blur ``s`` (the tables as :func:`fit_discs`'s)."""
+    rho = math.sqrt(dx * dx + dy * dy)
+    inv_rho = 1.0 / max(rho, 1e-6)
+    a = max(abs(dx) * inv_rho, min_footprint)  # the pixel's footprint across the edge
+    bb = max(abs(dy) * inv_rho, min_footprint)
+    inv_s = 1.0 / s
+    depth = r - rho
+    inside = depth > 0.0
+    offset = half if inside else 0
+    centre = depth * (z_res * inv_s) + z_origin
+    half_sum, half_diff = (a + bb) * (0.5 * z_res * inv_s), abs(a - bb) * (0.5 * z_res * inv_s)
+    z0 = min(max(centre + half_sum, 0.0), z_last)  # the four corners of the footprint, as table positions
+    z1 = min(max(centre + half_diff, 0.0), z_last)
+    z2 = min(max(centre - half_diff, 0.0), z_last)
+    z3 = min(max(centre - half_sum, 0.0), z_last)
+    c0, c1, c2, c3 = int(z0), int(z1), int(z2), int(z3)  # (z >= 0: the floor)
+    d0, d1, d2, d3 = steps[c0 + offset], steps[c1 + offset], steps[c2 + offset], steps[c3 + offset]
+    sum_t = ((tables[c0 + offset] + (z0 - c0) * d0) + (tables[c3 + offset] + (z3 - c3) * d3)) - (
+        (tables[c1 + offset] + (z1 - c1) * d1) + (tables[c2 + offset] + (z2 - c2) * d2))
+    zt = ((z0 - z_origin) * d0 + (z3 - z_origin) * d3) - ((z1 - z_origin) * d1 + (z2 - z_origin) * d2)  # z T'(z)
+    scale = s / (a * bb)
+    f = sum_t * scale * s + (1.0 if inside else 0.0)
+    slope = ((d0 + d3) - (d1 + d2)) * (scale * z_res) * amp
+    return f, slope * inv_rho * dx, slope * inv_rho * dy, slope, amp * scale * (2.0 * sum_t - zt)
+
+
+@_jit
+def _normal_equations_one_disc(values, ox, oy, first, end, params, tables, steps, half, z_res, z_origin, z_last,
+                               min_footprint, jtj, grad):
+    """``jtj`` (6, 6) and ``grad`` (6,) of one blob fitted as one disc (its pixels ``first`` to ``end``, ``params``
+    (6,)): :func:`fit_discs`'s sums with every entry in a register."""
+    b0, cx, cy, amp, r, s = params[0], params[1], params[2], params[3], params[4], params[5]
+    g0 = g1 = g2 = g3 = g4 = g5 = 0.0
+    a00 = a01 = a02 = a03 = a04 = a05 = a11 = a12 = a13 = a14 = a15 = 0.0
+    a22 = a23 = a24 = a25 = a33 = a34 = a35 = a44 = a45 = a55 = 0.0
+    for p in range(first, end):
+        f, j1, j2, j4, j5 = _disc_terms(ox[p] - cx, oy[p] - cy, amp, r, s, tables, steps, half, z_res, z_origin,
+                                        z_last, min_footprint)
+        j3 = f
+        resid = values[p] - (b0 + amp * f)
+        g0 += resid
+        g1 += j1 * resid
+        g2 += j2 * resid
+        g3 += j3 * resid
+        g4 += j4 * resid
+        g5 += j5 * resid
+        a00 += 1.0
+        a01 += j1
+        a02 += j2
+        a03 += j3
+        a04 += j4
+        a05 += j5
+        a11 += j1 * j1
+        a12 += j1 * j2
+        a13 += j1 * j3
+        a14 += j1 * j4
+        a15 += j1 * j5
+        a22 += j2 * j2
+        a23 += j2 * j3
+        a24 += j2 * j4
+        a25 += j2 * j5
+        a33 += j3 * j3
+        a34 += j3 * j4
+        a35 += j3 * j5
+        a44 += j4 * j4
+        a45 += j4 * j5
+        a55 += j5 * j5
+    grad[0], grad[1], grad[2], grad[3], grad[4], grad[5] = g0, g1, g2, g3, g4, g5
+    jtj[0, 0], jtj[0, 1], jtj[0, 2], jtj[0, 3], jtj[0, 4], jtj[0, 5] = a00, a01, a02, a03, a04, a05
+    jtj[1, 1], jtj[1, 2], jtj[1, 3], jtj[1, 4], jtj[1, 5] = a11, a12, a13, a14, a15
+    jtj[2, 2], jtj[2, 3], jtj[2, 4], jtj[2, 5] = a22, a23, a24, a25
+    jtj[3, 3], jtj[3, 4], jtj[3, 5] = a33, a34, a35
+    jtj[4, 4], jtj[4, 5] = a44, a45
+    jtj[5, 5] = a55
+
+
+@_jit
 def fit_discs(values, ox, oy, starts, params, iterations, tables, steps, z_res, z_origin, z_last, min_footprint,
               damping, step_bound, low, high):
     """Detection's ``_fit_discs`` (:mod:`mocap.detect`), blob by blob, pixel by pixel, in float64 (the numpy one
@@ -296,56 +456,32 @@ def fit_discs(values, ox, oy, starts, params, iterations, tables, steps, z_res, 
     J = np.empty(n_par)
     jtj = np.empty((n_par, n_par))
     grad = np.empty(n_par)
-    z = np.empty(4)
-    t = np.empty(4)
-    dt = np.empty(4)
     lhs, damped = np.empty((n_par, n_par)), np.empty((n_par, n_par))
     step, unit, column = np.empty(n_par), np.empty(n_par), np.empty(n_par)
     for b in range(n):
         for step_no in range(iterations):
-            jtj[:] = 0.0
-            grad[:] = 0.0
-            for p in range(starts[b], starts[b + 1]):
-                model = params[b, 0]
-                J[0] = 1.0
-                for k in range(n_discs):
-                    q = 1 + 5 * k
-                    cx, cy, amp, r, s = (params[b, q], params[b, q + 1], params[b, q + 2], params[b, q + 3],
-                                         params[b, q + 4])
-                    dx, dy = ox[p] - cx, oy[p] - cy
-                    rho = math.sqrt(dx * dx + dy * dy)
-                    inv_rho = 1.0 / max(rho, 1e-6)
-                    a = max(abs(dx) * inv_rho, min_footprint)  # the pixel's footprint across the edge
-                    bb = max(abs(dy) * inv_rho, min_footprint)
-                    inv_s = 1.0 / s
-                    depth = r - rho
-                    inside = depth > 0.0
-                    centre = depth * (z_res * inv_s) + z_origin
-                    half_sum, half_diff = (a + bb) * (0.5 * z_res * inv_s), abs(a - bb) * (0.5 * z_res * inv_s)
-                    z[0], z[1] = centre + half_sum, centre + half_diff
-                    z[2], z[3] = centre - half_diff, centre - half_sum
-                    for i in range(4):
-                        zi = min(max(z[i], 0.0), z_last)
-                        cell = int(zi)  # (zi >= 0: the floor)
-                        index = cell + (half if inside else 0)
-                        dt[i] = steps[index]
-                        t[i] = tables[index] + (zi - cell) * dt[i]
-                        z[i] = (zi - z_origin) * dt[i]  # z T'(z), scaled as the numpy one
-                    sum_t = (t[0] + t[3]) - (t[1] + t[2])
-                    scale = s / (a * bb)
-                    f = sum_t * scale * s + (1.0 if inside else 0.0)
-                    slope = ((dt[0] + dt[3]) - (dt[1] + dt[2])) * (scale * z_res) * amp
-                    model += amp * f
-                    J[q + 2] = f
-                    J[q + 4] = amp * scale * (2.0 * sum_t - ((z[0] + z[3]) - (z[1] + z[2])))
-                    J[q + 3] = slope
-                    J[q] = slope * inv_rho * dx
-                    J[q + 1] = slope * inv_rho * dy
-                resid = values[p] - model
-                for i in range(n_par):
-                    grad[i] += J[i] * resid
-                    for j in range(i, n_par):
-                        jtj[i, j] += J[i] * J[j]
+            if n_discs == 1:
+                _normal_equations_one_disc(values, ox, oy, starts[b], starts[b + 1], params[b], tables, steps, half,
+                                           z_res, z_origin, z_last, min_footprint, jtj, grad)
+            else:
+                jtj[:] = 0.0
+                grad[:] = 0.0
+                for p in range(starts[b], starts[b + 1]):
+                    model = params[b, 0]
+                    J[0] = 1.0
+                    for k in range(n_discs):
+                        q = 1 + 5 * k
+                        amp = params[b, q + 2]
+                        f, J[q], J[q + 1], J[q + 3], J[q + 4] = _disc_terms(
+                            ox[p] - params[b, q], oy[p] - params[b, q + 1], amp, params[b, q + 3],
+                            params[b, q + 4], tables, steps, half, z_res, z_origin, z_last, min_footprint)
+                        model += amp * f
+                        J[q + 2] = f
+                    resid = values[p] - model
+                    for i in range(n_par):
+                        grad[i] += J[i] * resid
+                        for j in range(i, n_par):
+                            jtj[i, j] += J[i] * J[j]
             for i in range(n_par):
                 for j in range(i):
                     jtj[i, j] = jtj[j, i]

@@ -17,7 +17,7 @@ from conftest import ring_rig
 from helpers_engine import body_take
 
 from mocap import kernels
-from mocap.detect import CELL, _fit_discs, _groups, _label_blobs, _max_pool, _peaks, background_level, detect
+from mocap.detect import _fit_discs, _groups, _label_blobs, _peaks, background_level, detect
 from mocap.detections import Detections
 from mocap.ekf import ca_process_noise, ca_transition, init_state, predict, update_position
 from mocap.fusion import Triangulated, _gauss_newton, repick, robust_triangulate
@@ -388,8 +388,26 @@ def test_detection_peaks_are_the_numpy_ones(both):
     for image in [_blob_frame(rng) for _ in range(4)] + [faint]:
         level, sigma = background_level(image)
         t = int(level + max(6 * sigma, 8))
-        pixels = _label_blobs(image, t, *_groups((_max_pool(image)[:, ::CELL] > t).astype(np.uint8), None))[0]
+        pixels = _label_blobs(image, t, *_groups(image, t, None))[0]
         ref, got = both(_peaks, image, pixels, level, sigma)
         _same(ref, got, rtol=0)
         found += int((np.bincount(ref[0]) >= 2).sum())
     assert found >= 4  # blobs with two or more significant maxima (touching markers)
+
+
+@pytest.mark.parametrize("shape", [(480, 640), (203, 317)])
+def test_coarse_groups_and_background_are_the_numpy_ones(shape, both):
+    """The compiled coarse pass (4x4 cell maxima, 8-connected groups of cells) labels the groups as OpenCV's Grana
+    algorithm does, boxes and order included, on sparse and crowded random frames, with the image's last cells cut
+    by its border and with boxes; the compiled histogram gives the same background level and noise."""
+    rng = np.random.default_rng(14)
+    for density in (0.002, 0.02, 0.2):
+        image = rng.integers(0, 30, shape, dtype=np.uint8)
+        image[rng.random(shape) < density] = 200
+        image[-1, -1] = image[0, -1] = image[-1, 0] = 255
+        rois = np.array([[0, 0, 100, 80], [150, 120, shape[1] - 1, shape[0] - 1]])
+        for boxes in (None, rois):
+            ref, got = both(_groups, image, 100, boxes)
+            _same(ref, got, rtol=0)
+        assert len(ref[1]) > (30 if density < 0.1 else 0)
+        _same(*both(background_level, image), rtol=0)
