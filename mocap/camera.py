@@ -30,10 +30,11 @@ import cv2
 import numpy as np
 import tomli_w
 
+from mocap import kernels
 from mocap.atomic import atomic_write_bytes
 from mocap.errors import MocapError
 
-__all__ = ["Camera", "Rig", "load_rig", "parse_rig", "save_rig", "rig_to_toml"]
+__all__ = ["Camera", "Lenses", "Rig", "load_rig", "parse_rig", "save_rig", "rig_to_toml"]
 
 
 # OpenCV's iterative undistortion: up to 30 steps, until a step moves less than 1e-10 (normalised units).
@@ -178,10 +179,17 @@ class Camera:
         """The lens model is not the identity (some distortion coefficient is non-zero)."""
         return bool(self.distortions.any())
 
+    @functools.cached_property
+    def _lens(self) -> Lenses:
+        """This camera's lens for the compiled undistortion."""
+        return Lenses([self])
+
     def _undistort_finite(self, uv: np.ndarray) -> np.ndarray:
         """(N, 2) finite distorted pixels -> (N, 2) ideal pixels."""
         if len(uv) == 0 or not (self.fisheye or self._distorted):
             return uv.copy()
+        if kernels.HAVE_NUMBA and not self.fisheye:
+            return self._lens.undistort([uv])
         src = uv.reshape(-1, 1, 2)
         if self.fisheye:
             und = cv2.fisheye.undistortPoints(src, self.matrix, self.distortions[:4], P=self.matrix)
@@ -292,6 +300,30 @@ def _fold_radius(dist: np.ndarray, fisheye: bool) -> float:
 
 
 # --------------------------------------------------------------------- rig
+class Lenses:
+    """The lenses of several cameras as arrays, to undistort the blobs of all of them in one call (the compiled
+    kernel :func:`mocap.kernels.undistort_points`, OpenCV's steps; per camera with OpenCV without numba or with a
+    fisheye lens)."""
+
+    def __init__(self, cameras: list[Camera]) -> None:
+        self._cameras = list(cameras)
+        self._matrices = np.stack([c.matrix for c in self._cameras]) if self._cameras else np.zeros((0, 3, 3))
+        self._coefficients = np.zeros((len(self._cameras), 8))
+        for row, cam in zip(self._coefficients, self._cameras, strict=True):
+            row[: cam.distortions.size] = cam.distortions
+        self._distorted = np.array([c._distorted for c in self._cameras], dtype=bool)
+        self._standard = not any(c.fisheye for c in self._cameras)
+
+    def undistort(self, uv: list[np.ndarray]) -> np.ndarray:
+        """(sum N_c, 2) ideal px of the (N_c, 2) distorted px ``uv`` of each camera, one after another."""
+        if not (kernels.HAVE_NUMBA and self._standard):
+            return np.concatenate([cam.undistort(p) for cam, p in zip(self._cameras, uv, strict=True)])
+        points = np.concatenate([np.asarray(p, dtype=np.float64).reshape(-1, 2) for p in uv])
+        camera = np.repeat(np.arange(len(uv)), [len(p) for p in uv])
+        return kernels.undistort_points(points, camera, self._matrices, self._coefficients, self._distorted,
+                                        _UNDISTORT_CRITERIA[1], _UNDISTORT_CRITERIA[2])
+
+
 @dataclass(eq=False)
 class Rig:
     """A calibrated set of cameras sharing one world frame.

@@ -24,7 +24,8 @@ import os
 import numpy as np
 
 __all__ = ["HAVE_NUMBA", "REASON", "announce", "contiguous", "robust_triangulate", "gauss_newton", "update_position",
-           "repick", "predict", "update_tracks", "epipolar_consistency", "gate", "search_regions", "crowded"]
+           "repick", "predict", "update_tracks", "epipolar_consistency", "gate", "search_regions", "crowded",
+           "undistort_points"]
 
 _log = logging.getLogger("mocap")
 
@@ -90,6 +91,58 @@ def _inv3x3(A, out):
     for i in range(3):
         for j in range(3):
             out[i, j] /= det
+
+
+# ---------------------------------------------------------------------------------------------- cameras
+@_jit
+def undistort_points(uv, camera, K, dist, distorted, max_steps, eps_px):
+    """``cv2.undistortPoints(uv, K, dist, P=K)`` (OpenCV 5) with criteria (COUNT | EPS, ``max_steps``, ``eps_px``)
+    for the standard lens model, the same steps: per point (``uv`` (N, 2) px of ``camera`` (N,) int), damped
+    fixed-point steps of the normalised coordinates until the point distorted again lies within ``eps_px`` of the
+    observed pixel (a step that moves it farther is rejected and the damping halved); ``K`` (C, 3, 3), ``dist``
+    (C, 8) ``k1, k2, p1, p2, k3, k4, k5, k6``; the points of a camera not ``distorted`` (C,) are copied. Returns
+    (N, 2) ideal px; NaN stays NaN."""
+    out = np.empty_like(uv)
+    for i in range(uv.shape[0]):
+        c = camera[i]
+        if not distorted[c]:
+            out[i, 0], out[i, 1] = uv[i, 0], uv[i, 1]
+            continue
+        fx, fy, cx, cy = K[c, 0, 0], K[c, 1, 1], K[c, 0, 2], K[c, 1, 2]
+        k1, k2, p1, p2 = dist[c, 0], dist[c, 1], dist[c, 2], dist[c, 3]
+        k3, k4, k5, k6 = dist[c, 4], dist[c, 5], dist[c, 6], dist[c, 7]
+        u, v = uv[i, 0], uv[i, 1]
+        x0 = x = (u - cx) * (1.0 / fx)
+        y0 = y = (v - cy) * (1.0 / fy)
+        error = previous = np.inf
+        alpha = 1.0
+        for _ in range(max_steps):
+            if error < eps_px:
+                break
+            r2 = x * x + y * y
+            icdist = (1 + ((k6 * r2 + k5) * r2 + k4) * r2) / (1 + ((k3 * r2 + k2) * r2 + k1) * r2)
+            if icdist < 0:  # (far outside the lens model's valid field: OpenCV's answer, the distorted point)
+                x, y = x0, y0
+                break
+            delta_x = 2 * p1 * x * y + p2 * (r2 + 2 * x * x)
+            delta_y = p1 * (r2 + 2 * y * y) + 2 * p2 * x * y
+            new_x = (1.0 - alpha) * x + alpha * (x0 - delta_x) * icdist
+            new_y = (1.0 - alpha) * y + alpha * (y0 - delta_y) * icdist
+            r2 = new_x * new_x + new_y * new_y
+            r4 = r2 * r2
+            r6 = r4 * r2
+            cdist = (1 + k1 * r2 + k2 * r4 + k3 * r6) * (1.0 / (1 + k4 * r2 + k5 * r4 + k6 * r6))
+            xd = new_x * cdist + p1 * (2 * new_x * new_y) + p2 * (r2 + 2 * new_x * new_x)
+            yd = new_y * cdist + p1 * (r2 + 2 * new_y * new_y) + p2 * (2 * new_x * new_y)
+            error = math.sqrt((xd * fx + cx - u) ** 2 + (yd * fy + cy - v) ** 2)
+            if error > previous:
+                alpha *= 0.5
+            else:
+                x, y = new_x, new_y
+            previous = error
+        out[i, 0] = K[c, 0, 0] * x + K[c, 0, 1] * y + cx
+        out[i, 1] = fy * y + cy
+    return out
 
 
 # ---------------------------------------------------------------------------------------------- fusion

@@ -41,7 +41,7 @@ from itertools import accumulate
 import numpy as np
 
 from mocap import kernels
-from mocap.camera import Rig
+from mocap.camera import Lenses, Rig
 from mocap.detect import MIN_SHAPE_AREA
 from mocap.detections import Detections, floored_covariance
 from mocap.ekf import RunningError, ca_process_noise, ca_transition, init_state, predict, update_position
@@ -384,6 +384,7 @@ class Tracker:
         self._focal = np.array([0.5 * (c.matrix[0, 0] + c.matrix[1, 1]) for c in rig.cameras])
         self._focal_xy = np.array([[c.matrix[0, 0], c.matrix[1, 1]] for c in rig.cameras])
         self._centre = np.array([[c.matrix[0, 2], c.matrix[1, 2]] for c in rig.cameras])
+        self._lenses = Lenses(rig.cameras)
         self._sizes = np.array([c.size for c in rig.cameras], dtype=float)
         self._F3, self._Q3 = ca_transition(dt, 3, cfg.accel_damping), ca_process_noise(dt, 3, cfg.jerk_std_3d)
         self._F2, self._Q2 = ca_transition(dt, 2, cfg.accel_damping), ca_process_noise(dt, 2, cfg.jerk_std_2d)
@@ -537,8 +538,7 @@ class Tracker:
         round_ = np.ones((C, N))
         if N:  # all cameras' rows at once: the (C, N) slots in use, camera-major like the concatenations
             fill = np.arange(N) < np.array(counts)[:, None]
-            cams = self._rig.cameras
-            D[fill] = np.concatenate([cam.undistort(det.xy) for cam, det in zip(cams, detections, strict=True)])
+            D[fill] = self._lenses.undistort([det.xy for det in detections])
             S[fill] = floored_covariance(np.concatenate([det.cov for det in detections]))
             merged[fill] = np.concatenate([det.merged for det in detections])
             area = np.concatenate([det.area for det in detections])
