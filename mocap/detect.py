@@ -1,6 +1,9 @@
 """Blob detection: bright markers on a dark grey image -> sub-pixel centroids, at the Cramér–Rao bound.
 
-Stages, all vectorised over the blobs of a frame (no per-blob Python loop):
+Stages, all vectorised over the blobs of a frame (no per-blob Python loop); with numba installed
+(:data:`mocap.kernels.HAVE_NUMBA`) each runs as one compiled call (:mod:`mocap.detect_kernels`: the coarse pass,
+the labelling by flood fill in each group of cells, the per-blob sums, the peaks, the fit windows and the fit) with
+the same blobs, pixels and order as the numpy path here, which stays the reference and the fallback:
 
 1. **Background and noise** (:func:`background_level`): the median of a 1-in-16 pixel subsample and
    the robust std ``median - 15.87th percentile`` (both interpolated within integer grey levels, and
