@@ -392,9 +392,10 @@ def _runs(sorted_ids: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return np.flatnonzero(new), np.cumsum(new) - 1
 
 
-def _peaks(image: np.ndarray, pixels: _Pixels, level: float, sigma: float
+def _peaks(image: np.ndarray, pixels: _Pixels, starts: np.ndarray, blobs: np.ndarray, level: float, sigma: float
            ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Significant local maxima of each blob's 3x3-smoothed profile.
+    """Significant local maxima of the 3x3-smoothed profile of each of the ``blobs`` (B,) (sorted ids; ``starts``
+    (N,): each blob's first pixel in ``pixels``).
 
     The highest maximum of a blob always counts; another counts when, towards every higher maximum of
     its blob, it lies 2 px or more away and the smoothed profile on the straight path dips below the
@@ -405,15 +406,19 @@ def _peaks(image: np.ndarray, pixels: _Pixels, level: float, sigma: float
     Returns:
         blob (M,), x (M,), y (M,): peak positions (px), sorted by blob, highest first within a blob.
     """
-    if len(pixels.blob) == 0:
+    if len(blobs) == 0:
         return np.zeros(0, np.int64), np.zeros(0), np.zeros(0)
+    if kernels.HAVE_NUMBA:
+        return detect_kernels.peaks(kernels.contiguous(blobs, np.int64), np.append(starts, len(pixels.blob)),
+                                    kernels.contiguous(pixels.x, np.int64), kernels.contiguous(pixels.y, np.int64),
+                                    image, level, sigma, 2 * MAX_DISCS)
+    is_candidate = np.zeros(len(starts), bool)
+    is_candidate[blobs] = True
+    sel = is_candidate[pixels.blob]
+    pixels = _Pixels(pixels.blob[sel], pixels.x[sel], pixels.y[sel], pixels.grey[sel], presorted=True)
     h, w = image.shape
     starts, b_of = _runs(pixels.blob)
     ids = pixels.blob[starts]
-    if kernels.HAVE_NUMBA:
-        blob, px, py = detect_kernels.peaks(np.append(starts, len(b_of)), kernels.contiguous(pixels.x, np.int64),
-                                            kernels.contiguous(pixels.y, np.int64), image, level, sigma, 2 * MAX_DISCS)
-        return ids[blob], px, py
     x0, y0 = np.minimum.reduceat(pixels.x, starts) - 1, np.minimum.reduceat(pixels.y, starts) - 1
     bw = int((np.maximum.reduceat(pixels.x, starts) - x0).max()) + 2  # box with a 1 px margin
     bh = int((np.maximum.reduceat(pixels.y, starts) - y0).max()) + 2
@@ -732,12 +737,7 @@ def detect(image: np.ndarray, *, threshold: float | None = None, min_area: int =
     xy, cov, part = [stats.centroid[ids[~fit]]], [stats.centroid_cov[ids[~fit]] * sigma**2], [np.flatnonzero(~fit)]
 
     # two markers side by side make an elongated (or oversized) blob: look for their peaks there
-    candidates = ids[fit & (elongated | too_big)]
-    is_candidate = np.zeros(len(stats.area), bool)
-    is_candidate[candidates] = True
-    sel = is_candidate[pixels.blob]
-    peaks = _peaks(image, _Pixels(pixels.blob[sel], pixels.x[sel], pixels.y[sel], pixels.grey[sel], presorted=True),
-                   level, sigma)
+    peaks = _peaks(image, pixels, starts, ids[fit & (elongated | too_big)], level, sigma)
     n_discs = np.minimum(np.maximum(np.bincount(peaks[0], minlength=len(stats.area))[ids], 1), MAX_DISCS)
     seeded = np.zeros(len(ids), bool)
     if seeds is not None and len(seeds):

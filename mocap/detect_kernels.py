@@ -223,12 +223,15 @@ def _smooth(image, x, y):
 
 
 @_jit
-def peaks(starts, xs, ys, image, level, sigma, keep):
-    """The numpy ``_peaks``: significant local maxima of each blob's 3x3-smoothed profile; ``starts`` (N + 1,),
-    ``xs``, ``ys`` (T,) the blobs' pixels as :func:`label_blobs` gives them; at most ``keep`` maxima per blob are
-    compared. Returns blob (M,) (0..N-1), x, y (M,) float64, by blob, highest first."""
-    n = starts.shape[0] - 1
-    total = starts[n] - starts[0]
+def peaks(blobs, starts, xs, ys, image, level, sigma, keep):
+    """The numpy ``_peaks``: significant local maxima of the 3x3-smoothed profile of each of the ``blobs`` (B,)
+    (sorted ids); ``starts`` (N + 1,), ``xs``, ``ys`` (T,) all blobs' pixels as :func:`label_blobs` gives them; at
+    most ``keep`` maxima per blob are compared. Returns blob (M,) (ids), x, y (M,) float64, by blob, highest
+    first."""
+    n = blobs.shape[0]
+    total = 0
+    for b in range(n):
+        total += starts[blobs[b] + 1] - starts[blobs[b]]
     mb, mx, my = np.empty(total, np.int64), np.empty(total, np.int64), np.empty(total, np.int64)
     mv = np.empty(total, np.float32)
     first = np.empty(n + 1, np.int64)
@@ -236,7 +239,7 @@ def peaks(starts, xs, ys, image, level, sigma, keep):
     far = 0.0
     for b in range(n):
         first[b] = m
-        for i in range(starts[b], starts[b + 1]):
+        for i in range(starts[blobs[b]], starts[blobs[b] + 1]):
             x, y = xs[i], ys[i]
             v = _smooth(image, x, y)
             top = True
@@ -250,7 +253,7 @@ def peaks(starts, xs, ys, image, level, sigma, keep):
             while at > first[b] and mv[at - 1] < v:
                 mb[at], mx[at], my[at], mv[at] = mb[at - 1], mx[at - 1], my[at - 1], mv[at - 1]
                 at -= 1
-            mb[at], mx[at], my[at], mv[at] = b, x, y, v
+            mb[at], mx[at], my[at], mv[at] = blobs[b], x, y, v
             m += 1
         m = min(m, first[b] + keep)
         for i in range(first[b], m):
