@@ -25,7 +25,7 @@ import numpy as np
 
 __all__ = ["HAVE_NUMBA", "REASON", "announce", "contiguous", "robust_triangulate", "gauss_newton", "update_position",
            "repick", "predict", "update_tracks", "epipolar_consistency", "gate", "search_regions", "crowded",
-           "undistort_points"]
+           "undistort_points", "near_any"]
 
 _log = logging.getLogger("mocap")
 
@@ -638,6 +638,22 @@ def epipolar_consistency(index, F, uv, tol_px, sigma, n_sigma):
 
 
 # ---------------------------------------------------------------------------------------------- tracker
+@_jit
+def near_any(D, cc, nn, old, limit2):
+    """The tracker's clutter test: (W,) bool, detection ``D[cc[i], nn[i]]`` (px) lies closer than ``sqrt(limit2)``
+    to one of the points ``old[cc[i]]`` (C, M, 2) px (NaN: none there)."""
+    out = np.zeros(cc.shape[0], np.bool_)
+    for i in range(cc.shape[0]):
+        c = cc[i]
+        u, v = D[c, nn[i], 0], D[c, nn[i], 1]
+        for m in range(old.shape[1]):
+            du, dv = u - old[c, m, 0], v - old[c, m, 1]
+            if du * du + dv * dv < limit2:
+                out[i] = True
+                break
+    return out
+
+
 @_jit
 def search_regions(x3, e3, since, x2, e2, lock, P, focal, dt, scale, floor_m, reid_max_m, floor_px, max_px):
     """The tracker's ``_search_regions``: predicted ideal pixels (K, C, 2) (the locked image filter's, else the

@@ -1024,6 +1024,9 @@ class Tracker:
             return out
         old = np.concatenate(self._clutter, axis=1)  # (C, M, 2), NaN where not free
         cc, nn = np.nonzero(which)
+        if kernels.HAVE_NUMBA:
+            out[cc, nn] = kernels.near_any(D, cc, nn, old, self._cfg.clutter_px**2)
+            return out
         with np.errstate(invalid="ignore"):
             out[cc, nn] = (dist2(D[cc, nn][:, None, :], old[cc]) < self._cfg.clutter_px**2).any(axis=1)
         return out

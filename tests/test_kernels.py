@@ -23,7 +23,7 @@ from mocap.detections import Detections
 from mocap.ekf import ca_process_noise, ca_transition, init_state, predict, update_position
 from mocap.fusion import Triangulated, _gauss_newton, repick, robust_triangulate
 from mocap.pairs import CameraPairs, camera_pairs
-from mocap.stereo import epipolar_consistency, gate
+from mocap.stereo import dist2, epipolar_consistency, gate
 from mocap.synth import SynthSettings
 from mocap.synth.render import Sensor
 from mocap.tracker import Tracker, _Frame, _Measurements, _Tracks
@@ -460,3 +460,19 @@ def test_detection_on_small_random_frames_is_the_numpy_ones(both):
         _same(*both(lambda im, r: detect(im, rois=r, refine="centroid"), image, rois), rtol=1e-9)
         found += len(ref)
     assert found > 300
+
+
+def test_clutter_test_is_the_numpy_one():
+    """The tracker's test of fresh detections against the free detections of recent frames: the kernel flags
+    exactly the detections the numpy expression flags (NaN slots never near anything)."""
+    rng = np.random.default_rng(17)
+    D = rng.uniform(0, 40, (4, 30, 2))
+    D[rng.random((4, 30)) < 0.2] = np.nan
+    old = rng.uniform(0, 40, (4, 25, 2))
+    old[rng.random((4, 25)) < 0.3] = np.nan
+    cc, nn = np.nonzero(rng.random((4, 30)) < 0.5)
+    with np.errstate(invalid="ignore"):
+        ref = (dist2(D[cc, nn][:, None, :], old[cc]) < 3.0**2).any(axis=1)
+    got = kernels.near_any(D, cc, nn, old, 3.0**2)
+    np.testing.assert_array_equal(got, ref)
+    assert 5 < ref.sum() < len(ref) - 5
