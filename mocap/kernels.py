@@ -25,7 +25,7 @@ import numpy as np
 
 __all__ = ["HAVE_NUMBA", "REASON", "announce", "contiguous", "robust_triangulate", "gauss_newton", "update_position",
            "repick", "predict", "update_tracks", "epipolar_consistency", "gate", "search_regions", "crowded",
-           "undistort_points", "near_any"]
+           "undistort_points", "near_any", "frame_record"]
 
 _log = logging.getLogger("mocap")
 
@@ -638,6 +638,33 @@ def epipolar_consistency(index, F, uv, tol_px, sigma, n_sigma):
 
 
 # ---------------------------------------------------------------------------------------------- tracker
+@_jit
+def frame_record(X, asg, rms_px, ident, P, focal, bounds):
+    """The tracker's output of a frame for the measured points ``X`` (R, 3) m from the blobs ``asg`` (R, C) (-1:
+    none) with reprojection RMS ``rms_px`` (R,) and identities ``ident`` (R,) (-1: tentative): residuals (R,) mm
+    (the RMS times the mean depth / focal length over the cameras used), camera masks (R,) uint32 (bit c: camera c
+    used) and, for the detections of all cameras one after another (camera c's from ``bounds[c]``), the identity
+    each went to (-1: none or a tentative track)."""
+    n, C = asg.shape
+    res = np.empty(n)
+    mask = np.zeros(n, np.uint32)
+    flat = np.full(bounds[C], -1, np.intp)
+    for r in range(n):
+        total = 0.0
+        used = 0
+        for c in range(C):
+            if asg[r, c] < 0:
+                continue
+            depth = X[r, 0] * P[c, 2, 0] + X[r, 1] * P[c, 2, 1] + X[r, 2] * P[c, 2, 2] + P[c, 2, 3]
+            total += depth / focal[c]
+            used += 1
+            mask[r] |= np.uint32(1) << np.uint32(c)
+            if ident[r] >= 0:
+                flat[bounds[c] + asg[r, c]] = ident[r]
+        res[r] = rms_px[r] * (total / max(used, 1)) * 1000.0
+    return res, mask, flat
+
+
 @_jit
 def near_any(D, cc, nn, old, limit2):
     """The tracker's clutter test: (W,) bool, detection ``D[cc[i], nn[i]]`` (px) lies closer than ``sqrt(limit2)``

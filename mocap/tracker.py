@@ -1121,6 +1121,14 @@ class Tracker:
         t, C = self._t, self._C
         rows = np.flatnonzero(meas.out & (t.since == 0))
         X, asg = meas.X[rows], meas.asg[rows]
+        bounds = list(accumulate(fr.counts, initial=0))  # all cameras' detections in one flat array
+        if kernels.HAVE_NUMBA:
+            res, mask, flat = kernels.frame_record(X, kernels.contiguous(asg, np.intp), meas.rms_px[rows],
+                                                   t.ident[rows], self._P, self._focal, np.array(bounds))
+            self._records.append(frame=frame_index, uid=t.uid[rows], pos=X, res=res, mask=mask)
+            conf = t.ident[rows] >= 0
+            assignments = [flat[a:b] for a, b in zip(bounds[:-1], bounds[1:], strict=True)]
+            return FrameResult(frame_index, t.ident[rows][conf], X[conf], res[conf], mask[conf], assignments)
         used = asg >= 0
         depth = X @ self._P[:, 2, :3].T + self._P[:, 2, 3]
         scale = np.where(used, depth / self._focal[None, :], 0.0).sum(axis=1) / np.maximum(used.sum(axis=1), 1)
@@ -1129,7 +1137,6 @@ class Tracker:
         self._records.append(frame=frame_index, uid=t.uid[rows], pos=X, res=res, mask=mask)
         conf = t.ident[rows] >= 0
         ids = t.ident[rows][conf]
-        bounds = list(accumulate(fr.counts, initial=0))  # all cameras' detections in one flat array
         flat = np.full(bounds[-1], -1, dtype=np.intp)
         kk, cc = np.nonzero(used[conf])
         flat[np.array(bounds)[cc] + asg[conf][kk, cc]] = ids[kk]
