@@ -71,7 +71,8 @@ def floored_covariance(cov: np.ndarray, std_px: float = MIN_CENTROID_STD_PX) -> 
     cov = np.asarray(cov, dtype=np.float64)
     a, d = cov[:, 0, 0], cov[:, 1, 1]
     b = 0.5 * (cov[:, 0, 1] + cov[:, 1, 0])
-    smallest = 0.5 * (a + d) - np.sqrt((0.5 * (a - d)) ** 2 + b * b)
+    with np.errstate(invalid="ignore"):  # (non-finite entries: replaced below)
+        smallest = 0.5 * (a + d) - np.sqrt((0.5 * (a - d)) ** 2 + b * b)
     lift = np.maximum(std_px * std_px - smallest, 0.0)
     out = cov.copy()
     out[:, 0, 0] += lift

@@ -25,7 +25,7 @@ import numpy as np
 
 __all__ = ["HAVE_NUMBA", "REASON", "announce", "contiguous", "robust_triangulate", "gauss_newton", "update_position",
            "repick", "predict", "update_tracks", "epipolar_consistency", "gate", "search_regions", "crowded",
-           "undistort_points", "near_any", "frame_record"]
+           "undistort_points", "near_any", "frame_record", "frame_detections"]
 
 _log = logging.getLogger("mocap")
 
@@ -638,6 +638,42 @@ def epipolar_consistency(index, F, uv, tol_px, sigma, n_sigma):
 
 
 # ---------------------------------------------------------------------------------------------- tracker
+@_jit
+def frame_detections(D, S, merged, round_, cov, flagged, area, roundness, counts, min_shape_area, min_std_px,
+                     default_sigma_px, centre, focal_xy, round_merged):
+    """The tracker's frame of detections, camera by camera into the (C, N) slots (the rest stay as given: D NaN,
+    S identity, merged False, round 1): ``D`` (C, N, 2) holds the ideal px already; ``cov`` (T, 2, 2), ``flagged``,
+    ``area``, ``roundness`` (T,) are all cameras' detections one after another (``counts`` (C,)). Covariances get
+    their smallest eigenvalue raised to ``min_std_px``^2 (non-finite ones: ``default_sigma_px``^2 I); blobs of at
+    least ``min_shape_area`` px flatter than ``round_merged`` x a sphere's image at their field angle are marked
+    merged. Returns (C, N) the mean variance of each slot, px^2."""
+    C, N = D.shape[0], D.shape[1]
+    var = np.empty((C, N))
+    floor = min_std_px * min_std_px
+    i = 0
+    for c in range(C):
+        for n in range(N):
+            if n < counts[c]:
+                a, b, d = cov[i, 0, 0], 0.5 * (cov[i, 0, 1] + cov[i, 1, 0]), cov[i, 1, 1]
+                smallest = 0.5 * (a + d) - math.sqrt((0.5 * (a - d)) ** 2 + b * b)
+                lift = max(floor - smallest, 0.0)
+                S[c, n, 0, 0], S[c, n, 0, 1] = cov[i, 0, 0] + lift, cov[i, 0, 1]
+                S[c, n, 1, 0], S[c, n, 1, 1] = cov[i, 1, 0], cov[i, 1, 1] + lift
+                if not (np.isfinite(S[c, n, 0, 0]) and np.isfinite(S[c, n, 0, 1]) and np.isfinite(S[c, n, 1, 0])
+                        and np.isfinite(S[c, n, 1, 1])):
+                    S[c, n, 0, 0], S[c, n, 1, 1] = default_sigma_px**2, default_sigma_px**2
+                    S[c, n, 0, 1], S[c, n, 1, 0] = 0.0, 0.0
+                merged[c, n] = flagged[i]
+                round_[c, n] = roundness[i] if area[i] >= min_shape_area else 1.0
+                rx = (D[c, n, 0] - centre[c, 0]) / focal_xy[c, 0]
+                ry = (D[c, n, 1] - centre[c, 1]) / focal_xy[c, 1]
+                if round_[c, n] < round_merged / math.sqrt(1.0 + (rx * rx + ry * ry)):
+                    merged[c, n] = True
+                i += 1
+            var[c, n] = 0.5 * (S[c, n, 0, 0] + S[c, n, 1, 1])
+    return var
+
+
 @_jit
 def frame_record(X, asg, rms_px, ident, P, focal, bounds):
     """The tracker's output of a frame for the measured points ``X`` (R, 3) m from the blobs ``asg`` (R, C) (-1:

@@ -43,7 +43,7 @@ import numpy as np
 from mocap import kernels
 from mocap.camera import Lenses, Rig
 from mocap.detect import MIN_SHAPE_AREA
-from mocap.detections import Detections, floored_covariance
+from mocap.detections import MIN_CENTROID_STD_PX, Detections, floored_covariance
 from mocap.ekf import RunningError, ca_process_noise, ca_transition, init_state, predict, update_position
 from mocap.errors import MocapError
 from mocap.fusion import NewPoints, Triangulated, new_points, reidentify, repick, robust_triangulate
@@ -536,6 +536,19 @@ class Tracker:
         S[:] = np.eye(2)
         merged = np.zeros((C, N), dtype=bool)
         round_ = np.ones((C, N))
+        if N and kernels.HAVE_NUMBA:
+            fill = np.arange(N) < np.array(counts)[:, None]
+            D[fill] = self._lenses.undistort([det.xy for det in detections])
+            var = kernels.frame_detections(
+                D, S, merged, round_, np.concatenate([det.cov for det in detections]),
+                np.concatenate([det.merged for det in detections]), np.concatenate([det.area for det in detections]),
+                np.concatenate([det.roundness for det in detections]), np.array(counts), MIN_SHAPE_AREA,
+                MIN_CENTROID_STD_PX, Detections.DEFAULT_SIGMA_PX, self._centre, self._focal_xy, self._cfg.round_merged)
+            valid = np.isfinite(D[..., 0]) & np.isfinite(D[..., 1])
+            if valid.any():
+                merged |= var > max(self._cfg.vague_px**2, _VAGUE_TYPICAL**2 * quick_median(var[valid]))
+            S[merged] *= self._cfg.merged_variance_scale
+            return _Frame(D, S, valid, merged, round_, counts)
         if N:  # all cameras' rows at once: the (C, N) slots in use, camera-major like the concatenations
             fill = np.arange(N) < np.array(counts)[:, None]
             D[fill] = self._lenses.undistort([det.xy for det in detections])

@@ -19,7 +19,7 @@ from helpers_engine import body_take
 from mocap import kernels
 from mocap.camera import Camera, Lenses
 from mocap.detect import _fit_discs, _groups, _label_blobs, _peaks, background_level, detect
-from mocap.detections import Detections
+from mocap.detections import MIN_CENTROID_STD_PX, Detections
 from mocap.ekf import ca_process_noise, ca_transition, init_state, predict, update_position
 from mocap.fusion import Triangulated, _gauss_newton, repick, robust_triangulate
 from mocap.pairs import CameraPairs, camera_pairs
@@ -476,3 +476,24 @@ def test_clutter_test_is_the_numpy_one():
     got = kernels.near_any(D, cc, nn, old, 3.0**2)
     np.testing.assert_array_equal(got, ref)
     assert 5 < ref.sum() < len(ref) - 5
+
+
+def test_tracker_frame_of_detections_is_the_numpy_one(both):
+    """The tracker's frame of detections (ideal px, floored covariances, merged and roundness flags, vague blobs)
+    is the same on both paths, with what the scenes of the other tests lack: covariances below the floor, NaN and
+    inf ones, vague blobs, flat blobs big enough to judge near the image's edge and centre, cameras without blobs."""
+    rig = ring_rig()
+    rng = np.random.default_rng(18)
+    dets = []
+    for c in range(len(rig)):
+        n = 0 if c == 2 else int(rng.integers(5, 40))
+        cov = np.eye(2) * rng.choice([1e-7, 1e-3, 0.05, 4.0], size=(n, 1, 1))
+        cov[:, 0, 1] = cov[:, 1, 0] = rng.uniform(-0.5, 0.5, n) * cov[:, 0, 0]
+        cov[rng.random(n) < 0.1, 1, 0] = np.nan
+        cov[rng.random(n) < 0.05, 0, 0] = np.inf
+        dets.append(Detections(np.c_[rng.uniform(0, 1280, n), rng.uniform(0, 1024, n)], rng.integers(1, 30, n),
+                               rng.uniform(0.3, 1.0, n), cov, rng.random(n) < 0.1))
+    ref, got = both(lambda d: Tracker(rig, 120.0)._prepare(d), dets)
+    _same(ref, got, rtol=1e-12)
+    assert ref.merged.sum() > 20 and (~ref.merged & ref.valid).sum() > 20
+    assert np.isclose(ref.S[ref.valid & ~ref.merged][:, 0, 0], MIN_CENTROID_STD_PX**2).any()  # floored
