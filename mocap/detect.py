@@ -306,9 +306,9 @@ def _fit_discs(values: np.ndarray, ox: np.ndarray, oy: np.ndarray, seg: np.ndarr
     """
     if kernels.HAVE_NUMBA:
         params = kernels.contiguous(params)
-        cov = detect_kernels.fit_discs(values, ox, oy, np.append(starts, len(seg)), params, iterations, _EDGE_TABLES,
-                                _EDGE_STEPS, float(_Z_RES), float(_Z_ORIGIN), float(_Z_LAST), _MIN_FOOTPRINT, DAMPING,
-                                *_BOUNDS_F64)
+        cov = detect_kernels.fit_discs(values, ox, oy, np.append(starts, len(seg)), params, iterations,
+                                       _EDGE_TABLES, _EDGE_STEPS, float(_Z_RES), float(_Z_ORIGIN), float(_Z_LAST),
+                                       _MIN_FOOTPRINT, DAMPING, *_BOUNDS_F64)
         pos = (1 + 5 * np.arange((params.shape[1] - 1) // 5)[:, None] + np.arange(2)).ravel()
         return params, cov[:, pos[:, None], pos]
     params = params.astype(np.float32)

@@ -536,33 +536,29 @@ class Tracker:
         S[:] = np.eye(2)
         merged = np.zeros((C, N), dtype=bool)
         round_ = np.ones((C, N))
-        if N and kernels.HAVE_NUMBA:
-            fill = np.arange(N) < np.array(counts)[:, None]
+        fill = np.arange(N) < np.array(counts)[:, None]  # the (C, N) slots in use, camera-major like the concatenations
+        if N:
             D[fill] = self._lenses.undistort([det.xy for det in detections])
+        if N and kernels.HAVE_NUMBA:  # (the same steps in one call)
             var = kernels.frame_detections(
                 D, S, merged, round_, np.concatenate([det.cov for det in detections]),
                 np.concatenate([det.merged for det in detections]), np.concatenate([det.area for det in detections]),
                 np.concatenate([det.roundness for det in detections]), np.array(counts), MIN_SHAPE_AREA,
                 MIN_CENTROID_STD_PX, Detections.DEFAULT_SIGMA_PX, self._centre, self._focal_xy, self._cfg.round_merged)
-            valid = np.isfinite(D[..., 0]) & np.isfinite(D[..., 1])
-            if valid.any():
-                merged |= var > max(self._cfg.vague_px**2, _VAGUE_TYPICAL**2 * quick_median(var[valid]))
-            S[merged] *= self._cfg.merged_variance_scale
-            return _Frame(D, S, valid, merged, round_, counts)
-        if N:  # all cameras' rows at once: the (C, N) slots in use, camera-major like the concatenations
-            fill = np.arange(N) < np.array(counts)[:, None]
-            D[fill] = self._lenses.undistort([det.xy for det in detections])
-            S[fill] = floored_covariance(np.concatenate([det.cov for det in detections]))
-            merged[fill] = np.concatenate([det.merged for det in detections])
-            area = np.concatenate([det.area for det in detections])
-            round_[fill] = np.where(area >= MIN_SHAPE_AREA, np.concatenate([det.roundness for det in detections]), 1.0)
+        else:
+            if N:
+                S[fill] = floored_covariance(np.concatenate([det.cov for det in detections]))
+                merged[fill] = np.concatenate([det.merged for det in detections])
+                area = np.concatenate([det.area for det in detections])
+                round_[fill] = np.where(area >= MIN_SHAPE_AREA, np.concatenate([det.roundness for det in detections]),
+                                        1.0)
+            # A sphere's image is an ellipse of axis ratio cos(field angle); a blob much flatter than that is two
+            # markers merged without a saddle, or one partly hidden: its centroid is off by up to a radius.
+            ray = (D - self._centre[:, None, :]) / self._focal_xy[:, None, :]
+            tan2 = ray[..., 0] * ray[..., 0] + ray[..., 1] * ray[..., 1]  # (the sum over an axis of 2, ~3x faster)
+            merged |= round_ < self._cfg.round_merged / np.sqrt(1.0 + tan2)
+            var = 0.5 * (S[..., 0, 0] + S[..., 1, 1])  # (C, N) px^2; vague: cut by the image border, or faint
         valid = np.isfinite(D[..., 0]) & np.isfinite(D[..., 1])  # (reductions over an axis of 2 are slow)
-        # A sphere's image is an ellipse of axis ratio cos(field angle); a blob much flatter than that is two
-        # markers merged without a saddle, or one partly hidden: its centroid is off by up to a radius.
-        ray = (D - self._centre[:, None, :]) / self._focal_xy[:, None, :]
-        tan2 = ray[..., 0] * ray[..., 0] + ray[..., 1] * ray[..., 1]  # (the sum over an axis of 2, ~3x faster)
-        merged |= round_ < self._cfg.round_merged / np.sqrt(1.0 + tan2)
-        var = 0.5 * (S[..., 0, 0] + S[..., 1, 1])  # (C, N) px^2; vague: cut by the image border, or faint
         if valid.any():
             typical = quick_median(var[valid])  # (centroid files may state one large std for every blob)
             merged |= var > max(self._cfg.vague_px**2, _VAGUE_TYPICAL**2 * typical)
