@@ -1,4 +1,5 @@
-"""Compiled kernels of blob detection (:mod:`mocap.detect`): labelling, per-blob sums, fit windows and the disc fit.
+"""Compiled kernels of blob detection (:mod:`mocap.detect`): coarse pass, labelling, per-blob sums, peaks, fit windows
+and the disc fit.
 
 Each computes what the numpy stages of :mod:`mocap.detect` compute, with one loop over the pixels of a frame
 instead of dozens of numpy calls on small arrays; :mod:`mocap.detect` switches to them where
