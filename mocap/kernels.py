@@ -140,7 +140,7 @@ def undistort_points(uv, camera, K, dist, distorted, max_steps, eps_px):
             else:
                 x, y = new_x, new_y
             previous = error
-        out[i, 0] = K[c, 0, 0] * x + K[c, 0, 1] * y + cx
+        out[i, 0] = fx * x + K[c, 0, 1] * y + cx
         out[i, 1] = fy * y + cy
     return out
 
@@ -644,7 +644,8 @@ def frame_detections(D, S, merged, round_, cov, flagged, area, roundness, counts
     """The tracker's frame of detections, camera by camera into the (C, N) slots (the rest stay as given: D NaN,
     S identity, merged False, round 1): ``D`` (C, N, 2) holds the ideal px already; ``cov`` (T, 2, 2), ``flagged``,
     ``area``, ``roundness`` (T,) are all cameras' detections one after another (``counts`` (C,)). Covariances get
-    their smallest eigenvalue raised to ``min_std_px``^2 (non-finite ones: ``default_sigma_px``^2 I); blobs of at
+    their smallest eigenvalue raised to ``min_std_px``^2 (non-finite ones: ``default_sigma_px``^2 I), as
+    :func:`mocap.detections.floored_covariance` does; blobs of at
     least ``min_shape_area`` px flatter than ``round_merged`` x a sphere's image at their field angle are marked
     merged. Returns (C, N) the mean variance of each slot, px^2."""
     C, N = D.shape[0], D.shape[1]
