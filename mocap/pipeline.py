@@ -12,6 +12,7 @@ import argparse
 import contextlib
 import logging
 import os
+import threading
 from collections.abc import Iterator
 from dataclasses import dataclass, replace
 from pathlib import Path
@@ -21,7 +22,7 @@ import cv2
 import numpy as np
 from tqdm import tqdm
 
-from mocap import __version__
+from mocap import __version__, kernels
 from mocap.atomic import check_output_path
 from mocap.camera import Rig, rig_to_toml
 from mocap.detect import detect
@@ -38,6 +39,7 @@ log = logging.getLogger(__name__)
 
 FIT_CHECK_FRAMES = 10  # frames holding detections per window of the calibration-fit check ...
 FIT_CHECK_SPACING_S = 1.0  # ... whose windows start this far apart (a camera is named if poor in all)
+COMPILE_NOTICE_S = 3.0  # with numba, a first frame slower than this, s, is said to be compiling the kernels
 
 
 @dataclass
@@ -108,6 +110,26 @@ def _detection_frames(source: Any, kind: str, tracker: Tracker, opts: Reconstruc
         yield frame_index, dets
 
 
+@contextlib.contextmanager
+def _compile_notice() -> Iterator[threading.Timer | None]:
+    """A timer that logs, unless cancelled within ``COMPILE_NOTICE_S``, that the numba kernels are compiling: the
+    first run after installing mocap pauses ~25 s on the first frame, later runs load the kernels from numba's
+    on-disk cache in ~0.3 s. Only numba knows, when it compiles, whether its cache holds a kernel, so the pause
+    itself is the sign."""
+    if not kernels.HAVE_NUMBA:
+        yield None
+        return
+    timer = threading.Timer(COMPILE_NOTICE_S, log.info, args=(
+        "compiling the numba kernels (the first run after installing mocap: about 25 s; later runs load them "
+        "from the cache) ...",))
+    timer.daemon = True
+    timer.start()
+    try:
+        yield timer
+    finally:
+        timer.cancel()
+
+
 def _report_calibration_fit(rig: Rig, verdict: tuple[FitReport, list[str]], where: Path) -> None:
     """Warn about the cameras :class:`mocap.fitcheck.FitMonitor` named (support shown from its first window)."""
     report, poor = verdict
@@ -154,7 +176,8 @@ def reconstruct(take: str | os.PathLike, options: ReconstructOptions | None = No
     # OpenCV on one thread while streaming: detection's OpenCV calls are small (a dilation, labelling of small
     # images) and a second OpenCV thread mostly waits for a core that the take reader's decoders hold
     # (labelling 0.08 ms per call on one thread, 0.3-3 ms on two on the shared 2-core machine).
-    with logger, _opencv_threads(1):  # closes the MCAP on success; on failure keeps a readable <name>.partial
+    # The logger closes the MCAP on success; on failure it keeps a readable <name>.partial.
+    with logger, _opencv_threads(1), _compile_notice() as notice:
         frames = _detection_frames(source, kind, tracker, replace(opts, stop=stop))
         bar = tqdm(frames, total=stop - opts.start, unit="frame", desc="reconstruct",
                    disable=None if opts.progress else True, leave=False)
@@ -163,6 +186,8 @@ def reconstruct(take: str | os.PathLike, options: ReconstructOptions | None = No
             if verdict is not None:
                 _report_calibration_fit(rig, verdict, path)
             result = tracker.step(frame_index, dets)
+            if notice is not None:
+                notice.cancel()  # (the first frame is done)
             if mcap is not None:
                 logger.log_frame(frame_index, dets, result.ids, result.positions, result.residuals_mm,
                                  result.camera_masks)

@@ -130,3 +130,28 @@ def test_cli_errors_are_one_clear_line(png_take, tmp_path, capsys, case):
     err = capsys.readouterr().err
     assert err.startswith("mocap reconstruct: error:") and "Traceback" not in err
     assert not (tmp_path / "o.c3d").exists()
+
+
+@pytest.mark.parametrize("first_frame_s, notice_s, expected", [(1.0, 0.2, 1), (0.0, 2.0, 0)])
+def test_a_slow_first_frame_with_numba_says_the_kernels_are_compiling(png_take, monkeypatch, caplog, first_frame_s,
+                                                                       notice_s, expected):
+    import time
+    from types import SimpleNamespace
+
+    from mocap import pipeline
+    from mocap.tracker import Tracker
+
+    monkeypatch.setattr(pipeline, "kernels", SimpleNamespace(HAVE_NUMBA=True))
+    monkeypatch.setattr(pipeline, "COMPILE_NOTICE_S", notice_s)
+    step = Tracker.step
+
+    def slow_first(self, frame_index, dets):
+        if frame_index == 0:
+            time.sleep(first_frame_s)
+        return step(self, frame_index, dets)
+
+    monkeypatch.setattr(Tracker, "step", slow_first)
+    with caplog.at_level(logging.INFO, logger="mocap"):
+        reconstruct(png_take[0], ReconstructOptions(progress=False, stop=3, relabel=False))
+        time.sleep(notice_s + 0.1)  # (a notice the run failed to cancel would be logged by now)
+    assert sum("compiling the numba kernels" in r.message for r in caplog.records) == expected
