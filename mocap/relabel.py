@@ -82,7 +82,11 @@ class RelabelConfig:
             at 50 Hz that is 80 mm/frame^2, which must not read as a jump).
         shape_window: samples at each tracklet end over which the distances to its neighbours are taken.
         shape_radius_m: neighbours within this distance ...
-        shape_steady_m: ... whose distance varies less than this over the window count as attached.
+        shape_steady_m: ... whose distance varies less than this over the window count as attached ...
+        shape_history_s: ... and, on an identity's side of a gap, whose distance also stayed within
+            ``shape_drift_m`` of that over the last this many seconds they were seen together (a hand, a few
+            centimetres from a forearm's markers, can hold its distance for a few frames while the wrist turns) ...
+        shape_drift_m: ... m, in a fraction ``shape_held`` of those samples at least (a glitch is not a drift).
         shape_min: attached neighbours seen at both ends needed to compare distances.
         shape_gate_m: a link is made on distances when their weighted mean change is below this, m ...
         shape_refuse_m: ... and refused, the tracker's own link included, above this (between the two, the
@@ -112,6 +116,9 @@ class RelabelConfig:
     shape_window: int = 6
     shape_radius_m: float = 0.25
     shape_steady_m: float = 0.004
+    shape_history_s: float = 0.4
+    shape_drift_m: float = 0.008
+    shape_held: float = 0.8
     shape_min: int = 2
     shape_gate_m: float = 0.008
     shape_refuse_m: float = 0.024
@@ -278,11 +285,12 @@ def _end_state(P: np.ndarray, run: np.ndarray, at_start: bool) -> tuple[int, np.
     return int(frame), pos, pos - P[run[-2][0], run[-2][1]]
 
 
-def _chain_distances(P: np.ndarray, samples: np.ndarray, owner: np.ndarray, chain: int, cfg: RelabelConfig
-                     ) -> dict[int, np.ndarray]:
+def _chain_distances(P: np.ndarray, samples: np.ndarray, owner: np.ndarray, chain: int, cfg: RelabelConfig,
+                     keep: int) -> dict[int, np.ndarray]:
     """Distances from a tracklet's samples (n, 2) (frame, column) to the identities (chains) seen in the same
-    frames: ``{chain: (k,) distances, m}``, the last ``shape_window`` both were seen in, for those within
-    ``shape_radius_m`` (``chain`` itself left out; ``owner`` (F, M) maps samples to chains)."""
+    frames: ``{chain: (k,) distances, m}``, the last ``keep`` both were seen in, for those whose last
+    ``shape_window`` lie within ``shape_radius_m`` (``chain`` itself left out; ``owner`` (F, M) maps samples to
+    chains)."""
     frames, cols = samples[:, 0], samples[:, 1]
     own = owner[frames]
     ok = (own >= 0) & (own != chain)
@@ -296,15 +304,27 @@ def _chain_distances(P: np.ndarray, samples: np.ndarray, owner: np.ndarray, chai
     ends = np.append(np.flatnonzero(others[1:] != others[:-1]) + 1, len(others))
     out = {}
     for start, end in zip(np.append(0, ends[:-1]), ends, strict=True):
-        v = values[max(start, end - cfg.shape_window):end]
-        if quick_median(v) < cfg.shape_radius_m:
+        v = values[max(start, end - keep):end]
+        if quick_median(v[-cfg.shape_window:]) < cfg.shape_radius_m:
             out[int(others[start])] = v
     return out
 
 
 def _steady(distances: np.ndarray | None, cfg: RelabelConfig) -> bool:
-    """A distance that held still (attached markers): three samples or more, spread below ``shape_steady_m``."""
-    return distances is not None and distances.size >= 3 and np.ptp(distances) < cfg.shape_steady_m
+    """A distance that held still (attached markers): three samples or more, the last ``shape_window`` spread below
+    ``shape_steady_m``, and a fraction ``shape_held`` of all of them within ``shape_drift_m`` of their median."""
+    if distances is None or distances.size < 3:
+        return False
+    recent = distances[-cfg.shape_window:]
+    if np.ptp(recent) >= cfg.shape_steady_m:
+        return False
+    held = np.count_nonzero(np.abs(distances - quick_median(recent)) < cfg.shape_drift_m)
+    return held >= cfg.shape_held * distances.size
+
+
+def _recent(distances: np.ndarray, cfg: RelabelConfig) -> float:
+    """The median of the last ``shape_window`` distances, m."""
+    return quick_median(distances[-cfg.shape_window:])
 
 
 def _shape_misfit(pairs: list[tuple[float, float]]) -> float:
@@ -361,7 +381,7 @@ def _comparable(memory: dict[int, np.ndarray], head: dict[int, np.ndarray], chai
                 ) -> list[tuple[float, float]]:
     """(then, now) median distances, m, to the identities steady in both an identity's ``memory`` and a
     tracklet's ``head`` (the identity ``chain`` itself left out)."""
-    return [(quick_median(memory[o]), quick_median(h)) for o, h in head.items()
+    return [(_recent(memory[o], cfg), quick_median(h)) for o, h in head.items()
             if o != chain and _steady(h, cfg) and _steady(memory.get(o), cfg)]
 
 
@@ -372,7 +392,8 @@ class _Linker:
     Attributes:
         chains: per identity, its tracklets ((n, 2) frame, column samples) in time order.
         ends: per identity, its last frame, position and velocity (m, m/frame).
-        memory: per identity, its latest distances (m) to the other identities seen with it.
+        memory: per identity, its distances (m) to the other identities seen with it, the last ``shape_history_s``
+            seconds' worth of samples.
         owner: (F, M) the identity each sample was given (-1: not yet).
         junction: per identity, its last link after a gap that distances measured: the index of the
             tracklet it starts, the memory before it, how much the distances changed (m), the frame.
@@ -382,6 +403,7 @@ class _Linker:
         self.P, self.shape_max, self.cfg = P, shape_max, cfg
         self.acc_per_frame2 = cfg.stitch_acc_mps2 / (fps * fps)  # m/frame^2
         self.lone_max = int(round(cfg.lone_max_s * fps))  # frames
+        self.history = max(cfg.shape_window, int(round(cfg.shape_history_s * fps)))  # distances remembered, samples
         self.chains: list[list[np.ndarray]] = []
         self.ends: list[tuple[int, np.ndarray, np.ndarray]] = []
         self.memory: list[dict[int, np.ndarray]] = []
@@ -395,7 +417,8 @@ class _Linker:
         open_chains = [c for c, (e, _, _) in enumerate(self.ends)
                        if 0 < start - e and (start - e <= cfg.max_gap or self._column(c) in columns
                                              or (start - e <= self.shape_max and self._attached(c)))]
-        heads = [_chain_distances(self.P, run[: cfg.shape_window], self.owner, -1, cfg) for run in group]
+        heads = [_chain_distances(self.P, run[: cfg.shape_window], self.owner, -1, cfg, cfg.shape_window)
+                 for run in group]
         assigned: dict[int, int] = {}
         refused: set[tuple[int, int]] = set()  # (group index, chain): the distances disagree
         changes: dict[tuple[int, int], float] = {}  # (group index, chain): measured distance change, m
@@ -432,8 +455,8 @@ class _Linker:
             self.owner[run[:, 0], run[:, 1]] = c
         for run in group:  # distances to the identities seen with it, both ways
             c = int(self.owner[run[0, 0], run[0, 1]])
-            for other, d in _chain_distances(self.P, run, self.owner, c, cfg).items():
-                d = np.concatenate([self.memory[c].get(other, d[:0]), d])[-cfg.shape_window:]
+            for other, d in _chain_distances(self.P, run, self.owner, c, cfg, self.history).items():
+                d = np.concatenate([self.memory[c].get(other, d[:0]), d])[-self.history:]
                 self.memory[c][other] = self.memory[other][c] = d
 
     def _column(self, c: int) -> int:
@@ -565,7 +588,7 @@ class _Linker:
                     return np.inf
                 pairs = _comparable(memory[c], heads[g], c, cfg)
                 relations += len(pairs)
-                inside = [(quick_median(memory[c][choice[m]]), within[g, h]) for m, h in enumerate(members)
+                inside = [(_recent(memory[c][choice[m]], cfg), within[g, h]) for m, h in enumerate(members)
                           if m != k and (g, h) in within and _steady(memory[c].get(choice[m]), cfg)]
                 relations += 0.5 * len(inside)
                 pairs += inside
