@@ -133,6 +133,11 @@ class TrackerConfig:
         withhold_merged_depth: a point seen cleanly by one camera only, its other views merged blobs that another
             live track's image lies in too, is not output (it still updates its filter): its depth along that
             camera's ray rests on the merged centroid, up to a marker radius off (see ``_depth_on_merged_blobs``).
+        yield_outside_gate: a track's point outside its 3D search radius that an identity lost for at most
+            ``yield_frames`` frames holds inside its own, more tightly, is left to that identity (see
+            ``_yield_outside_gate``) ...
+        yield_frames: ... frames (the search radius of an identity lost for longer is wide enough to hold most
+            points around it: a plate marker's identity lost for 13 frames took a skin marker's point).
         noisy_point_m: a track whose last point's std exceeds this (m) gets proportionally more 3D process
             noise (up to 10x ``jerk_std_3d``): noisy points (small, far markers) must not make the filter lag.
     """
@@ -177,6 +182,8 @@ class TrackerConfig:
     noisy_point_m: float = 0.0003
     neighbour_min: int = 2
     deblend: bool = True
+    yield_outside_gate: bool = True
+    yield_frames: int = 10
     deblend_px: float = 0.1
     withhold_merged_depth: bool = True
 
@@ -431,6 +438,8 @@ class Tracker:
                 meas = _Measurements.empty(K, C)
                 self._associate(fr, play, t.lock2 & ~moved[:, None], meas)
                 t.x3[moved, :3] -= shift[moved]
+            if self._cfg.yield_outside_gate:  # (judged from the predictions the points were searched from)
+                self._yield_outside_gate(meas, np.where(moved[:, None], shift, 0.0))
             self._update(fr, meas, np.flatnonzero(meas.ok))
             self._follow_residual_level(fr, meas)
         self._new_markers(fr, fr.valid & ~_taken(meas.asg, fr.valid.shape), meas)
@@ -604,6 +613,33 @@ class Tracker:
             if enough.any():
                 self._measure_again(fr, crowded, meas, short[enough], again[enough])
         self._one_marker_one_track(fr, crowded, meas)
+
+    def _yield_outside_gate(self, meas: _Measurements, shift: np.ndarray) -> None:
+        """Tracks whose point lies outside their own 3D search radius (:meth:`_radius3`) around the prediction (plus
+        ``shift`` (K, 3) m, the neighbours' correction it was searched from), where an identity lost for at most
+        ``yield_frames`` frames holds it inside its own radius, and more tightly (distance / radius, from its
+        prediction or where it was last seen, as :func:`mocap.fusion.reidentify` measures), miss the frame: the
+        point is left to the new-marker search, which gives it to that identity. A camera whose image filter is
+        locked searches around that filter's prediction alone, and where a marker vanishes as a neighbour a few
+        centimetres away reappears, every camera's gate can hold the neighbour's blob (the sprint's forearm: steps
+        of 45-65 mm onto the marker whose identity had just been lost). A fast swing outside the gate that no
+        recently lost identity explains is measured as before."""
+        t = self._t
+        rows = np.flatnonzero(meas.ok)
+        if rows.size == 0:
+            return
+        q = np.linalg.norm(meas.X[rows] - (t.x3[rows, :3] + shift[rows]), axis=1) / self._radius3(rows)
+        far = q > 1.0
+        others = np.flatnonzero((t.ident >= 0) & (t.since >= 1) & (t.since <= self._cfg.yield_frames) & ~meas.ok)
+        if not far.any() or others.size == 0:
+            return
+        X = meas.X[rows[far], None]
+        d = np.fmin(np.linalg.norm(X - t.x3[None, others, :3], axis=2),
+                    np.linalg.norm(X - t.last_X[None, others], axis=2))
+        held = (d / self._radius3(others)[None]).min(axis=1) < 1.0
+        yields = rows[far][held]
+        if yields.size:
+            meas.put(yields, _Measurements.empty(yields.size, self._C))
 
     def _measure_again(self, fr: _Frame, crowded: np.ndarray, meas: _Measurements, rows: np.ndarray,
                        asg: np.ndarray) -> None:
@@ -1015,6 +1051,7 @@ class Tracker:
             return
         # Identities not measured this frame: a tentative track inherits one if confirmed (_lifecycle).
         lost = np.flatnonzero((t.ident >= 0) & (t.since >= 1))
+
         cand = np.full(rest.size, -1, dtype=np.intp)
         if lost.size:
             match = reidentify(pts.X[rest], t.x3[lost, :3], self._radius3(lost), t.last_X[lost])

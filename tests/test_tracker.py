@@ -654,3 +654,26 @@ def test_a_marker_whose_blobs_two_tracks_split_stays_with_the_track_that_followe
     assert on_b[:, b_col].all() and on_b.sum() == frames  # B under one identity throughout, nobody else on it
     old, _, _ = run(rule=False)
     assert old[split_at].sum() == 2  # for contrast: both identities output B at that frame
+
+
+@pytest.mark.parametrize("rule", [True, False])
+def test_a_marker_vanishing_as_its_lost_neighbour_reappears_leaves_the_neighbour_its_identity(rule):
+    """The sprint's forearm: marker B, 40 mm from A, is hidden for 6 frames (its identity lost); in the frame A
+    vanishes, B reappears. The image gates of A's track are wide enough to hold B's blobs (a 10 px floor here, as
+    for small, noisy far markers), but B's point lies outside A's 3D gate and inside B's lost identity's: it is
+    left to that identity, and A's track misses the frame. Without the rule A's identity takes B."""
+    F, fps = 160, 120.0
+    t = np.arange(F) / fps
+    centre = np.stack([0.3 * np.cos(2 * t), 0.3 * np.sin(2 * t), np.ones(F)], axis=1)
+    pos = np.stack([centre, centre + [0.04, 0.0, 0.0]], axis=1)
+    hidden = np.zeros((F, 6, 2), dtype=bool)
+    hidden[60:66, :, 1] = True
+    hidden[66:, :, 0] = True
+    take = simulate("yield", ring_rig(seed=3), scripted_motion(pos, fps), SynthSettings(seed=3, ghosts=0,
+                    dropout_rate=0.0), hidden=hidden, seed=3)
+    traj = _run(Tracker(take.rig, fps, TrackerConfig(gate_floor_px=10.0, yield_outside_gate=rule)), take)[0]
+    report = evaluate(traj, take.truth)
+    if rule:
+        assert report.switches == 0 and report.idf1 > 0.99 and report.output_tracks == 2
+    else:
+        assert report.switches == 1 and report.idf1 < 0.7
