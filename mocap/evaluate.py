@@ -90,7 +90,7 @@ class EvalReport:
     rmse_axis_mm: list[float]
     switches: int
     switches_per_10k: float
-    reference_jumps: int  # truth marker-frames where the truth itself jumps (a label swap in the recording)
+    reference_jumps: int  # truth marker-frames where the truth jumps or a marker is renamed (labelling faults)
     switches_at_reference_jumps: int  # of ``switches``, those within 2 frames of a jump of their truth marker
     idf1: float
     idp: float
@@ -131,7 +131,8 @@ class EvalReport:
         ]
         if self.reference_jumps:
             lines.append(
-                f"truth jumps  {self.reference_jumps} truth marker-frames jump (the recording swapped labels); "
+                f"truth jumps  {self.reference_jumps} truth marker-frames jump or change label (the recording's "
+                f"labelling); "
                 f"{self.switches_at_reference_jumps} of the ID switches are within 2 frames of one")
         if per_marker:
             width = max([len(m.label) for m in self.per_marker] + [6])
@@ -381,12 +382,33 @@ def _switch_events(acc: mm.MOTAccumulator) -> tuple[np.ndarray, np.ndarray]:
 
 
 def _reference_jumps(truth_pos: np.ndarray, fps: float) -> np.ndarray:
-    """(F, M) bool: truth samples (``truth_pos`` (F, M, 3), m) whose acceleration (second difference) exceeds what a
-    marker can do at ``fps`` (the identity repair's jump threshold, :meth:`RelabelConfig.jump_acc`): the recording
-    gave the label to another marker there. An output that follows the markers counts ID switches at such frames."""
+    """(F, M) bool: truth samples (``truth_pos`` (F, M, 3), m) where the recording's labelling is at fault, so that an
+    output that follows the markers counts ID switches there:
+
+    * a jump: the acceleration (second difference) exceeds what a marker can do at ``fps`` (the identity repair's
+      jump threshold, :meth:`RelabelConfig.jump_acc`): the recording gave the label to another marker;
+    * a renamed marker: one label ends where another starts in the next frame, within ``duplicate_m`` (3 mm: no two
+      marker centres are that close) of where the first one's path leads (its constant-velocity extrapolation, or
+      its last position after a single sample): the recording gave the marker another name. Both labels' samples
+      either side of the change are flagged.
+    """
+    cfg = RelabelConfig()
     jumps = np.zeros(truth_pos.shape[:2], dtype=bool)
     acc = np.linalg.norm(truth_pos[2:] - 2 * truth_pos[1:-1] + truth_pos[:-2], axis=2)
-    jumps[1:-1] = np.nan_to_num(acc) > RelabelConfig().jump_acc(fps)
+    jumps[1:-1] = np.nan_to_num(acc) > cfg.jump_acc(fps)
+    seen = np.isfinite(truth_pos[..., 0])
+    ends = np.argwhere(seen[:-1] & ~seen[1:])  # (frame f, label): last sample at f (sorted by frame)
+    starts = np.argwhere(~seen[:-1] & seen[1:])  # (frame f, label): first sample at f + 1 (sorted by frame)
+    lo = np.searchsorted(starts[:, 0], ends[:, 0], side="left")
+    count = np.searchsorted(starts[:, 0], ends[:, 0], side="right") - lo
+    e = np.repeat(np.arange(len(ends)), count)  # every (end, start) pair of one frame
+    b = lo[e] + np.arange(len(e)) - np.repeat(np.cumsum(count) - count, count)
+    last = truth_pos[ends[e, 0], ends[e, 1]]
+    before = truth_pos[np.maximum(ends[e, 0] - 1, 0), ends[e, 1]]  # (at frame 0 the sample itself)
+    lead = np.where(np.isfinite(before), 2 * last - before, last)
+    near = np.linalg.norm(lead - truth_pos[starts[b, 0] + 1, starts[b, 1]], axis=1) < cfg.duplicate_m
+    jumps[ends[e[near], 0], ends[e[near], 1]] = True
+    jumps[starts[b[near], 0] + 1, starts[b[near], 1]] = True
     return jumps
 
 

@@ -133,6 +133,26 @@ def test_switches_at_a_label_swap_in_the_truth_are_put_down_to_it(truth: Truth) 
     assert report.switches == 6 and report.switches_at_reference_jumps == 4
 
 
+def test_switches_where_the_truth_renames_a_marker_are_put_down_to_it(truth: Truth) -> None:
+    """The whole sprint's frames 3202-3247: the recording names one marker ArmL Marker2, then ForearmL Marker4 (a
+    label last seen on another marker), then ArmL Marker2 again, with no jump. An output that follows the marker
+    counts a switch for the label that came back elsewhere; the rename is a labelling fault."""
+    k = 30
+    renamed = copy.deepcopy(truth)
+    renamed.visible[:] = True  # (every sample scored)
+    renamed.positions[k - 10:, 1] = np.nan  # marker 1 leaves (label B last seen on it at k - 11) ...
+    renamed.positions[k + 1:, 1] = truth.positions[k + 1:, 0]  # ... and from k + 1 marker 0 is labelled B
+    renamed.positions[k + 1:, 0] = np.nan
+    output = truth.positions.copy()
+    output[k - 10:, 1] = np.nan  # the output follows the markers
+    report = evaluate(output_of(output), renamed)
+    assert report.switches == 1  # label B: output 1 before, output 0 from k + 1
+    assert report.switches_at_reference_jumps == 1 and report.reference_jumps == 2
+    moved = copy.deepcopy(renamed)
+    moved.positions[k + 1:, 1] += 0.01  # 10 mm from where marker 0 was heading: another marker, not a rename
+    assert evaluate(output_of(output), moved).reference_jumps == 0
+
+
 def test_restarted_track_is_one_switch_and_a_gap_none(truth: Truth) -> None:
     F = truth.n_frames
     restarted = np.concatenate([truth.positions, np.full((F, 1, 3), np.nan)], axis=1)
