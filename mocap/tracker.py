@@ -625,13 +625,14 @@ class Tracker:
         of 45-65 mm onto the marker whose identity had just been lost). A fast swing outside the gate that no
         recently lost identity explains is measured as before."""
         t = self._t
-        rows = np.flatnonzero(meas.ok)
-        if rows.size == 0:
-            return
-        q = np.linalg.norm(meas.X[rows] - (t.x3[rows, :3] + shift[rows]), axis=1) / self._radius3(rows)
-        far = q > 1.0
         others = np.flatnonzero((t.ident >= 0) & (t.since >= 1) & (t.since <= self._cfg.yield_frames) & ~meas.ok)
-        if not far.any() or others.size == 0:
+        rows = np.flatnonzero(meas.ok)
+        if others.size == 0 or rows.size == 0:  # (most frames)
+            return
+        miss = np.linalg.norm(meas.X[rows] - (t.x3[rows, :3] + shift[rows]), axis=1)
+        rows, miss = rows[miss > self._cfg.gate_floor_m], miss[miss > self._cfg.gate_floor_m]  # (the radius' floor)
+        far = miss > self._radius3(rows)
+        if not far.any():
             return
         X = meas.X[rows[far], None]
         d = np.fmin(np.linalg.norm(X - t.x3[None, others, :3], axis=2),
