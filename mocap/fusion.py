@@ -28,7 +28,7 @@ from mocap.geometry import inv2x2, inv3x3, reprojection_jacobians
 from mocap.pairs import CameraPairs
 from mocap.stereo import dist2, match_pairs, triangulate_matches
 
-__all__ = ["Triangulated", "robust_triangulate", "repick", "new_points", "reidentify"]
+__all__ = ["Triangulated", "robust_triangulate", "repick", "new_points", "distance_to_lost", "reidentify"]
 
 
 @dataclass
@@ -368,6 +368,16 @@ def new_points(P: np.ndarray, pairs: CameraPairs, D: np.ndarray, cov: np.ndarray
     return NewPoints(tri.X[keep], tri.cov[keep], tri.rms_px[keep], det[keep], strong[keep])
 
 
+def distance_to_lost(points: np.ndarray, predicted: np.ndarray, last_seen: np.ndarray | None = None) -> np.ndarray:
+    """(L, T) distance, m, of each point (L, 3) to each lost track: the smaller of its distances to the track's
+    prediction (T, 3) and, if given, to where the track was last seen (T, 3) (paper 004: "position or prediction";
+    a long extrapolation can run away)."""
+    d = np.linalg.norm(points[:, None, :] - predicted[None, :, :], axis=2)
+    if last_seen is not None:
+        d = np.fmin(d, np.linalg.norm(points[:, None, :] - last_seen[None, :, :], axis=2))
+    return d
+
+
 def reidentify(points: np.ndarray, predicted: np.ndarray, radius: np.ndarray, last_seen: np.ndarray | None = None
                ) -> np.ndarray:
     """Match new points to lost tracks inside each track's own (variable) search radius.
@@ -389,10 +399,7 @@ def reidentify(points: np.ndarray, predicted: np.ndarray, radius: np.ndarray, la
     out = np.full(len(points), -1, dtype=np.intp)
     if len(points) == 0 or len(predicted) == 0:
         return out
-    d = np.linalg.norm(points[:, None, :] - predicted[None, :, :], axis=2)
-    if last_seen is not None:
-        d = np.fmin(d, np.linalg.norm(points[:, None, :] - last_seen[None, :, :], axis=2))
-    q = d / radius[None, :]
+    q = distance_to_lost(points, predicted, last_seen) / radius[None, :]
     inside = q < 1.0
     if not inside.any():
         return out

@@ -46,7 +46,7 @@ from mocap.detect import MIN_SHAPE_AREA
 from mocap.detections import MIN_CENTROID_STD_PX, Detections, floored_covariance
 from mocap.ekf import RunningError, ca_process_noise, ca_transition, init_state, predict, update_position
 from mocap.errors import MocapError
-from mocap.fusion import NewPoints, Triangulated, new_points, reidentify, repick, robust_triangulate
+from mocap.fusion import NewPoints, Triangulated, distance_to_lost, new_points, reidentify, repick, robust_triangulate
 from mocap.geometry import project_ideal, reprojection_jacobians
 from mocap.pairs import camera_pairs
 from mocap.quickstats import quick_median
@@ -182,10 +182,10 @@ class TrackerConfig:
     noisy_point_m: float = 0.0003
     neighbour_min: int = 2
     deblend: bool = True
-    yield_outside_gate: bool = True
-    yield_frames: int = 10
     deblend_px: float = 0.1
     withhold_merged_depth: bool = True
+    yield_outside_gate: bool = True
+    yield_frames: int = 10
 
     def __post_init__(self) -> None:
         for name in ("confirm_frames", "new_min_views"):
@@ -634,9 +634,7 @@ class Tracker:
         far = miss > self._radius3(rows)
         if not far.any():
             return
-        X = meas.X[rows[far], None]
-        d = np.fmin(np.linalg.norm(X - t.x3[None, others, :3], axis=2),
-                    np.linalg.norm(X - t.last_X[None, others], axis=2))
+        d = distance_to_lost(meas.X[rows[far]], t.x3[others, :3], t.last_X[others])
         held = (d / self._radius3(others)[None]).min(axis=1) < 1.0
         yields = rows[far][held]
         if yields.size:
@@ -1052,7 +1050,6 @@ class Tracker:
             return
         # Identities not measured this frame: a tentative track inherits one if confirmed (_lifecycle).
         lost = np.flatnonzero((t.ident >= 0) & (t.since >= 1))
-
         cand = np.full(rest.size, -1, dtype=np.intp)
         if lost.size:
             match = reidentify(pts.X[rest], t.x3[lost, :3], self._radius3(lost), t.last_X[lost])
