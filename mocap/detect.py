@@ -506,9 +506,11 @@ def _neighbour_medians(xy: np.ndarray, values: np.ndarray, k: int = 5) -> np.nda
         return np.full(values.shape, np.inf)
     k = min(k, len(xy) - 1)
     if len(xy) <= _BRUTE_FORCE_NEIGHBOURS:
+        if kernels.HAVE_NUMBA:
+            return detect_kernels.neighbour_medians(kernels.contiguous(xy), kernels.contiguous(values), k)
         d2 = ((xy[:, None, :] - xy[None, :, :]) ** 2).sum(axis=2)
         np.fill_diagonal(d2, np.inf)
-        nn = np.argpartition(d2, k - 1, axis=1)[:, :k]
+        nn = np.argsort(d2, axis=1, kind="stable")[:, :k]  # (ties to the lower index, as the kernel)
     else:
         nn = cKDTree(xy).query(xy, k + 1)[1][:, 1:]
     near = np.sort(values[nn], axis=1)  # (N, k, V)

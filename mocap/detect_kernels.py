@@ -1,5 +1,5 @@
-"""Compiled kernels of blob detection (:mod:`mocap.detect`): coarse pass, labelling, per-blob sums, peaks, fit windows
-and the disc fit.
+"""Compiled kernels of blob detection (:mod:`mocap.detect`): coarse pass, labelling, per-blob sums, neighbour medians,
+peaks, fit windows and the disc fit.
 
 Each computes what the numpy stages of :mod:`mocap.detect` compute, with one loop over the pixels of a frame
 instead of dozens of numpy calls on small arrays; :mod:`mocap.detect` switches to them where
@@ -15,7 +15,8 @@ import numpy as np
 
 from mocap.kernels import _jit
 
-__all__ = ["subsampled_histogram", "coarse_groups", "label_blobs", "blob_sums", "peaks", "window", "fit_discs"]
+__all__ = ["subsampled_histogram", "coarse_groups", "label_blobs", "blob_sums", "neighbour_medians", "peaks", "window",
+           "fit_discs"]
 
 
 # ---------------------------------------------------------------------------------------------- coarse search
@@ -212,6 +213,47 @@ def blob_sums(starts, xs, ys, grey, level, saturated):
 
 
 # ---------------------------------------------------------------------------------------------- peaks
+@_jit
+def neighbour_medians(xy, values, k):
+    """(N, V) median of each of the ``values`` (N, V) over each blob's ``k`` nearest other blobs (centres ``xy``
+    (N, 2) px), as :func:`mocap.detect._neighbour_medians` computes it from all pairwise distances: the ``k`` smallest
+    squared distances, ties to the lower index (a stable sort's first ``k``)."""
+    n, nv = values.shape
+    out = np.empty((n, nv))
+    best_d = np.empty(k)
+    best_j = np.empty(k, np.int64)
+    near = np.empty(k)
+    for i in range(n):
+        filled = 0
+        for j in range(n):
+            if j == i:
+                continue
+            dx = xy[i, 0] - xy[j, 0]
+            dy = xy[i, 1] - xy[j, 1]
+            d = dx * dx + dy * dy
+            if filled == k and d >= best_d[k - 1]:  # (an equal distance at a higher index does not displace)
+                continue
+            m = filled if filled < k else k - 1  # insertion into the sorted best list
+            while m > 0 and best_d[m - 1] > d:
+                best_d[m] = best_d[m - 1]
+                best_j[m] = best_j[m - 1]
+                m -= 1
+            best_d[m] = d
+            best_j[m] = j
+            if filled < k:
+                filled += 1
+        for v in range(nv):
+            for m in range(k):  # insertion sort of the k values
+                x = values[best_j[m], v]
+                q = m
+                while q > 0 and near[q - 1] > x:
+                    near[q] = near[q - 1]
+                    q -= 1
+                near[q] = x
+            out[i, v] = 0.5 * (near[(k - 1) // 2] + near[k // 2])
+    return out
+
+
 @_jit
 def _smooth(image, x, y):
     """The 3x3 mean of ``image`` around (x, y) (pixels beyond the border repeat it), in float32 as numpy's."""

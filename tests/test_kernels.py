@@ -18,7 +18,7 @@ from helpers_engine import body_take
 
 from mocap import kernels
 from mocap.camera import Camera, Lenses
-from mocap.detect import _fit_discs, _groups, _label_blobs, _peaks, background_level, detect
+from mocap.detect import _fit_discs, _groups, _label_blobs, _neighbour_medians, _peaks, background_level, detect
 from mocap.detections import MIN_CENTROID_STD_PX, Detections
 from mocap.ekf import ca_process_noise, ca_transition, init_state, predict, update_position
 from mocap.fusion import Triangulated, _gauss_newton, repick, robust_triangulate
@@ -375,6 +375,19 @@ def test_detection_labelling_and_blob_sums_are_the_numpy_ones(both):
             _same(r, g, rtol=1e-12)
         found.append(sum(len(d) for d in ref))
     assert found[0] > 200 and 60 < found[1] < found[0]
+
+
+def test_detection_neighbour_medians_are_the_numpy_ones(both):
+    """The medians of the blobs' nearest neighbours' areas and fluxes (where oversized and overbright blobs are told):
+    the same k nearest, ties of distance to the lower index, on random centres and on an integer grid (many ties),
+    with infinite values among them and fewer blobs than k + 1."""
+    rng = np.random.default_rng(21)
+    for trial in range(200):
+        n = int(rng.integers(3, 60))
+        xy = rng.integers(0, 12, (n, 2)).astype(float) if trial % 2 else rng.uniform(0, 1000, (n, 2))
+        values = rng.uniform(1, 100, (n, 2))
+        values[rng.random(values.shape) < 0.1] = np.inf
+        _same(*both(_neighbour_medians, xy, values), rtol=0)
 
 
 def test_detection_peaks_are_the_numpy_ones(both):
