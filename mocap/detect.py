@@ -661,11 +661,27 @@ def _measure(image: np.ndarray, owners: _Owners, blobs: np.ndarray, k: int, radi
     params[fitted], pcov[fitted] = _fit_discs(values, ox, oy, (np.cumsum(fitted) - 1).take(seg),
                                               np.cumsum(count) - count, start[fitted],
                                               FIT_ITERATIONS if k == 1 else SPLIT_ITERATIONS)
+    return _fit_results(params, pcov, start, origin, stats.centroid_cov[blobs], float(sigma), k)
+
+
+def _fit_results(params: np.ndarray, pcov: np.ndarray, start: np.ndarray, origin: np.ndarray,
+                 centroid_cov: np.ndarray, sigma: float, k: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The fitted discs checked: centres (N, k, 2) px, covariances (N, k, 2, 2) px^2 and (N,) whether a disc's fit
+    failed, from the fit's ``params`` (N, 1 + 5k) and ``pcov`` (N, 2k, 2k), its ``start`` (centres relative to
+    ``origin`` (N, 2)) and the blobs' ``centroid_cov`` (N, 2, 2) (unit noise; ``sigma`` grey levels). A disc whose
+    offset or covariance is not finite, whose covariance is not positive or its std ``FIT_VAGUE`` times the
+    centroid's, or whose centre wandered more than max(1.5 px, its radius) falls back to its start, with the
+    centroid's covariance (+ 0.25 px^2 per axis for k > 1). With the kernels on,
+    :func:`mocap.detect_kernels.fit_results` does the same disc by disc."""
+    if kernels.HAVE_NUMBA:
+        return detect_kernels.fit_results(params, pcov, start, kernels.contiguous(origin),
+                                          kernels.contiguous(centroid_cov), sigma, k, FIT_VAGUE**2)
+    n = len(params)
     disc = params[:, 1:].reshape(n, k, 5)
     offset = disc[:, :, :2] - start[:, 1:].reshape(n, k, 5)[:, :, :2]
     pos = 2 * np.arange(k)[:, None] + np.arange(2)  # (k, 2) covariance rows of each centre
     cov = pcov[np.arange(n)[:, None, None, None], pos[None, :, :, None], pos[None, :, None, :]] * sigma**2
-    fallback_cov = stats.centroid_cov[blobs][:, None] * sigma**2 + np.eye(2) * (0.25 if k > 1 else 0.0)
+    fallback_cov = centroid_cov[:, None] * sigma**2 + np.eye(2) * (0.25 if k > 1 else 0.0)
     a, b, d = cov[..., 0, 0], cov[..., 0, 1], cov[..., 1, 1]
     with np.errstate(invalid="ignore"):  # (NaN covariances are caught by the finiteness test)
         vague = (a < 0) | (a * d < b * b) | (a + d > FIT_VAGUE**2 * np.trace(fallback_cov, axis1=2, axis2=3))

@@ -1,5 +1,5 @@
 """Compiled kernels of blob detection (:mod:`mocap.detect`): coarse pass, labelling, per-blob sums, neighbour medians,
-peaks, fit windows and the disc fit.
+peaks, fit windows, the disc fit and its checks.
 
 Each computes what the numpy stages of :mod:`mocap.detect` compute, with one loop over the pixels of a frame
 instead of dozens of numpy calls on small arrays; :mod:`mocap.detect` switches to them where
@@ -16,7 +16,7 @@ import numpy as np
 from mocap.kernels import _jit
 
 __all__ = ["subsampled_histogram", "coarse_groups", "label_blobs", "blob_sums", "neighbour_medians", "peaks", "window",
-           "fit_discs"]
+           "fit_discs", "fit_results"]
 
 
 # ---------------------------------------------------------------------------------------------- coarse search
@@ -558,3 +558,48 @@ def fit_discs(values, ox, oy, starts, params, iterations, tables, steps, z_res, 
                     v = params[b, q] + min(max(step[q], -step_bound[i]), step_bound[i])
                     params[b, q] = min(max(v, low[i]), high[i])
     return cov_out
+
+
+@_jit
+def fit_results(params, pcov, start, origin, centroid_cov, sigma, k, vague_factor):
+    """Centres (N, k, 2) px, covariances (N, k, 2, 2) px^2 and (N,) whether a disc's fit failed, from the fitted
+    ``params`` and ``pcov`` (N, 2k, 2k) of :func:`fit_discs`, the ``start`` (N, 1 + 5k) it began from (centres
+    relative to ``origin`` (N, 2)) and the blobs' centroid covariances (N, 2, 2), as :func:`mocap.detect._measure`
+    checks them: a disc whose offset or covariance is not finite, whose covariance is not positive or exceeds
+    ``vague_factor`` times the centroid's trace, or whose centre wandered more than max(1.5 px, its radius) falls
+    back to its start with the centroid's covariance (+ 0.25 px^2 per axis for k > 1)."""
+    n = params.shape[0]
+    centres = np.empty((n, k, 2))
+    covs = np.empty((n, k, 2, 2))
+    failed = np.zeros(n, np.bool_)
+    s2 = sigma * sigma
+    extra = 0.25 if k > 1 else 0.0
+    for i in range(n):
+        f00 = centroid_cov[i, 0, 0] * s2 + extra
+        f01 = centroid_cov[i, 0, 1] * s2
+        f10 = centroid_cov[i, 1, 0] * s2
+        f11 = centroid_cov[i, 1, 1] * s2 + extra
+        for j in range(k):
+            p = 1 + 5 * j
+            sx = start[i, p] + origin[i, 0]
+            sy = start[i, p + 1] + origin[i, 1]
+            dx = params[i, p] - start[i, p]
+            dy = params[i, p + 1] - start[i, p + 1]
+            a = pcov[i, 2 * j, 2 * j] * s2
+            b = pcov[i, 2 * j, 2 * j + 1] * s2
+            c = pcov[i, 2 * j + 1, 2 * j] * s2
+            d = pcov[i, 2 * j + 1, 2 * j + 1] * s2
+            finite = (math.isfinite(dx) and math.isfinite(dy) and math.isfinite(a) and math.isfinite(b)
+                      and math.isfinite(c) and math.isfinite(d))
+            vague = a < 0 or a * d < b * b or a + d > vague_factor * (f00 + f11)
+            r = params[i, p + 3]
+            reach = 1.5 if r <= 1.5 else r  # (np.maximum: a NaN radius stays NaN, and nothing exceeds it)
+            bad = not finite or vague or math.hypot(dx, dy) > reach
+            if bad:
+                failed[i] = True
+                centres[i, j, 0], centres[i, j, 1] = sx, sy
+                covs[i, j, 0, 0], covs[i, j, 0, 1], covs[i, j, 1, 0], covs[i, j, 1, 1] = f00, f01, f10, f11
+            else:
+                centres[i, j, 0], centres[i, j, 1] = sx + dx, sy + dy
+                covs[i, j, 0, 0], covs[i, j, 0, 1], covs[i, j, 1, 0], covs[i, j, 1, 1] = a, b, c, d
+    return centres, covs, failed

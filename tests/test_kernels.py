@@ -18,7 +18,16 @@ from helpers_engine import body_take
 
 from mocap import kernels
 from mocap.camera import Camera, Lenses
-from mocap.detect import _fit_discs, _groups, _label_blobs, _neighbour_medians, _peaks, background_level, detect
+from mocap.detect import (
+    _fit_discs,
+    _fit_results,
+    _groups,
+    _label_blobs,
+    _neighbour_medians,
+    _peaks,
+    background_level,
+    detect,
+)
 from mocap.detections import MIN_CENTROID_STD_PX, Detections
 from mocap.ekf import ca_process_noise, ca_transition, init_state, predict, update_position
 from mocap.fusion import Triangulated, _gauss_newton, repick, robust_triangulate
@@ -345,6 +354,31 @@ def test_detection_fit_kernel_is_the_numpy_one(both):
     dxy = np.concatenate(dxy)
     assert np.median(dxy) < 1e-6 and np.percentile(dxy, 99) < 2e-4 and dxy.max() < 2e-3
     assert (np.concatenate([d.roundness for d in ref]) == 1.0).sum() >= 2  # a split fit was exercised (parts: 1.0)
+
+
+def test_detection_fit_checks_are_the_numpy_ones(both):
+    """The checks of fitted discs (fallback to the start where a fit failed): the same centres, covariances and
+    failures, for one disc and for three, on fits that are fine, not finite (a NaN radius alone fails nothing, as
+    with np.maximum), not positive, vague, or that wandered off their start."""
+    rng = np.random.default_rng(23)
+    for k in (1, 3):
+        n = 400
+        start = np.c_[rng.normal(0, 1, n), rng.uniform(-3, 3, (n, 5 * k))]
+        start[:, 4::5] = rng.uniform(0.5, 3.0, (n, k))  # radii
+        params = start + rng.normal(0, 0.6, start.shape)  # some wander beyond 1.5 px
+        a = rng.uniform(1e-4, 0.05, (n, 2 * k))
+        pcov = np.einsum("ni,ij->nij", a, np.eye(2 * k)) + 0.3 * np.sqrt(a[:, :, None] * a[:, None, :]) * (
+            1 - np.eye(2 * k))
+        centroid_cov = np.einsum("n,ij->nij", rng.uniform(0.001, 0.01, n), np.eye(2))
+        params[::17, 1] = np.nan  # not finite
+        params[5::23, 4] = np.nan  # a NaN radius only
+        pcov[3::19, 0, 0] = -1e-3  # not positive
+        pcov[7::29, 1, 1] = 5.0  # vague
+        pcov[11::31, 0, 1] = pcov[11::31, 1, 0] = 1.0  # not positive definite
+        origin = rng.integers(0, 600, (n, 2)).astype(np.int64)
+        ref, got = both(_fit_results, params, pcov, start, origin, centroid_cov, 2.3, k)
+        _same(ref, got, rtol=0)
+        assert 0.2 < ref[2].mean() < 0.9  # both kinds of disc exercised
 
 
 def test_detection_fit_kernel_on_a_degenerate_window(both):
