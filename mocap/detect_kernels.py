@@ -212,7 +212,7 @@ def blob_sums(starts, xs, ys, grey, level, saturated):
     return out
 
 
-# ---------------------------------------------------------------------------------------------- peaks
+# ---------------------------------------------------------------------------------------------- neighbours
 @_jit
 def neighbour_medians(xy, values, k):
     """(N, V) median of each of the ``values`` (N, V) over each blob's ``k`` nearest other blobs (centres ``xy``
@@ -254,6 +254,7 @@ def neighbour_medians(xy, values, k):
     return out
 
 
+# ---------------------------------------------------------------------------------------------- peaks
 @_jit
 def _smooth(image, x, y):
     """The 3x3 mean of ``image`` around (x, y) (pixels beyond the border repeat it), in float32 as numpy's."""
@@ -564,7 +565,7 @@ def fit_discs(values, ox, oy, starts, params, iterations, tables, steps, z_res, 
 def fit_results(params, pcov, start, origin, centroid_cov, sigma, k, vague_factor):
     """Centres (N, k, 2) px, covariances (N, k, 2, 2) px^2 and (N,) whether a disc's fit failed, from the fitted
     ``params`` and ``pcov`` (N, 2k, 2k) of :func:`fit_discs`, the ``start`` (N, 1 + 5k) it began from (centres
-    relative to ``origin`` (N, 2)) and the blobs' centroid covariances (N, 2, 2), as :func:`mocap.detect._measure`
+    relative to ``origin`` (N, 2)) and the blobs' centroid covariances (N, 2, 2), as :func:`mocap.detect._fit_results`
     checks them: a disc whose offset or covariance is not finite, whose covariance is not positive or exceeds
     ``vague_factor`` times the centroid's trace, or whose centre wandered more than max(1.5 px, its radius) falls
     back to its start with the centroid's covariance (+ 0.25 px^2 per axis for k > 1)."""
