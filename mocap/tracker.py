@@ -630,7 +630,8 @@ class Tracker:
         if others.size == 0 or rows.size == 0:  # (most frames)
             return
         miss = np.linalg.norm(meas.X[rows] - (t.x3[rows, :3] + shift[rows]), axis=1)
-        rows, miss = rows[miss > self._cfg.gate_floor_m], miss[miss > self._cfg.gate_floor_m]  # (the radius' floor)
+        beyond = miss > self._cfg.gate_floor_m  # (no radius is below its floor)
+        rows, miss = rows[beyond], miss[beyond]
         far = miss > self._radius3(rows)
         if not far.any():
             return

@@ -4,18 +4,22 @@ from __future__ import annotations
 
 import logging
 import shutil
+import time
 from pathlib import Path
+from types import SimpleNamespace
 
 import cv2
 import numpy as np
 import pytest
 
+from mocap import pipeline
 from mocap.camera import Rig, load_rig, save_rig
 from mocap.cli import main
 from mocap.evaluate import evaluate
 from mocap.export.c3d import read_c3d
 from mocap.pipeline import ReconstructOptions, reconstruct
 from mocap.synth import SynthSettings, marching_motion, render_take, ring_rig
+from mocap.tracker import Tracker
 from mocap.truth import load_truth
 
 FRAMES = 40
@@ -135,12 +139,6 @@ def test_cli_errors_are_one_clear_line(png_take, tmp_path, capsys, case):
 @pytest.mark.parametrize("first_frame_s, notice_s, expected", [(1.0, 0.2, 1), (0.0, 2.0, 0)])
 def test_a_slow_first_frame_with_numba_says_the_kernels_are_compiling(png_take, monkeypatch, caplog, first_frame_s,
                                                                        notice_s, expected):
-    import time
-    from types import SimpleNamespace
-
-    from mocap import pipeline
-    from mocap.tracker import Tracker
-
     monkeypatch.setattr(pipeline, "kernels", SimpleNamespace(HAVE_NUMBA=True))
     monkeypatch.setattr(pipeline, "COMPILE_NOTICE_S", notice_s)
     step = Tracker.step
