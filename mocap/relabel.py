@@ -79,7 +79,11 @@ class RelabelConfig:
         split_acc_m: a track is cut where its acceleration exceeds this on two consecutive samples,
             m/frame^2 (a jump to another marker), and the pieces are re-linked ...
         split_acc_mps2: ... and exceeds this real acceleration, m/s^2 (a serve's wrist reaches ~200 m/s^2:
-            at 50 Hz that is 80 mm/frame^2, which must not read as a jump).
+            at 50 Hz that is 80 mm/frame^2, which must not read as a jump) ...
+        split_reversal_m: ... or, where the two accelerations point opposite ways, exceeds this, m/frame^2 (and
+            ``split_acc_mps2``): a step onto a marker this far away and on along it, or back. Real motion does
+            not reverse a centimetres-per-frame^2 acceleration from one frame to the next; neighbouring markers
+            of a cluster, 40-50 mm apart, step below ``split_acc_m``.
         shape_window: samples at each tracklet end over which the distances to its neighbours are taken.
         shape_radius_m: neighbours within this distance ...
         shape_steady_m: ... whose distance varies less than this over the window count as attached ...
@@ -113,6 +117,7 @@ class RelabelConfig:
     own_link_weight: float = 0.5
     split_acc_m: float = 0.06
     split_acc_mps2: float = 250.0
+    split_reversal_m: float = 0.035
     shape_window: int = 6
     shape_radius_m: float = 0.25
     shape_steady_m: float = 0.004
@@ -134,6 +139,11 @@ class RelabelConfig:
         """The acceleration, m/frame^2, above which a track jumped at ``fps`` Hz (``split_acc_m`` and
         ``split_acc_mps2``)."""
         return max(self.split_acc_m, self.split_acc_mps2 / fps**2)
+
+    def reversal_acc(self, fps: float) -> float:
+        """The acceleration, m/frame^2, above which two consecutive opposite accelerations are a jump at ``fps``
+        Hz (``split_reversal_m`` and ``split_acc_mps2``)."""
+        return max(self.split_reversal_m, self.split_acc_mps2 / fps**2)
 
 
 @dataclass
@@ -253,12 +263,19 @@ def repair_swaps(traj: Trajectories, config: RelabelConfig | None = None) -> int
     return swaps
 
 
-def _tracklets(P: np.ndarray, split_acc: float) -> list[np.ndarray]:
-    """Cut every identity column into runs of consecutive samples, also where the acceleration
-    (second difference, m/frame^2) exceeds ``split_acc``; returns (frames, column) index pairs per run."""
+def _tracklets(P: np.ndarray, split_acc: float, reversal_acc: float = np.inf) -> list[np.ndarray]:
+    """Cut every identity column into runs of consecutive samples, also where the acceleration (second
+    difference, m/frame^2) exceeds ``split_acc`` on both samples of a step, or ``reversal_acc`` on both with
+    opposite directions; returns (frames, column) index pairs per run."""
     valid = np.isfinite(P[:, :, 0])
+    vec = np.full(P.shape, np.nan)
+    vec[1:-1] = P[2:] - 2 * P[1:-1] + P[:-2]
     acc = np.full(valid.shape, np.inf)
-    acc[1:-1] = np.linalg.norm(P[2:] - 2 * P[1:-1] + P[:-2], axis=2)
+    acc[1:-1] = np.linalg.norm(vec[1:-1], axis=2)
+    with np.errstate(invalid="ignore"):  # (NaN where a sample is missing: no reversal)
+        turned = np.zeros(valid.shape, dtype=bool)  # [k]: the accelerations at k - 1 and k reverse, both large
+        turned[1:] = ((acc[:-1] > reversal_acc) & (acc[1:] > reversal_acc)
+                      & ((vec[:-1] * vec[1:]).sum(axis=2) < -0.5 * acc[:-1] * acc[1:]))
     runs = []
     for col in range(P.shape[1]):
         frames = np.flatnonzero(valid[:, col])
@@ -269,6 +286,7 @@ def _tracklets(P: np.ndarray, split_acc: float) -> list[np.ndarray]:
         jump[1:] = (np.diff(frames) > 1) | (
             (acc[frames[:-1], col] > split_acc) & np.isfinite(acc[frames[:-1], col])
             & (acc[frames[1:], col] > split_acc) & np.isfinite(acc[frames[1:], col]))
+        jump[1:] |= turned[frames[1:], col] & (np.diff(frames) == 1)
         for piece in np.split(frames, np.flatnonzero(jump)):
             runs.append(np.stack([piece, np.full(piece.size, col)], axis=1))
     return runs
@@ -348,7 +366,7 @@ def relink_tracklets(traj: Trajectories, config: RelabelConfig | None = None) ->
     one. Output columns are the resulting identities.
     """
     cfg = config or RelabelConfig()
-    runs = _tracklets(traj.positions, cfg.jump_acc(traj.fps))
+    runs = _tracklets(traj.positions, cfg.jump_acc(traj.fps), cfg.reversal_acc(traj.fps))
     if not runs:
         return 0
     runs.sort(key=lambda r: int(r[0, 0]))

@@ -207,6 +207,33 @@ def test_a_fast_swing_at_50_hz_is_not_cut_where_a_jump_is():
     assert len(_tracklets(P, split)) == 2
 
 
+def test_a_step_onto_a_neighbour_45_mm_away_and_back_is_cut():
+    """The sprint start's forearm at 120 Hz: marker A's identity misses a frame and takes marker B, 45 mm away and
+    just back in view, for 3 frames, then A again. The steps (45 mm/frame^2 there and back) stay below the 60 mm
+    jump threshold, but the two accelerations of each step point opposite ways: the 3 samples are cut off and go to
+    B's identity, A's keeps A alone. Without the reversal rule A's identity keeps B's samples."""
+    fps = 120.0
+    t = np.arange(120) / fps
+    centre = np.stack([2.0 * t, 0.3 * np.sin(4.0 * t), np.ones_like(t)], axis=1)  # 2 m/s, curving
+    offsets = np.array([[0.0, 0.0, 0.0], [0.0, 0.045, 0.0], [0.06, 0.02, 0.0], [-0.05, 0.03, 0.01]])
+    truth = centre[:, None, :] + offsets[None]  # A, B and two markers of the same segment
+    seen = truth.copy()
+    seen[:65, 1] = np.nan  # B hidden until frame 65 ...
+    seen[60, 0] = np.nan  # ... A missed at frame 60 ...
+    seen[61:64, 0] = truth[61:64, 1]  # ... and its identity on B for frames 61-63
+    cfg = RelabelConfig()
+    step = np.linalg.norm(seen[62:64, 0] - 2 * seen[63:65, 0] + seen[64:66, 0], axis=1)  # at frames 63, 64
+    assert cfg.reversal_acc(fps) < step.min() and step.max() < cfg.jump_acc(fps)
+    traj = _traj(seen)
+    traj.fps = fps
+    relink_tracklets(traj, cfg)
+    assert _same_identities(traj, truth)
+    old = _traj(seen)
+    old.fps = fps
+    relink_tracklets(old, RelabelConfig(split_reversal_m=np.inf))
+    assert not _same_identities(old, truth)
+
+
 def test_a_marker_held_by_two_identities_stays_with_the_one_it_continues():
     """Marker 4 is hidden from frame 50 on and its identity's track takes marker 0 (frames 50-52), while marker 0's
     own identity misses frame 50 and holds it again from 51: two identities on one point in frames 51-52. The
