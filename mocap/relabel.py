@@ -102,10 +102,12 @@ class RelabelConfig:
             (a newcomer next to it) when its distances fit the identity's from before by this much better, m.
         duplicate_m: two identities' samples of one frame closer than this are one marker (below any marker's
             diameter: two markers' centres cannot be this close), m.
-        lone_gate_m: a tracklet back after a gap too long to extrapolate (over ``max_gap`` frames) with one attached
-            identity seen at both ends, not ``shape_min``, is linked by that one distance when it changed less
-            than this, m ...
-        lone_reach_m: ... that neighbour is nearer than this (a nearer neighbour's sphere holds fewer markers), m ...
+        lone_gate_m: a tracklet back after a gap too long or too fast to extrapolate (over ``max_gap`` frames, or an
+            extrapolation gate wider than the distance to that neighbour: a serve's wrist back after 8 frames at
+            10 m/s) with one attached identity seen at both ends, not ``shape_min``, is linked by that one distance
+            when it changed less than this, m ...
+        lone_reach_m: ... that neighbour is nearer than this (a nearer neighbour's sphere holds fewer markers; a
+            wrist bar's two markers are ~100 mm apart), m ...
         lone_max_s: ... and the gap is at most this long, s.
     """
 
@@ -132,7 +134,7 @@ class RelabelConfig:
     usurp_margin_m: float = 0.003
     duplicate_m: float = 0.003
     lone_gate_m: float = 0.003
-    lone_reach_m: float = 0.1
+    lone_reach_m: float = 0.12
     lone_max_s: float = 1.0
 
     def jump_acc(self, fps: float) -> float:
@@ -489,8 +491,9 @@ class _Linker:
                 assigned: dict[int, int], refused: set[tuple[int, int]], changes: dict[tuple[int, int], float]
                 ) -> None:
         """Marker by marker (Hungarian): by the change of the distances to attached identities where they
-        can be compared (over a gap beyond ``max_gap``, one near attached identity is enough if its distance held
-        within ``lone_gate_m``), else by how the extrapolations of both ends across the gap agree."""
+        can be compared (over a gap beyond ``max_gap``, or one whose extrapolation cannot tell the two markers apart,
+        one near attached identity is enough if its distance held within ``lone_gate_m``), else by how the
+        extrapolations of both ends across the gap agree."""
         cfg = self.cfg
         cost = np.full((len(group), len(open_chains)), np.inf)
         for g, run in enumerate(group):
@@ -508,14 +511,15 @@ class _Linker:
                     if change > cfg.shape_refuse_m:
                         refused.add((g, c))
                         continue
-                elif len(pairs) == 1 and cfg.max_gap < gap <= self.lone_max and pairs[0][0] < cfg.lone_reach_m:
+                miss = 0.5 * (np.linalg.norm(pe + ve * gap - p0) + np.linalg.norm(p0 - v0 * gap - pe))
+                speed = 0.5 * (np.linalg.norm(ve) + np.linalg.norm(v0))
+                gate = cfg.stitch_gate_m + speed * 0.5 * gap + self.acc_per_frame2 * gap * gap
+                if (len(pairs) == 1 and gap <= self.lone_max and pairs[0][0] < cfg.lone_reach_m
+                        and (gap > cfg.max_gap or gate > pairs[0][0])):  # (too long or too fast to extrapolate)
                     change = abs(pairs[0][0] - pairs[0][1])
                     if change < cfg.lone_gate_m:
                         cost[g, j] = (cfg.own_link_weight if same else 1.0) * change
                         continue
-                miss = 0.5 * (np.linalg.norm(pe + ve * gap - p0) + np.linalg.norm(p0 - v0 * gap - pe))
-                speed = 0.5 * (np.linalg.norm(ve) + np.linalg.norm(v0))
-                gate = cfg.stitch_gate_m + speed * 0.5 * gap + self.acc_per_frame2 * gap * gap
                 if same:
                     cost[g, j] = cfg.own_link_weight * miss if gap > cfg.max_gap or miss < gate else np.inf
                 elif gap <= cfg.max_gap and miss < gate:

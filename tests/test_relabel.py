@@ -284,6 +284,29 @@ def test_marker_back_with_one_neighbour_is_relinked_by_that_distance():
     assert not _same_identities(without, P)
 
 
+def test_a_fast_wrist_back_after_a_short_gap_is_relinked_by_its_one_neighbour():
+    """The serve's wrist at 50 Hz: two markers of a wrist bar 100 mm apart swing on a 0.5 m circle at 10 m/s; one is
+    hidden 9 frames and comes back as a new identity. The gap is within ``max_gap``, but over 9 frames the
+    extrapolations miss by over a metre (their gate is wider than the bar): the one attached neighbour's unchanged
+    distance links it (a finger marker beside it, not attached, cannot). Without that rule it stays a new identity."""
+    fps, turns = 50.0, 3.2
+    t = np.arange(150) / fps
+    angle = 2 * np.pi * turns * t
+    wrist = np.stack([0.5 * np.cos(angle), 0.5 * np.sin(angle), np.ones_like(t)], axis=1)
+    bar = wrist + np.array([0.0, 0.0, 0.1])
+    finger = wrist * (1.0 + 0.15 + 0.04 * np.sin(7.0 * t))[:, None] * np.array([1.0, 1.0, 0.0]) + [0.0, 0.0, 1.0]
+    P = np.stack([wrist, bar, finger], axis=1)
+    seen = np.concatenate([P, np.full((len(t), 1, 3), np.nan)], axis=1)
+    seen[60:, 0] = np.nan  # the wrist hidden from frame 60 ...
+    seen[69:, 3] = P[69:, 0]  # ... and back at 69 as a new identity
+    traj = _traj(seen)
+    relink_tracklets(traj)
+    assert traj.n_markers == 3 and _same_identities(traj, P)
+    without = _traj(seen)
+    relink_tracklets(without, RelabelConfig(lone_gate_m=0.0))
+    assert without.n_markers == 4
+
+
 def test_a_neighbour_that_held_its_distance_only_briefly_does_not_decide_a_link():
     """The sprint start's ForearmL Marker3: hidden for 25 frames, it comes back in the column of another forearm
     marker hidden meanwhile (the tracker's own link). Its distances to the two forearm markers in view fit its
