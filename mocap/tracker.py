@@ -134,10 +134,10 @@ class TrackerConfig:
             live track's image lies in too, is not output (it still updates its filter): its depth along that
             camera's ray rests on the merged centroid, up to a marker radius off (see ``_depth_on_merged_blobs``).
         yield_outside_gate: a track's point outside its 3D search radius that an identity lost for at most
-            ``yield_frames`` frames holds inside its own, more tightly, is left to that identity (see
-            ``_yield_outside_gate``) ...
-        yield_frames: ... frames (the search radius of an identity lost for longer is wide enough to hold most
-            points around it: a plate marker's identity lost for 13 frames took a skin marker's point).
+            ``yield_s`` holds inside its own, more tightly, is left to that identity (see ``_yield_outside_gate``) ...
+        yield_s: ... seconds (at least one frame; the search radius of an identity lost for longer is wide enough
+            to hold most points around it: at 120 Hz a plate marker's identity lost for 13 frames took a skin
+            marker's point).
         noisy_point_m: a track whose last point's std exceeds this (m) gets proportionally more 3D process
             noise (up to 10x ``jerk_std_3d``): noisy points (small, far markers) must not make the filter lag.
     """
@@ -185,7 +185,7 @@ class TrackerConfig:
     deblend_px: float = 0.1
     withhold_merged_depth: bool = True
     yield_outside_gate: bool = True
-    yield_frames: int = 10
+    yield_s: float = 0.085
 
     def __post_init__(self) -> None:
         for name in ("confirm_frames", "new_min_views"):
@@ -397,6 +397,7 @@ class Tracker:
         self._F2, self._Q2 = ca_transition(dt, 2, cfg.accel_damping), ca_process_noise(dt, 2, cfg.jerk_std_2d)
         self._running = RunningError(cfg.error_alpha, cfg.gate_scale)
         self._keep_lost = max(1, int(round(cfg.keep_lost_s * self._fps)))
+        self._yield_frames = max(1, int(round(cfg.yield_s * self._fps)))
         self._t = _Tracks.empty(C)
         self._next_uid = 0
         self._uid_ident = np.full(256, -1, dtype=np.intp)
@@ -617,7 +618,7 @@ class Tracker:
     def _yield_outside_gate(self, meas: _Measurements, shift: np.ndarray) -> None:
         """Tracks whose point lies outside their own 3D search radius (:meth:`_radius3`) around the prediction (plus
         ``shift`` (K, 3) m, the neighbours' correction it was searched from), where an identity lost for at most
-        ``yield_frames`` frames holds it inside its own radius, and more tightly (distance / radius, from its
+        ``yield_s`` holds it inside its own radius, and more tightly (distance / radius, from its
         prediction or where it was last seen, as :func:`mocap.fusion.reidentify` measures), miss the frame: the
         point is left to the new-marker search, which gives it to that identity. A camera whose image filter is
         locked searches around that filter's prediction alone, and where a marker vanishes as a neighbour a few
@@ -625,7 +626,7 @@ class Tracker:
         of 45-65 mm onto the marker whose identity had just been lost). A fast swing outside the gate that no
         recently lost identity explains is measured as before."""
         t = self._t
-        others = np.flatnonzero((t.ident >= 0) & (t.since >= 1) & (t.since <= self._cfg.yield_frames) & ~meas.ok)
+        others = np.flatnonzero((t.ident >= 0) & (t.since >= 1) & (t.since <= self._yield_frames) & ~meas.ok)
         rows = np.flatnonzero(meas.ok)
         if others.size == 0 or rows.size == 0:  # (most frames)
             return
