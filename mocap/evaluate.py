@@ -91,7 +91,8 @@ class EvalReport:
     switches: int
     switches_per_10k: float
     reference_jumps: int  # truth marker-frames where the truth jumps or a marker is renamed (labelling faults)
-    switches_at_reference_jumps: int  # of ``switches``, those within 2 frames of a jump of their truth marker
+    switches_at_reference_jumps: int  # of ``switches``, those within 2 frames of a jump of their truth marker (at
+    # the switch, or at that marker's previous match: the identity it had there was the recording's fault)
     idf1: float
     idp: float
     idr: float
@@ -338,7 +339,7 @@ def evaluate(traj: Trajectories, truth: Truth, rig: Rig | None = None, gate_mm: 
         switches=int(mot["num_switches"]),
         switches_per_10k=_ratio(1e4 * mot["num_switches"], n_req),
         reference_jumps=int(jumps.sum()),
-        switches_at_reference_jumps=int(near_jump[switch_frames, switch_oids].sum()),
+        switches_at_reference_jumps=int(_at_reference_jumps(switch_frames, switch_oids, m, near_jump).sum()),
         idf1=mot["idf1"],
         idp=mot["idp"],
         idr=mot["idr"],
@@ -388,8 +389,9 @@ def _reference_jumps(truth_pos: np.ndarray, fps: float) -> np.ndarray:
     * a jump: the acceleration (second difference) exceeds what a marker can do at ``fps`` (the identity repair's
       jump threshold, :meth:`RelabelConfig.jump_acc`): the recording gave the label to another marker;
     * a renamed marker: one label ends where another starts in the next frame, within ``duplicate_m`` (3 mm: no two
-      marker centres are that close) of where the first one's path leads (its constant-velocity extrapolation, or
-      its last position after a single sample): the recording gave the marker another name. Both labels' samples
+      marker centres are that close) of where the first one's path leads, or the first one's last sample within
+      that of where the second one's path comes from (constant-velocity extrapolations, forwards and backwards;
+      a single sample stands for itself): the recording gave the marker another name. Both labels' samples
       either side of the change are flagged.
     """
     cfg = RelabelConfig()
@@ -406,10 +408,27 @@ def _reference_jumps(truth_pos: np.ndarray, fps: float) -> np.ndarray:
     last = truth_pos[ends[e, 0], ends[e, 1]]
     before = truth_pos[np.maximum(ends[e, 0] - 1, 0), ends[e, 1]]  # (at frame 0 the sample itself)
     lead = np.where(np.isfinite(before), 2 * last - before, last)
-    near = np.linalg.norm(lead - truth_pos[starts[b, 0] + 1, starts[b, 1]], axis=1) < cfg.duplicate_m
+    first = truth_pos[starts[b, 0] + 1, starts[b, 1]]
+    after = truth_pos[np.minimum(starts[b, 0] + 2, len(truth_pos) - 1), starts[b, 1]]  # (at the end: the sample)
+    source = np.where(np.isfinite(after), 2 * first - after, first)
+    near = ((np.linalg.norm(lead - first, axis=1) < cfg.duplicate_m)
+            | (np.linalg.norm(source - last, axis=1) < cfg.duplicate_m))
     jumps[ends[e[near], 0], ends[e[near], 1]] = True
     jumps[starts[b[near], 0] + 1, starts[b[near], 1]] = True
     return jumps
+
+
+def _at_reference_jumps(frames: np.ndarray, oids: np.ndarray, m: _Matches, near_jump: np.ndarray) -> np.ndarray:
+    """(S,) bool: the ID switches (``frames``, ``oids``: (S,) frame and truth marker) within ``_JUMP_REACH`` of a
+    reference jump (``near_jump`` (F, M)) of their truth marker, at the switch or at that marker's previous matched
+    frame: a label the recording gave another marker for one frame is matched to that marker's identity there, and
+    the switch comes where the label is next seen on its own marker."""
+    F = near_jump.shape[0]
+    key = np.sort(m.marker.astype(np.int64) * F + m.frame)  # matches by marker, then frame
+    i = np.searchsorted(key, oids.astype(np.int64) * F + frames) - 1  # the match before the switch
+    prev = key[np.maximum(i, 0)]
+    prev_frame = np.where((i >= 0) & (prev // F == oids), prev % F, frames)
+    return near_jump[frames, oids] | near_jump[prev_frame, oids]
 
 
 # ---------------------------------------------------------------------------- CLI

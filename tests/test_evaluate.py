@@ -153,6 +153,32 @@ def test_switches_where_the_truth_renames_a_marker_are_put_down_to_it(truth: Tru
     assert evaluate(output_of(output), moved).reference_jumps == 0
 
 
+def test_a_label_given_to_another_marker_for_one_frame_is_put_down_to_the_recording(truth: Truth) -> None:
+    """The whole sprint's frame 2340: the recording names three hidden ArmL markers SWL Marker2-4 for one frame (the
+    steering wheel's labels, unseen for 78 frames), then ArmL again. An output that follows the markers matches SWL
+    Marker2 to the arm marker's identity there, and counts the switch where the label is next seen, on the wheel.
+    The one-frame label lies on the path the arm marker's label comes back on (its backward extrapolation), and the
+    switch is put down to the recording because the label's previous match was there."""
+    k, back = 30, 45
+    renamed = copy.deepcopy(truth)
+    renamed.visible[:] = True  # (every sample scored)
+    renamed.positions[:, 1] = np.nan
+    renamed.positions[k, 1] = truth.positions[k, 0]  # label B on marker 0 for frame k ...
+    renamed.positions[back:, 1] = truth.positions[back:, 1]  # ... and on its own marker from frame 45
+    renamed.positions[k - 5: k + 1, 0] = np.nan  # label A hidden before k, and renamed at k
+    output = truth.positions.copy()
+    output[k - 5: k, 0] = np.nan  # the output follows the markers
+    output[:back, 1] = np.nan
+    assert np.linalg.norm(truth.positions[k + 1, 0] - truth.positions[k, 0]) > 0.005  # (a lone sample: no lead)
+    report = evaluate(output_of(output), renamed)
+    assert report.switches == 1  # label B: output 0 at frame k, output 1 from frame 45
+    assert report.reference_jumps == 2 and report.switches_at_reference_jumps == 1
+    moved = copy.deepcopy(renamed)
+    moved.positions[k, 1] += 0.01  # 10 mm off the marker's path: another marker, not a rename
+    report = evaluate(output_of(output), moved)
+    assert report.reference_jumps == 0 and report.switches_at_reference_jumps == 0
+
+
 def test_restarted_track_is_one_switch_and_a_gap_none(truth: Truth) -> None:
     F = truth.n_frames
     restarted = np.concatenate([truth.positions, np.full((F, 1, 3), np.nan)], axis=1)
