@@ -34,10 +34,11 @@ the frames on both sides of a decision are known, and these identity errors are 
   back and its distances fit the identity's from before the gap clearly better (``usurp_margin_m``), it
   takes the identity back and the newcomer becomes an identity of its own.
 
-A third pass, :mod:`mocap.reunite`, rejoins rigid clusters that come back after a long absence, far from
-every gate, by the distances between their markers; a fourth, :mod:`mocap.plates`, labels the markers of
-rigid plates frame by frame by the plate's shape; a fifth, :mod:`mocap.fill`, gives the tracker's unconfirmed
-points to the identities whose paths they continue.
+A third pass, :mod:`mocap.exchange`, gives back markers two identities exchanged where the markers passed close,
+by the distances to the markers attached to them; a fourth, :mod:`mocap.reunite`, rejoins rigid clusters that
+come back after a long absence, far from every gate, by the distances between their markers; a fifth,
+:mod:`mocap.plates`, labels the markers of rigid plates frame by frame by the plate's shape; a sixth,
+:mod:`mocap.fill`, gives the tracker's unconfirmed points to the identities whose paths they continue.
 
 All passes only move whole samples between identity columns (positions, residuals and camera
 masks together), and the first deletes the second copy of a point; they never change a position.
@@ -52,6 +53,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
+from mocap.exchange import undo_exchanges
 from mocap.fill import fill_from_unconfirmed
 from mocap.plates import label_plates
 from mocap.quickstats import quick_median
@@ -150,13 +152,14 @@ class RelabelConfig:
 
 @dataclass
 class RelabelStats:
-    """What the repair changed: duplicate samples deleted, tail permutations applied, fragments joined, cluster
-    members reunited, samples moved to the plate member their shape names, unconfirmed points that joined an
-    identity's path."""
+    """What the repair changed: duplicate samples deleted, tail permutations applied, fragments joined, exchanges
+    undone where two markers passed close, cluster members reunited, samples moved to the plate member their shape
+    names, unconfirmed points that joined an identity's path."""
 
     duplicates: int = 0
     swaps: int = 0
     stitches: int = 0
+    exchanges: int = 0
     reunited: int = 0
     plate_samples: int = 0
     filled: int = 0
@@ -644,7 +647,8 @@ class _Linker:
 
 def repair_identities(traj: Trajectories, config: RelabelConfig | None = None,
                       unconfirmed: UnconfirmedPoints | None = None) -> RelabelStats:
-    """Duplicates dropped (:func:`drop_duplicates`), swap repair, fragment stitching, the reunion of rigid clusters
+    """Duplicates dropped (:func:`drop_duplicates`), swap repair, fragment stitching, exchanges undone where two
+    markers passed close (:mod:`mocap.exchange`), the reunion of rigid clusters
     back after a long absence (:mod:`mocap.reunite`), then the labelling of rigid plates by their shape
     (:mod:`mocap.plates`) and the fill from unconfirmed points (:mod:`mocap.fill`), in place; empty identity columns
     are dropped. ``unconfirmed``: the tracker's points without identity (:meth:`mocap.tracker.Tracker.unconfirmed`),
@@ -658,6 +662,7 @@ def repair_identities(traj: Trajectories, config: RelabelConfig | None = None,
     stats.duplicates = drop_duplicates(traj, config)
     stats.swaps = repair_swaps(traj, config)
     stats.stitches = relink_tracklets(traj, config)
+    stats.exchanges = undo_exchanges(traj)
     stats.reunited = reunite_clusters(traj)
     jump = (config or RelabelConfig()).jump_acc(traj.fps)
     stats.plate_samples = label_plates(traj, extra=unconfirmed, jump_acc=jump)

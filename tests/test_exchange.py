@@ -1,0 +1,50 @@
+"""Identities exchanged where two markers passed close are given back by their attached markers' distances."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from mocap.exchange import ExchangeConfig, undo_exchanges
+from mocap.relabel import repair_identities
+from tests.test_relabel import _traj
+
+
+def _wrist_and_finger(frames: int = 120) -> np.ndarray:
+    """(F, 3, 3) at 50 Hz: a wrist on a 0.5 m circle at 10 m/s, its wrist bar's other marker 100 mm above it, and a
+    finger 100 mm out from the wrist that swings in to 30 mm of it at frame 60 and out again."""
+    t = np.arange(frames) / 50.0
+    angle = 2 * np.pi * 3.2 * t
+    out = np.stack([np.cos(angle), np.sin(angle), np.zeros_like(t)], axis=1)
+    wrist = 0.5 * out + [0.0, 0.0, 1.0]
+    reach = 0.1 - 0.07 * np.exp(-(((np.arange(frames) - 60) / 3.0) ** 2))
+    finger = wrist + reach[:, None] * out
+    bar = wrist + [0.0, 0.0, 0.1]
+    return np.stack([wrist, finger, bar], axis=1)
+
+
+def test_an_exchange_where_wrist_and_finger_pass_is_undone_by_the_wrist_bar():
+    """The tracker exchanged wrist and finger at their closest frame; no acceleration spike shows it (the swap pass
+    leaves it), but the wrist's identity's distance to the bar steps from 100 to 120-140 mm and the finger's now holds
+    100 mm: the tails are exchanged back, from the exchange's own frame."""
+    P = _wrist_and_finger()
+    seen = P.copy()
+    seen[60:, [0, 1]] = P[60:, [1, 0]]
+    traj = _traj(seen)
+    assert undo_exchanges(traj) == 1
+    np.testing.assert_array_equal(traj.positions, P)
+    repaired = _traj(seen)
+    stats = repair_identities(repaired)
+    assert stats.exchanges == 1 and stats.swaps == 0
+    np.testing.assert_array_equal(repaired.positions, P)
+
+
+def test_markers_that_pass_close_without_an_exchange_are_left_alone():
+    P = _wrist_and_finger()
+    traj = _traj(P)
+    assert undo_exchanges(traj) == 0
+    np.testing.assert_array_equal(traj.positions, P)
+    seen = P.copy()
+    seen[60:, [0, 1]] = P[60:, [1, 0]]
+    strict = _traj(seen)  # the same exchange, with a step too small to trust
+    assert undo_exchanges(strict, ExchangeConfig(step_m=0.2)) == 0
+    np.testing.assert_array_equal(strict.positions, seen)
