@@ -31,7 +31,7 @@ from mocap.trajectories import Trajectories
 
 __all__ = ["ExchangeConfig", "undo_exchanges"]
 
-_CHUNK = 512  # frames per block of the all-pairs distances
+_PAIRS_PER_BLOCK = 1 << 21  # identity pairs x frames per block of the all-pairs distances (48 MB of differences)
 
 
 @dataclass(frozen=True)
@@ -75,8 +75,9 @@ def _passages(P: np.ndarray, near_m: float) -> list[tuple[int, int, int]]:
     """(frame, a, b) with a < b, in time order: the closest frame of every run of consecutive frames in which
     identities a and b of ``P`` (F, M, 3) are closer than ``near_m``."""
     hits = []
-    for start in range(0, len(P), _CHUNK):
-        Q = P[start:start + _CHUNK]
+    block = max(1, _PAIRS_PER_BLOCK // max(P.shape[1] ** 2, 1))  # frames
+    for start in range(0, len(P), block):
+        Q = P[start:start + block]
         with np.errstate(invalid="ignore"):  # (NaN where either is missing: never near)
             d = np.linalg.norm(Q[:, :, None] - Q[:, None, :], axis=3)  # (f, M, M)
         f, a, b = np.nonzero(np.triu(d < near_m, 1))
@@ -103,11 +104,11 @@ def _exchanged(P: np.ndarray, frame: int, a: int, b: int, cfg: ExchangeConfig) -
     if before.start < 0 or after.stop > len(P):
         return False
     pair = [a, b]
+    enough = cfg.window - 2  # samples a window needs
     with np.errstate(invalid="ignore"), warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)  # (all-NaN windows: no distance)
         d_before = np.linalg.norm(P[before, pair, None] - P[before, None, :], axis=3)  # (window, 2, M)
         d_after = np.linalg.norm(P[after, pair, None] - P[after, None, :], axis=3)
-        enough = cfg.window - 2  # samples a window needs
         was = np.nanmedian(d_before, axis=0)  # (2, M)
         now = np.nanmedian(d_after, axis=0)
         attached = ((np.isfinite(d_before).sum(axis=0) >= enough) & (was < cfg.reach_m)
