@@ -65,8 +65,7 @@ def undo_exchanges(traj: Trajectories, config: ExchangeConfig | None = None) -> 
     for frame, a, b in _passages(traj.positions, cfg.near_m):
         if _exchanged(traj.positions, frame, a, b, cfg):
             start = _smoothest_split(traj.positions, frame, a, b)
-            for array in (traj.positions, traj.residuals, traj.camera_masks):
-                array[start:, [a, b]] = array[start:, [b, a]]
+            traj.permute_tails(start, [b, a], [a, b])
             undone += 1
     return undone
 

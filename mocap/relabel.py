@@ -165,12 +165,6 @@ class RelabelStats:
     filled: int = 0
 
 
-def _permute_tails(traj: Trajectories, start: int, order: np.ndarray, columns: np.ndarray) -> None:
-    """From frame ``start`` on, column ``columns[k]`` receives what column ``order[k]`` held."""
-    for array in (traj.positions, traj.residuals, traj.camera_masks):
-        array[start:, columns] = array[start:, order]
-
-
 def _smooth_run(P: np.ndarray, f: int, col: int, split_acc: float) -> int:
     """Length (samples) of identity ``col``'s run through frame ``f`` in ``P`` (F, M, 3): consecutive samples, broken
     where either sample of a step has an acceleration (second difference) above ``split_acc`` m/frame^2."""
@@ -263,7 +257,7 @@ def repair_swaps(traj: Trajectories, config: RelabelConfig | None = None) -> int
             continue
         new, old = cost[rows[moved], cols[moved]].sum(), keep[rows[moved]].sum()
         if new < cfg.swap_ratio * old and old - new > margin:
-            _permute_tails(traj, f + 1, alive[cols[moved]], alive[rows[moved]])
+            traj.permute_tails(f + 1, alive[cols[moved]], alive[rows[moved]])
             swaps += 1
     return swaps
 

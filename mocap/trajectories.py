@@ -70,6 +70,12 @@ class Trajectories:
         """(F,) capture time of each frame, seconds from the take's first frame."""
         return (np.arange(self.n_frames) + self.first_frame) / self.fps
 
+    def permute_tails(self, start: int, order: np.ndarray | list[int], columns: np.ndarray | list[int]) -> None:
+        """From frame ``start`` on, column ``columns[k]`` receives what column ``order[k]`` held (positions,
+        residuals and camera masks together), in place."""
+        for array in (self.positions, self.residuals, self.camera_masks):
+            array[start:, columns] = array[start:, order]
+
 
 @dataclass
 class UnconfirmedPoints:

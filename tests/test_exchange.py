@@ -22,13 +22,19 @@ def _wrist_and_finger(frames: int = 120) -> np.ndarray:
     return np.stack([wrist, finger, bar], axis=1)
 
 
+def _exchanged_at(P: np.ndarray, frame: int) -> np.ndarray:
+    """``P`` with the wrist's and the finger's tails exchanged from ``frame`` on, as the tracker left them."""
+    seen = P.copy()
+    seen[frame:, [0, 1]] = P[frame:, [1, 0]]
+    return seen
+
+
 def test_an_exchange_where_wrist_and_finger_pass_is_undone_by_the_wrist_bar():
     """The tracker exchanged wrist and finger at their closest frame; no acceleration spike shows it (the swap pass
     leaves it), but the wrist's identity's distance to the bar steps from 100 to 120-140 mm and the finger's now holds
     100 mm: the tails are exchanged back, from the exchange's own frame."""
     P = _wrist_and_finger()
-    seen = P.copy()
-    seen[60:, [0, 1]] = P[60:, [1, 0]]
+    seen = _exchanged_at(P, 60)
     traj = _traj(seen)
     assert undo_exchanges(traj) == 1
     np.testing.assert_array_equal(traj.positions, P)
@@ -43,8 +49,7 @@ def test_markers_that_pass_close_without_an_exchange_are_left_alone():
     traj = _traj(P)
     assert undo_exchanges(traj) == 0
     np.testing.assert_array_equal(traj.positions, P)
-    seen = P.copy()
-    seen[60:, [0, 1]] = P[60:, [1, 0]]
+    seen = _exchanged_at(P, 60)
     strict = _traj(seen)  # the same exchange, with a step too small to trust
     assert undo_exchanges(strict, ExchangeConfig(step_m=0.2)) == 0
     np.testing.assert_array_equal(strict.positions, seen)
