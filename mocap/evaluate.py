@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import logging
 import math
 from dataclasses import asdict, dataclass, field
 from typing import Any
@@ -43,7 +44,10 @@ from mocap.truth import Truth, load_truth
 
 __all__ = ["EvalReport", "MarkerScore", "evaluate", "rig_from_truth", "configure_parser", "run"]
 
+log = logging.getLogger(__name__)
+
 _MOT_METRICS = ["num_switches", "idf1", "idp", "idr", "mota"]
+_UNRELATED_FRACTION = 0.05  # fewer output points than this fraction matched: the truth is of another take
 _JUMP_REACH = 2  # frames: a switch this near a jump of its truth marker is put down to the jump
 
 
@@ -282,6 +286,10 @@ def evaluate(traj: Trajectories, truth: Truth, rig: Rig | None = None, gate_mm: 
     dist = np.sqrt(sq)
     rmse = math.sqrt(sq.mean()) if n_match else math.nan
     out_points = int(traj.valid.sum())
+    if n_match < _UNRELATED_FRACTION * min(out_points, n_req):
+        log.warning("only %d of %d output points lie within %g mm of a truth marker: the output and the truth look "
+                    "like different takes, or different frames of reference (units, axes, calibration); check that "
+                    "this truth belongs to this output", n_match, out_points, gate_mm)
     mot = _mot_summary(acc)
     switch_frames, switch_oids = _switch_events(acc)
     jumps = _reference_jumps(truth_pos / 1000.0, float(truth.fps))

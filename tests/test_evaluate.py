@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import copy
 import json
+import logging
 import math
 
 import numpy as np
@@ -341,6 +342,17 @@ def test_empty_output_scores_zero(truth: Truth) -> None:
     assert math.isnan(report.rmse_mm) and math.isnan(report.ghost_rate) and report.mota == 0.0
     assert "no marker-frame matched" in report.table()
     assert json.loads(json.dumps(report.to_dict(), allow_nan=False))["rmse_mm"] is None
+
+
+def test_an_output_of_another_take_or_in_other_units_is_warned_about(truth: Truth, caplog) -> None:
+    """Scores of 0 % with no hint would read as an engine failure; the log names the likely cause."""
+    with caplog.at_level(logging.WARNING, logger="mocap.evaluate"):
+        evaluate(output_of(truth.positions.copy()), truth)
+        assert not caplog.records
+        evaluate(output_of(truth.positions * 1000.0), truth)  # (a take written in mm read as m)
+        evaluate(output_of(truth.positions + [0.0, 0.0, 0.5]), truth)  # (another take's markers)
+    assert len(caplog.records) == 2
+    assert all("different takes" in r.getMessage() and "0 of" in r.getMessage() for r in caplog.records)
 
 
 def test_calibration_camera_order_does_not_matter(truth: Truth) -> None:
