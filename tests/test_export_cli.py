@@ -80,6 +80,8 @@ def test_info_on_the_real_walking_file(capsys):
     (["export", "in.c3d", "--c3d", "in.c3d"], "would overwrite the input"),
     (["export", "in.c3d", "--trc", "nodir/x.trc"], "does not exist; create it first"),
     (["info", "in.txt"], "unknown trajectory file type '.txt'"),
+    (["info", "."], "is a folder, not a trajectory file"),
+    (["plot", ".", "--out", "x.png"], "is a folder, not a trajectory file"),
 ])
 def test_cli_errors_are_one_line_and_exit_2(tmp_path, monkeypatch, capsys, argv, message):
     monkeypatch.chdir(tmp_path)

@@ -60,6 +60,9 @@ def format_of(path: str | os.PathLike) -> TrajectoryFormat:
 def read_trajectories(path: str | os.PathLike, **options: Any) -> Trajectories:
     """Read any supported trajectory file (options a format does not take are ignored)."""
     path = Path(path)
+    if path.is_dir():
+        raise MocapError(f"{path}: is a folder, not a trajectory file ({', '.join(FORMATS)}); a take folder is "
+                         "reconstructed with 'mocap reconstruct'")
     fmt = format_of(path)
     if not path.is_file():
         raise MocapError(f"{path}: {fmt.name} file not found")
