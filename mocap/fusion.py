@@ -378,8 +378,8 @@ def distance_to_lost(points: np.ndarray, predicted: np.ndarray, last_seen: np.nd
     return d
 
 
-def reidentify(points: np.ndarray, predicted: np.ndarray, radius: np.ndarray, last_seen: np.ndarray | None = None
-               ) -> np.ndarray:
+def reidentify(points: np.ndarray, predicted: np.ndarray, radius: np.ndarray, last_seen: np.ndarray | None = None,
+               allowed: np.ndarray | None = None) -> np.ndarray:
     """Match new points to lost tracks inside each track's own (variable) search radius.
 
     The distance of a point to a track is the smaller of its distances to the track's prediction and
@@ -392,6 +392,7 @@ def reidentify(points: np.ndarray, predicted: np.ndarray, radius: np.ndarray, la
         predicted: (T, 3) the lost tracks' predicted positions, m.
         radius: (T,) their search radii, m.
         last_seen: (T, 3) their last measured positions, m (optional).
+        allowed: (L, T) bool, the pairs other evidence allows (optional; the rest are never matched).
 
     Returns:
         (L,) index of the lost track each point re-identifies, -1 for none.
@@ -401,6 +402,8 @@ def reidentify(points: np.ndarray, predicted: np.ndarray, radius: np.ndarray, la
         return out
     q = distance_to_lost(points, predicted, last_seen) / radius[None, :]
     inside = q < 1.0
+    if allowed is not None:
+        inside &= allowed
     if not inside.any():
         return out
     r, c = linear_sum_assignment(np.where(inside, q, 1e6))

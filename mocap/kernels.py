@@ -25,7 +25,8 @@ import numpy as np
 
 __all__ = ["HAVE_NUMBA", "REASON", "announce", "contiguous", "robust_triangulate", "gauss_newton", "update_position",
            "repick", "predict", "update_tracks", "epipolar_consistency", "gate", "search_regions", "crowded",
-           "undistort_points", "near_any", "frame_record", "frame_detections"]
+           "undistort_points", "near_any", "frame_record", "frame_detections", "attached_learn",
+           "attached_fill"]
 
 _log = logging.getLogger("mocap")
 
@@ -768,3 +769,71 @@ def crowded(pred, play, seen, depth, asg, focal, marker_mm, merge_px):
                     if own < 0 or other < 0 or own == other:
                         out[k, c] = True
     return out
+
+
+@_jit
+def attached_learn(ident, X, neighbour, distance, held, last, tries, frame, tol, alpha, forget):
+    """:meth:`mocap.attached.AttachedDistances.learn`'s update of the slots (in place) for the identities ``ident``
+    (n,) measured at ``X`` (n, 3) m; the memory's arrays (I, J) as there."""
+    where = np.full(neighbour.shape[0], -1, np.intp)
+    for i in range(ident.shape[0]):
+        where[ident[i]] = i
+    for i in range(ident.shape[0]):
+        a = ident[i]
+        for j in range(neighbour.shape[1]):
+            nb = neighbour[a, j]
+            if nb >= 0 and where[nb] >= 0:
+                b = where[nb]
+                dx, dy, dz = X[i, 0] - X[b, 0], X[i, 1] - X[b, 1], X[i, 2] - X[b, 2]
+                d = math.sqrt(dx * dx + dy * dy + dz * dz)
+                last[a, j] = frame
+                if held[a, j] == 0:
+                    distance[a, j] = d
+                    held[a, j] = 1
+                elif abs(d - distance[a, j]) <= tol:
+                    distance[a, j] = distance[a, j] + alpha * (d - distance[a, j])
+                    held[a, j] += 1
+                else:
+                    held[a, j] = held[a, j] // 2
+                    if held[a, j] == 0:
+                        nb = -1
+            if nb >= 0 and frame - last[a, j] > forget:
+                nb = -1
+            if nb < 0:
+                if neighbour[a, j] >= 0:
+                    tries[a, j] += 1
+                neighbour[a, j] = -1
+                held[a, j] = 0
+
+
+@_jit
+def attached_fill(ident, X, rows, neighbour, tries, last, frame, reach2):
+    """:meth:`mocap.attached.AttachedDistances._fill` (in place): every free slot of the identities ``ident[rows]``
+    takes a measured identity (``ident`` (n,) at ``X`` (n, 3) m) within ``sqrt(reach2)`` m not yet held, the
+    ``tries``-th nearest (cyclically) of those left."""
+    n, J = ident.shape[0], neighbour.shape[1]
+    d = np.empty(n)
+    for r in range(rows.shape[0]):
+        i = rows[r]
+        a = ident[i]
+        for m in range(n):
+            dx, dy, dz = X[i, 0] - X[m, 0], X[i, 1] - X[m, 1], X[i, 2] - X[m, 2]
+            d[m] = dx * dx + dy * dy + dz * dz
+            if m == i or d[m] > reach2:
+                d[m] = np.inf
+            for j in range(J):
+                if neighbour[a, j] == ident[m]:
+                    d[m] = np.inf
+        for j in range(J):
+            if neighbour[a, j] >= 0:
+                continue
+            avail = 0
+            for m in range(n):
+                if d[m] < np.inf:
+                    avail += 1
+            if avail == 0:
+                break
+            pick = np.argsort(d)[tries[a, j] % avail]
+            neighbour[a, j] = ident[pick]
+            last[a, j] = frame
+            d[pick] = np.inf

@@ -25,6 +25,8 @@ Per frame, for all tracks at once (numpy arrays, no per-marker Python objects):
 Between 4 and 5, where the measured neighbours of a track (markers within ``neighbour_m``) were
 mispredicted alike by more than ``gate_floor_m``, their median error shifts the track's prediction
 and steps 2-4 run again from the corrected predictions (fast swings at low frame rates).
+Then a confirmed track's point that its identity's steady distances to the identities around it refute
+(:mod:`mocap.attached`), where a lost identity's distances fit it, is left to that identity.
 
 The output position of a marker in a frame is its multi-view triangulation (not the filter state);
 its residual is the RMS reprojection error back-projected to the marker's depth (px * depth / f).
@@ -41,6 +43,7 @@ from itertools import accumulate
 import numpy as np
 
 from mocap import kernels
+from mocap.attached import AttachedDistances
 from mocap.camera import Lenses, Rig
 from mocap.detect import MIN_SHAPE_AREA
 from mocap.detections import MIN_CENTROID_STD_PX, Detections, floored_covariance
@@ -138,6 +141,14 @@ class TrackerConfig:
         yield_s: ... seconds (at least one frame; the search radius of an identity lost for longer is wide enough
             to hold most points around it: at 120 Hz a plate marker's identity lost for 13 frames took a skin
             marker's point).
+        attached_check: a confirmed identity's point whose distances to the identity's steady neighbours (see
+            :mod:`mocap.attached`: up to ``attached_slots`` identities within ``attached_reach_m``, their distances
+            held within ``attached_tolerance_m`` for ``attached_steady_s``) are all off, at least two of them, is
+            left to a lost identity whose steady distances fit it (and whose search radius holds it): the track
+            misses the frame, and the new-marker search gives the point to no identity it refutes while another
+            fits. A hidden marker's widening gates otherwise take the neighbour that comes into view where it
+            vanished (the sprint's forearm: markers 45-75 mm apart hidden in turn).
+        attached_slots, attached_reach_m, attached_tolerance_m, attached_steady_s: see ``attached_check``.
         noisy_point_m: a track whose last point's std exceeds this (m) gets proportionally more 3D process
             noise (up to 10x ``jerk_std_3d``): noisy points (small, far markers) must not make the filter lag.
     """
@@ -186,6 +197,11 @@ class TrackerConfig:
     withhold_merged_depth: bool = True
     yield_outside_gate: bool = True
     yield_s: float = 0.085
+    attached_check: bool = True
+    attached_slots: int = 6
+    attached_reach_m: float = 0.5
+    attached_tolerance_m: float = 0.01
+    attached_steady_s: float = 0.1
 
     def __post_init__(self) -> None:
         for name in ("confirm_frames", "new_min_views"):
@@ -227,6 +243,7 @@ class FrameResult:
 _IMAGE_VELOCITY_STD = 1e3
 _IMAGE_ACCEL_STD = 1e5
 _VAGUE_TYPICAL = 10.0  # a vague blob's std is also over this many times the frame's median (see vague_px)
+_FORGET_ATTACHED_S = 2.0  # an attached neighbour not measured with its identity for this long is forgotten
 
 
 def _released_on_free(shape: tuple[int, ...], dtype: type) -> np.ndarray:
@@ -398,6 +415,9 @@ class Tracker:
         self._running = RunningError(cfg.error_alpha, cfg.gate_scale)
         self._keep_lost = max(1, int(round(cfg.keep_lost_s * self._fps)))
         self._yield_frames = max(1, int(round(cfg.yield_s * self._fps)))
+        self._attached = AttachedDistances(cfg.attached_slots, cfg.attached_reach_m, cfg.attached_tolerance_m,
+                                           max(1, int(round(cfg.attached_steady_s * self._fps))),
+                                           max(1, int(round(_FORGET_ATTACHED_S * self._fps))))
         self._t = _Tracks.empty(C)
         self._next_uid = 0
         self._uid_ident = np.full(256, -1, dtype=np.intp)
@@ -441,10 +461,14 @@ class Tracker:
                 t.x3[moved, :3] -= shift[moved]
             if self._cfg.yield_outside_gate:  # (judged from the predictions the points were searched from)
                 self._yield_outside_gate(meas, np.where(moved[:, None], shift, 0.0))
+            if self._cfg.attached_check:
+                self._refute_by_attached(meas)
             self._update(fr, meas, np.flatnonzero(meas.ok))
             self._follow_residual_level(fr, meas)
         self._new_markers(fr, fr.valid & ~_taken(meas.asg, fr.valid.shape), meas)
         self._lifecycle(meas)
+        measured = np.flatnonzero((self._t.ident >= 0) & (self._t.since == 0))
+        self._attached.learn(self._t.ident[measured], self._t.last_X[measured])
         return self._record(frame_index, fr, meas)
 
     def predicted_rois(self) -> list[np.ndarray]:
@@ -641,6 +665,53 @@ class Tracker:
         yields = rows[far][held]
         if yields.size:
             meas.put(yields, _Measurements.empty(yields.size, self._C))
+
+    def _refute_by_attached(self, meas: _Measurements) -> None:
+        """Confirmed tracks whose point their identity's steady attached distances refute, where a lost identity's
+        fit it and its search radius holds it (``attached_check``), miss the frame: the point is left to the
+        new-marker search, which gives it to that identity."""
+        t = self._t
+        rows = np.flatnonzero(meas.ok & (t.ident >= 0))
+        if rows.size < 3 or not ((t.ident >= 0) & (t.since >= 1) & ~meas.ok).any():
+            return
+        misfit, _ = self._attached.judge(t.ident[rows], meas.X[rows], t.ident[rows], meas.X[rows])
+        bad, kept = rows[misfit], rows[~misfit]
+        if bad.size == 0:
+            return
+        yields = bad[self._claimed_by_lost(meas.X[bad], t.ident[kept], meas.X[kept], ~meas.ok)]
+        if yields.size:
+            meas.put(yields, _Measurements.empty(yields.size, self._C))
+
+    def _claimed_by_lost(self, points: np.ndarray, here_ident: np.ndarray, here_X: np.ndarray,
+                         unmeasured: np.ndarray) -> np.ndarray:
+        """(L,) bool: the ``points`` (L, 3) m that a lost identity (its track ``unmeasured`` (K,) bool this frame)
+        holds inside its search radius and whose attached distances to ``here_ident`` (h,), measured at ``here_X``
+        (h, 3) m, fit."""
+        t = self._t
+        lost = np.flatnonzero((t.ident >= 0) & (t.since >= 1) & unmeasured)
+        if lost.size == 0 or len(points) == 0:
+            return np.zeros(len(points), dtype=bool)
+        inside = distance_to_lost(points, t.x3[lost, :3], t.last_X[lost]) < self._radius3(lost)[None]
+        L, T = inside.shape
+        _, fits = self._attached.judge(np.tile(t.ident[lost], L), np.repeat(points, T, axis=0), here_ident, here_X)
+        return (fits.reshape(L, T) & inside).any(axis=1)
+
+    def _attached_allow(self, points: np.ndarray, tracks: np.ndarray) -> np.ndarray | None:
+        """(L, T) bool: which of the ``tracks`` (T,) may take which of the ``points`` (L, 3) m: a pair the track's
+        identity's attached distances refute only where a lost identity fits the point (see
+        :meth:`_claimed_by_lost`; None: all, ``attached_check`` off)."""
+        t = self._t
+        if not self._cfg.attached_check or points.size == 0 or tracks.size == 0:
+            return None
+        here = np.flatnonzero((t.ident >= 0) & (t.since == 0))
+        L, T = len(points), tracks.size
+        misfit, _ = self._attached.judge(np.tile(t.ident[tracks], L), np.repeat(points, T, axis=0), t.ident[here],
+                                         t.last_X[here])
+        misfit = misfit.reshape(L, T)
+        if not misfit.any():
+            return None
+        claimed = self._claimed_by_lost(points, t.ident[here], t.last_X[here], t.since >= 1)
+        return ~misfit | ~claimed[:, None]
 
     def _measure_again(self, fr: _Frame, crowded: np.ndarray, meas: _Measurements, rows: np.ndarray,
                        asg: np.ndarray) -> None:
@@ -1037,7 +1108,8 @@ class Tracker:
             return
         # 1) Tracks that missed this frame but still search: re-acquire them directly.
         missing = np.flatnonzero((t.since >= 1) & self._in_play())
-        match = reidentify(pts.X, t.x3[missing, :3], self._radius3(missing))
+        match = reidentify(pts.X, t.x3[missing, :3], self._radius3(missing),
+                           allowed=self._attached_allow(pts.X, missing))
         got = np.flatnonzero(match >= 0)
         clean = _clean_views(fr.merged, pts.det) >= 2
         if got.size:
@@ -1054,7 +1126,8 @@ class Tracker:
         lost = np.flatnonzero((t.ident >= 0) & (t.since >= 1))
         cand = np.full(rest.size, -1, dtype=np.intp)
         if lost.size:
-            match = reidentify(pts.X[rest], t.x3[lost, :3], self._radius3(lost), t.last_X[lost])
+            match = reidentify(pts.X[rest], t.x3[lost, :3], self._radius3(lost), t.last_X[lost],
+                               self._attached_allow(pts.X[rest], lost))
             cand = np.where(match >= 0, t.ident[lost[np.maximum(match, 0)]], -1)
         self._start(fr, pts.subset(rest), cand, meas)
 

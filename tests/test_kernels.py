@@ -17,6 +17,7 @@ from conftest import ring_rig
 from helpers_engine import body_take
 
 from mocap import kernels
+from mocap.attached import AttachedDistances
 from mocap.camera import Camera, Lenses
 from mocap.detect import (
     _fit_discs,
@@ -544,3 +545,30 @@ def test_tracker_frame_of_detections_is_the_numpy_one(both):
     _same(ref, got, rtol=1e-12)
     assert ref.merged.sum() > 20 and (~ref.merged & ref.valid).sum() > 20
     assert np.isclose(ref.S[ref.valid & ~ref.merged][:, 0, 0], MIN_CENTROID_STD_PX**2).any()  # floored
+
+
+def test_attached_distance_learning_is_the_numpy_one(both):
+    """A plate of four, a loose marker and an intermittent one, with wrong points and gaps: the same slots,
+    distances, counts and failures after every frame."""
+    rng = np.random.default_rng(5)
+    plate = rng.uniform(-0.05, 0.05, (4, 3))
+
+    def learn_all():
+        memory = AttachedDistances(slots=3, reach_m=0.3, tolerance_m=0.01, steady_frames=5, forget_frames=20)
+        states = []
+        for k in range(120):
+            X = np.vstack([plate + [0.01 * k, 0.0, 1.0], [0.1 * np.sin(0.2 * k), 0.1, 1.0], [0.0, -0.05, 1.0]])
+            seen = np.flatnonzero(np.r_[True, k % 7 != 3, True, True, True, (k // 10) % 2 == 0])
+            if k % 13 == 5:
+                X[0] = X[3]  # a wrong point
+            memory.learn(seen, X[seen])
+            states.append([a.copy() for a in (memory.neighbour, memory.distance, memory.held, memory.last,
+                                              memory.tries)])
+        return states
+
+    reference, compiled = both(learn_all)
+    assert len(reference) == len(compiled) == 120
+    for ref, com in zip(reference, compiled, strict=True):
+        for a, b in zip(ref, com, strict=True):
+            np.testing.assert_allclose(b, a, rtol=0, atol=1e-15)
+    assert (reference[-1][2] >= 5).sum() >= 6 and reference[-1][4].sum() > 0  # steady slots, and failures

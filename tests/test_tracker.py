@@ -677,3 +677,27 @@ def test_a_marker_vanishing_as_its_lost_neighbour_reappears_leaves_the_neighbour
         assert report.switches == 0 and report.idf1 > 0.99 and report.output_tracks == 2
     else:
         assert report.switches == 1 and report.idf1 < 0.7
+
+
+@pytest.mark.parametrize("check", [True, False])
+def test_a_neighbour_reappearing_where_a_marker_vanished_is_refuted_by_the_attached_distances(check):
+    """The sprint's forearm again, inside the 3D gate this time: four markers of one rigid segment, D 40 mm from
+    A. D is hidden for 6 frames; in the frame A vanishes, D reappears inside A's gates (3D and image). D's point
+    is 23 and 35 mm off A's steady distances to B and C and fits D's own: A's track misses the frame and D's lost
+    identity takes the point. Without the check A's identity takes D (the yield rule is off in both runs)."""
+    F, fps = 160, 120.0
+    t = np.arange(F) / fps
+    centre = np.stack([0.3 * np.cos(2 * t), 0.3 * np.sin(2 * t), np.ones(F)], axis=1)
+    offsets = np.array([[0.0, 0.0, 0.0], [-0.03, 0.07, 0.0], [-0.05, -0.03, 0.02], [0.04, 0.0, 0.0]])  # A B C D
+    pos = centre[:, None, :] + offsets[None]
+    hidden = np.zeros((F, 6, 4), dtype=bool)
+    hidden[60:66, :, 3] = True
+    hidden[66:, :, 0] = True
+    take = simulate("attached", ring_rig(seed=3), scripted_motion(pos, fps), SynthSettings(seed=3, ghosts=0,
+                    dropout_rate=0.0), hidden=hidden, seed=3)
+    config = TrackerConfig(gate_floor_px=10.0, gate_floor_m=0.05, yield_outside_gate=False, attached_check=check)
+    report = evaluate(_run(Tracker(take.rig, fps, config), take)[0], take.truth)
+    if check:
+        assert report.switches == 0 and report.idf1 > 0.97
+    else:
+        assert report.switches == 1 and report.idf1 < 0.85

@@ -1,0 +1,149 @@
+"""The tracker's memory of each identity's distances to the identities around it.
+
+Markers of one body segment keep their distances; a neighbour a few centimetres away usually does not keep
+the same distances to them. So where a hidden marker's track (or a lost identity) is offered a point, the point's
+distances to the identity's steady neighbours, measured this frame, tell whether it is that marker or a
+neighbour that has just come into view (the sprint's forearm: its markers 45-75 mm apart are hidden in turn,
+and each one's widening search region holds the others).
+
+Per identity, ``slots`` neighbouring identities within ``reach_m`` with the running mean of their distance. A
+slot is steady once its distance has held within ``tolerance_m`` for ``steady_frames`` frames in which both were
+measured. A distance off by more halves that count (one wrong point of either marker does not erase what many
+frames showed; a distance that really changed soon stops counting). A slot whose count reaches zero takes another
+neighbour not yet held: the nearest the first time, the next nearer ones after each failure, so that a close
+neighbour across a joint does not keep the slot from a farther one on the same segment. Arrays indexed by
+identity, grown as identities are created.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from mocap import kernels
+
+__all__ = ["AttachedDistances"]
+
+
+class AttachedDistances:
+    """Steady distances of each identity to up to ``slots`` neighbouring identities.
+
+    Args:
+        slots: neighbours remembered per identity.
+        reach_m: a free slot takes the nearest measured identity within this distance, m.
+        tolerance_m: a distance within this of its running mean holds, m.
+        steady_frames: frames a distance must have held before it can refute a point.
+        forget_frames: a slot whose neighbour has not been measured with the identity for this many frames is
+            emptied (that neighbour was retired, or left the volume).
+        alpha: smoothing factor of the running mean distance (skin markers drift slowly).
+    """
+
+    def __init__(self, slots: int, reach_m: float, tolerance_m: float, steady_frames: int, forget_frames: int,
+                 alpha: float = 0.1) -> None:
+        self._J = slots
+        self._reach = reach_m
+        self._tol = tolerance_m
+        self._steady = steady_frames
+        self._forget = forget_frames
+        self._alpha = alpha
+        self._frame = 0
+        self.neighbour = np.full((0, slots), -1, dtype=np.intp)  # (I, J) neighbouring identity, -1: free slot
+        self.distance = np.zeros((0, slots))  # (I, J) running mean distance, m
+        self.held = np.zeros((0, slots), dtype=np.intp)  # (I, J) frames the distance has held
+        self.last = np.zeros((0, slots), dtype=np.intp)  # (I, J) frame the two were last measured together
+        self.tries = np.zeros((0, slots), dtype=np.intp)  # (I, J) times the slot was emptied
+
+    def _grow(self, n_ident: int) -> None:
+        I = len(self.neighbour)
+        if n_ident <= I:
+            return
+        n = max(n_ident, 2 * I, 64) - I
+        self.neighbour = np.concatenate([self.neighbour, np.full((n, self._J), -1, dtype=np.intp)])
+        self.distance = np.concatenate([self.distance, np.zeros((n, self._J))])
+        self.held = np.concatenate([self.held, np.zeros((n, self._J), dtype=np.intp)])
+        self.last = np.concatenate([self.last, np.zeros((n, self._J), dtype=np.intp)])
+        self.tries = np.concatenate([self.tries, np.zeros((n, self._J), dtype=np.intp)])
+
+    def learn(self, ident: np.ndarray, X: np.ndarray) -> None:
+        """One frame: the identities ``ident`` (n,) measured at ``X`` (n, 3) m (each identity once)."""
+        self._frame += 1
+        if ident.size == 0:
+            return
+        self._grow(int(ident.max()) + 1)
+        if kernels.HAVE_NUMBA:
+            kernels.attached_learn(kernels.contiguous(ident, np.intp), kernels.contiguous(X), self.neighbour,
+                                   self.distance, self.held, self.last, self.tries, self._frame, self._tol,
+                                   self._alpha, self._forget)
+        else:
+            self._learn(ident, X)
+        rows = np.flatnonzero((self.neighbour[ident] < 0).any(axis=1))
+        if rows.size:
+            self._fill(ident, X, rows)
+
+    def _learn(self, ident: np.ndarray, X: np.ndarray) -> None:
+        """The slots' update of :meth:`learn` (numpy; :func:`mocap.kernels.attached_learn` compiled)."""
+        here = np.full((len(self.neighbour), 3), np.nan)
+        here[ident] = X
+        nb = self.neighbour[ident]  # (n, J)
+        d = np.linalg.norm(X[:, None, :] - here[np.maximum(nb, 0)], axis=2)
+        both = (nb >= 0) & np.isfinite(d)
+        mean, held = self.distance[ident], self.held[ident]
+        fresh = both & (held == 0)
+        holds = both & (held > 0) & (np.abs(d - mean) <= self._tol)
+        fails = both & ~fresh & ~holds
+        mean = np.where(fresh, d, np.where(holds, mean + self._alpha * (d - mean), mean))
+        held = np.where(fresh | holds, held + 1, np.where(fails, held // 2, held))
+        last = np.where(both, self._frame, self.last[ident])
+        free = (nb < 0) | (fails & (held == 0)) | (self._frame - last > self._forget)
+        self.tries[ident] += free & (nb >= 0)
+        nb = np.where(free, -1, nb)
+        held = np.where(free, 0, held)
+        self.neighbour[ident], self.distance[ident], self.held[ident], self.last[ident] = nb, mean, held, last
+
+    def _fill(self, ident: np.ndarray, X: np.ndarray, rows: np.ndarray) -> None:
+        """Every free slot of ``ident[rows]`` takes a measured identity within reach not yet held: the nearest, or
+        after failures of that slot (``tries``) the next nearer ones, cyclically."""
+        if kernels.HAVE_NUMBA:
+            kernels.attached_fill(kernels.contiguous(ident, np.intp), kernels.contiguous(X), rows, self.neighbour,
+                                  self.tries, self.last, self._frame, self._reach * self._reach)
+            return
+        gap = X[rows, None, :] - X[None, :, :]
+        d = (gap * gap).sum(axis=2)  # (r, n) squared distances
+        r = np.arange(rows.size)
+        d[r, rows] = np.inf
+        nb = self.neighbour[ident[rows]]
+        d[(ident[None, None, :] == nb[:, :, None]).any(axis=1)] = np.inf
+        d[d > self._reach * self._reach] = np.inf
+        tries, last = self.tries[ident[rows]], self.last[ident[rows]]
+        for j in range(self._J):
+            avail = np.isfinite(d).sum(axis=1)
+            ok = (nb[:, j] < 0) & (avail > 0)
+            if not ok.any():
+                continue
+            pick = np.argsort(d, axis=1)[r, tries[:, j] % np.maximum(avail, 1)]
+            nb[ok, j] = ident[pick[ok]]
+            last[ok, j] = self._frame
+            d[r[ok], pick[ok]] = np.inf
+        self.neighbour[ident[rows]], self.last[ident[rows]] = nb, last
+
+    def judge(self, ident: np.ndarray, points: np.ndarray, here_ident: np.ndarray, here_X: np.ndarray
+              ) -> tuple[np.ndarray, np.ndarray]:
+        """(n,) bool twice, for point ``points[i]`` (n, 3) m offered to identity ``ident[i]`` (n,), from the
+        identity's steady neighbours among ``here_ident`` (h,), measured this frame at ``here_X`` (h, 3) m, at
+        least two of them: ``misfit``, every such neighbour's distance to the point is off by more than
+        ``tolerance_m``; ``fits``, most are not (a neighbour across a joint may have moved)."""
+        misfit, fits = np.zeros(len(ident), dtype=bool), np.zeros(len(ident), dtype=bool)
+        known = ident < len(self.neighbour)
+        if not known.any() or here_ident.size == 0:
+            return misfit, fits
+        where = np.full(max(len(self.neighbour), int(here_ident.max()) + 1), -1, dtype=np.intp)
+        where[here_ident] = np.arange(here_ident.size)
+        i = np.flatnonzero(known)
+        nb = self.neighbour[ident[i]]  # (m, J)
+        row = np.where(nb >= 0, where[np.maximum(nb, 0)], -1)
+        usable = (row >= 0) & (self.held[ident[i]] >= self._steady)
+        d = np.linalg.norm(points[i, None, :] - here_X[np.maximum(row, 0)], axis=2)
+        off = np.abs(d - self.distance[ident[i]]) > self._tol
+        n_off, n_ok = (usable & off).sum(axis=1), (usable & ~off).sum(axis=1)
+        misfit[i] = (n_off >= 2) & (n_ok == 0)
+        fits[i] = (n_ok >= 2) & (n_ok > n_off)
+        return misfit, fits

@@ -1,0 +1,84 @@
+"""The tracker's memory of attached distances (mocap.attached): what it learns, what it refutes, what it forgets."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from mocap.attached import AttachedDistances
+
+# A rigid plate of four markers (identities 0-3) and a loose one (4) swinging about it, m.
+PLATE = np.array([[0.0, 0.0, 0.0], [-0.03, 0.07, 0.0], [-0.05, -0.03, 0.02], [0.04, 0.0, 0.0]])
+
+
+def _frames(n: int, seed: int = 0) -> list[np.ndarray]:
+    """(5, 3) positions per frame: the plate translated and turned, the loose marker wandering 5-15 cm away."""
+    rng = np.random.default_rng(seed)
+    out = []
+    for k in range(n):
+        a = 0.02 * k
+        R = np.array([[np.cos(a), -np.sin(a), 0.0], [np.sin(a), np.cos(a), 0.0], [0.0, 0.0, 1.0]])
+        plate = PLATE @ R.T + [0.01 * k, 0.0, 1.0] + rng.normal(0.0, 2e-4, PLATE.shape)
+        loose = plate[0] + (0.1 + 0.05 * np.sin(0.3 * k)) * np.array([np.cos(0.1 * k), np.sin(0.1 * k), 0.3])
+        out.append(np.vstack([plate, loose]))
+    return out
+
+
+def _learned(frames: list[np.ndarray], **kw) -> AttachedDistances:
+    memory = AttachedDistances(**{"slots": 4, "reach_m": 0.3, "tolerance_m": 0.01, "steady_frames": 12,
+                                  "forget_frames": 240, **kw})
+    for X in frames:
+        memory.learn(np.arange(len(X)), X)
+    return memory
+
+
+def test_a_neighbour_in_a_hidden_markers_place_is_refuted_and_the_marker_itself_fits():
+    frames = _frames(60)
+    memory = _learned(frames)
+    X = frames[-1]
+    here = np.array([1, 2, 4])  # identity 0 (A) and 3 (D) hidden in this frame; the loose marker seen
+    # Identity 0 offered D's point: 23 and 35 mm off its distances to B and C (the loose marker is not steady).
+    misfit, fits = memory.judge(np.array([0, 3]), np.stack([X[3], X[3]]), here, X[here])
+    assert misfit.tolist() == [True, False] and fits.tolist() == [False, True]
+    # Its own point fits; the loose marker, never steady, neither fits nor is refuted.
+    misfit, fits = memory.judge(np.array([0, 4]), np.stack([X[0], X[0]]), here, X[here])
+    assert misfit.tolist() == [False, False] and fits.tolist() == [True, False]
+    # A point that keeps identity 3's distance to B only (D turned 90 degrees about B): one neighbour is no fit,
+    # and one that holds is no refutation.
+    a = np.pi / 2
+    R = np.array([[np.cos(a), -np.sin(a), 0.0], [np.sin(a), np.cos(a), 0.0], [0.0, 0.0, 1.0]])
+    turned = X[1] + (X[3] - X[1]) @ R.T
+    here = np.array([0, 1, 2])
+    misfit, fits = memory.judge(np.array([3]), turned[None], here, X[here])
+    assert not misfit[0] and not fits[0]
+    steady = memory.held[0] >= 12
+    np.testing.assert_allclose(np.sort(memory.distance[0][steady]),
+                               np.sort(np.linalg.norm(PLATE[1:] - PLATE[0], axis=1)), atol=1e-3)
+
+
+def test_one_wrong_point_does_not_erase_the_memory_but_a_real_change_does():
+    frames = _frames(60)
+    memory = _learned(frames)
+    before = memory.held[0].copy()
+    wrong = frames[-1].copy()
+    wrong[0] = wrong[3]  # identity 0 measured at D's place for one frame
+    memory.learn(np.arange(5), wrong)
+    kept = memory.neighbour[0] >= 0
+    assert kept[before >= 12].all() and (memory.held[0][before >= 12] >= 12).all()
+    # A marker that really moved 3 cm on its plate: after a few frames its old distances stop counting.
+    moved = [X + np.where(np.arange(5)[:, None] == 1, [0.0, 0.03, 0.0], 0.0) for X in _frames(70)[60:]]
+    for X in moved:
+        memory.learn(np.arange(5), X)
+    X = moved[-1]
+    here = np.array([0, 2, 3])
+    misfit, fits = memory.judge(np.array([1]), X[[1]], here, X[here])
+    assert not misfit[0]
+
+
+def test_slots_go_to_the_nearest_identities_within_reach_and_are_forgotten_when_unseen():
+    frames = _frames(20)
+    memory = _learned(frames, reach_m=0.06, forget_frames=10)
+    # Within 6 cm of identity 0 only D (40 mm) is.
+    assert set(memory.neighbour[0][memory.neighbour[0] >= 0].tolist()) == {3}
+    for X in frames[:12]:  # identity 3 no longer measured with 0
+        memory.learn(np.array([0, 1, 2, 4]), X[[0, 1, 2, 4]])
+    assert 3 not in memory.neighbour[0]
