@@ -152,9 +152,10 @@ class RelabelConfig:
 
 @dataclass
 class RelabelStats:
-    """What the repair changed: duplicate samples deleted, tail permutations applied, fragments joined, exchanges
-    undone where two markers passed close, cluster members reunited, samples moved to the plate member their shape
-    names, unconfirmed points that joined an identity's path."""
+    """What the repair changed: duplicate samples deleted, tail permutations applied, identities saved by the
+    re-linking (``stitches``: fragments joined minus tracks cut at jumps, so negative where the cuts outnumber the
+    joins), exchanges undone where two markers passed close, cluster members reunited, samples moved to the plate
+    member their shape names, unconfirmed points that joined an identity's path."""
 
     duplicates: int = 0
     swaps: int = 0
