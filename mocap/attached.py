@@ -113,9 +113,13 @@ class AttachedDistances:
         nb = self.neighbour[ident[rows]]
         d[(ident[None, None, :] == nb[:, :, None]).any(axis=1)] = np.inf
         d[d > self._reach * self._reach] = np.inf
+        avail = np.isfinite(d).sum(axis=1)
+        if not avail.any():  # (identities with no other measured neighbour within reach)
+            return
         tries, last = self.tries[ident[rows]], self.last[ident[rows]]
-        for j in range(self._J):
-            avail = np.isfinite(d).sum(axis=1)
+        for n, j in enumerate(np.flatnonzero((nb < 0).any(axis=0))):
+            if n:
+                avail = np.isfinite(d).sum(axis=1)
             ok = (nb[:, j] < 0) & (avail > 0)
             if not ok.any():
                 continue
