@@ -467,8 +467,9 @@ class Tracker:
             self._follow_residual_level(fr, meas)
         self._new_markers(fr, fr.valid & ~_taken(meas.asg, fr.valid.shape), meas)
         self._lifecycle(meas)
-        measured = np.flatnonzero((self._t.ident >= 0) & (self._t.since == 0))
-        self._attached.learn(self._t.ident[measured], self._t.last_X[measured])
+        if self._cfg.attached_check:
+            measured = np.flatnonzero((self._t.ident >= 0) & (self._t.since == 0))
+            self._attached.learn(self._t.ident[measured], self._t.last_X[measured])
         return self._record(frame_index, fr, meas)
 
     def predicted_rois(self) -> list[np.ndarray]:
@@ -672,6 +673,7 @@ class Tracker:
         new-marker search, which gives it to that identity."""
         t = self._t
         rows = np.flatnonzero(meas.ok & (t.ident >= 0))
+        # (a refutation needs two measured neighbours, and a lost identity to take the point)
         if rows.size < 3 or not ((t.ident >= 0) & (t.since >= 1) & ~meas.ok).any():
             return
         misfit, _ = self._attached.judge(t.ident[rows], meas.X[rows], t.ident[rows], meas.X[rows])
