@@ -151,3 +151,11 @@ class AttachedDistances:
         misfit[i] = (n_off >= 2) & (n_ok == 0)
         fits[i] = (n_ok >= 2) & (n_ok > n_off)
         return misfit, fits
+
+    def judge_pairs(self, ident: np.ndarray, points: np.ndarray, here_ident: np.ndarray, here_X: np.ndarray
+                    ) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`judge` for every point of ``points`` (L, 3) m offered to every identity of ``ident`` (T,):
+        ``misfit`` and ``fits``, (L, T) bool each."""
+        L, T = len(points), len(ident)
+        misfit, fits = self.judge(np.tile(ident, L), np.repeat(points, T, axis=0), here_ident, here_X)
+        return misfit.reshape(L, T), fits.reshape(L, T)

@@ -367,6 +367,10 @@ class _Measurements(_Rows):
         return cls(np.zeros(K, dtype=bool), np.zeros(K, dtype=bool), np.full((K, 3), np.nan),
                    np.full((K, 3, 3), np.nan), np.full(K, np.nan), np.full((K, C), -1, dtype=np.intp))
 
+    def miss(self, rows: np.ndarray, C: int) -> None:
+        """The tracks ``rows`` (of C cameras) are not measured this frame."""
+        self.put(rows, _Measurements.empty(len(rows), C))
+
     def put(self, rows: np.ndarray, other: _Measurements) -> None:
         """Copy ``other``'s rows (len(rows) of them) into ``rows``."""
         for f in fields(self):
@@ -665,7 +669,7 @@ class Tracker:
         held = (d / self._radius3(others)[None]).min(axis=1) < 1.0
         yields = rows[far][held]
         if yields.size:
-            meas.put(yields, _Measurements.empty(yields.size, self._C))
+            meas.miss(yields, self._C)
 
     def _refute_by_attached(self, meas: _Measurements) -> None:
         """Confirmed tracks whose point their identity's steady attached distances refute, where a lost identity's
@@ -682,7 +686,7 @@ class Tracker:
             return
         yields = bad[self._claimed_by_lost(meas.X[bad], t.ident[kept], meas.X[kept], ~meas.ok)]
         if yields.size:
-            meas.put(yields, _Measurements.empty(yields.size, self._C))
+            meas.miss(yields, self._C)
 
     def _claimed_by_lost(self, points: np.ndarray, here_ident: np.ndarray, here_X: np.ndarray,
                          unmeasured: np.ndarray) -> np.ndarray:
@@ -694,9 +698,8 @@ class Tracker:
         if lost.size == 0 or len(points) == 0:
             return np.zeros(len(points), dtype=bool)
         inside = distance_to_lost(points, t.x3[lost, :3], t.last_X[lost]) < self._radius3(lost)[None]
-        L, T = inside.shape
-        _, fits = self._attached.judge(np.tile(t.ident[lost], L), np.repeat(points, T, axis=0), here_ident, here_X)
-        return (fits.reshape(L, T) & inside).any(axis=1)
+        _, fits = self._attached.judge_pairs(t.ident[lost], points, here_ident, here_X)
+        return (fits & inside).any(axis=1)
 
     def _attached_allow(self, points: np.ndarray, tracks: np.ndarray) -> np.ndarray | None:
         """(L, T) bool: which of the ``tracks`` (T,) may take which of the ``points`` (L, 3) m: a pair the track's
@@ -706,10 +709,7 @@ class Tracker:
         if not self._cfg.attached_check or points.size == 0 or tracks.size == 0:
             return None
         here = np.flatnonzero((t.ident >= 0) & (t.since == 0))
-        L, T = len(points), tracks.size
-        misfit, _ = self._attached.judge(np.tile(t.ident[tracks], L), np.repeat(points, T, axis=0), t.ident[here],
-                                         t.last_X[here])
-        misfit = misfit.reshape(L, T)
+        misfit, _ = self._attached.judge_pairs(t.ident[tracks], points, t.ident[here], t.last_X[here])
         if not misfit.any():
             return None
         claimed = self._claimed_by_lost(points, t.ident[here], t.last_X[here], t.since >= 1)
@@ -762,7 +762,7 @@ class Tracker:
         win, lose = rows[win[once]], rows[lose[once]]
         win, first_loss = np.unique(win, return_index=True)  # (a winner with two losers takes the first one's blobs)
         asg = np.where(meas.asg[win] >= 0, meas.asg[win], meas.asg[lose[first_loss]])
-        meas.put(lose, _Measurements.empty(lose.size, self._C))
+        meas.miss(lose, self._C)
         self._measure_again(fr, crowded, meas, win, asg)
 
     def _neighbour_shift(self, meas: _Measurements, play: np.ndarray) -> np.ndarray:
