@@ -25,7 +25,7 @@ import numpy as np
 
 __all__ = ["HAVE_NUMBA", "REASON", "announce", "contiguous", "robust_triangulate", "gauss_newton", "update_position",
            "repick", "predict", "update_tracks", "epipolar_consistency", "gate", "search_regions", "crowded",
-           "undistort_points", "near_any", "frame_record", "frame_detections", "attached_learn",
+           "undistort_points", "near_any", "assign_unambiguous", "frame_record", "frame_detections", "attached_learn",
            "attached_fill"]
 
 _log = logging.getLogger("mocap")
@@ -609,6 +609,35 @@ def gate(pred, radius, D):
                 v = (du * du + dv * dv) / r2
                 q[k, c, n] = np.inf if v != v else v
     return q
+
+
+@_jit
+def assign_unambiguous(q, eligible):
+    """The first pass of :func:`mocap.stereo.assign`: -> (out (K, C) the detection of every (track, camera)
+    whose gate holds one eligible detection that no other track's gate holds, else -1; contested (K, C) bool,
+    the other gates holding any)."""
+    K, C, N = q.shape
+    per_col = np.zeros((C, N), dtype=np.intp)
+    for k in range(K):
+        for c in range(C):
+            for n in range(N):
+                if q[k, c, n] < 1.0 and eligible[c, n]:
+                    per_col[c, n] += 1
+    out = np.full((K, C), -1, dtype=np.intp)
+    contested = np.zeros((K, C), dtype=np.bool_)
+    for k in range(K):
+        for c in range(C):
+            count, first = 0, -1
+            for n in range(N):
+                if q[k, c, n] < 1.0 and eligible[c, n]:
+                    count += 1
+                    if first < 0:
+                        first = n
+            if count == 1 and per_col[c, first] == 1:
+                out[k, c] = first
+            elif count > 0:
+                contested[k, c] = True
+    return out, contested
 
 
 @_jit

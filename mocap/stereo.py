@@ -69,32 +69,39 @@ def assign(q: np.ndarray, eligible: np.ndarray | None = None) -> np.ndarray:
         (K, C) detection index per track and camera, -1 where none.
     """
     K, C, N = q.shape
-    inside = q < 1.0
-    if eligible is not None:
-        inside &= eligible[None]
-    out = np.full((K, C), -1, dtype=np.intp)
+    if eligible is None:
+        eligible = np.ones((C, N), dtype=bool)
     if K == 0 or N == 0:
-        return out
-    per_row = inside.sum(axis=2)  # (K, C)
-    per_col = inside.sum(axis=0)  # (C, N)
-    # Unambiguous: the track's only candidate, and that detection's only track.
-    first = np.argmax(inside, axis=2)  # (K, C)
-    cam = np.arange(C)[None, :]
-    simple = (per_row == 1) & (per_col[cam, first] == 1)
-    out[simple] = first[simple]
-    kk, cc = np.nonzero((per_row > 0) & ~simple)
+        return np.full((K, C), -1, dtype=np.intp)
+    if kernels.HAVE_NUMBA:
+        out, contested = kernels.assign_unambiguous(kernels.contiguous(q), kernels.contiguous(eligible, bool))
+    else:
+        out, contested = _assign_unambiguous(q, eligible)
+    kk, cc = np.nonzero(contested)
     if kk.size:  # the rest: one optimal assignment over all cameras' contested rows (no gate spans two cameras)
-        rows_in = inside[kk, cc]  # (R, N)
+        rows_q = q[kk, cc]  # (R, N)
+        rows_in = (rows_q < 1.0) & eligible[cc]
         wanted = np.zeros((C, N), dtype=bool)
         r, n = np.nonzero(rows_in)
         wanted[cc[r], n] = True
         wc, wn = np.nonzero(wanted)  # the contested detections (L,)
         ok = rows_in[:, wn] & (cc[:, None] == wc[None, :])
-        sub = np.where(ok, q[kk, cc][:, wn], _FORBIDDEN)
+        sub = np.where(ok, rows_q[:, wn], _FORBIDDEN)
         r, k = linear_sum_assignment(sub)
         ok = ok[r, k]
         out[kk[r[ok]], cc[r[ok]]] = wn[k[ok]]
     return out
+
+
+def _assign_unambiguous(q: np.ndarray, eligible: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(K, C) the detection of every (track, camera) whose gate in ``q`` (K, C, N) holds one ``eligible`` (C, N)
+    detection that no other track's gate holds, else -1; (K, C) bool, the other gates holding any."""
+    inside = (q < 1.0) & eligible[None]
+    per_row = inside.sum(axis=2)  # (K, C)
+    per_col = inside.sum(axis=0)  # (C, N)
+    first = np.argmax(inside, axis=2)  # (K, C)
+    simple = (per_row == 1) & (per_col[np.arange(q.shape[1])[None, :], first] == 1)
+    return np.where(simple, first, -1), (per_row > 0) & ~simple
 
 
 def epipolar_distance(F: np.ndarray, p1: np.ndarray, p2: np.ndarray) -> np.ndarray:

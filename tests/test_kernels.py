@@ -33,7 +33,7 @@ from mocap.detections import MIN_CENTROID_STD_PX, Detections
 from mocap.ekf import ca_process_noise, ca_transition, init_state, predict, update_position
 from mocap.fusion import Triangulated, _gauss_newton, repick, robust_triangulate
 from mocap.pairs import CameraPairs, camera_pairs
-from mocap.stereo import dist2, epipolar_consistency, gate
+from mocap.stereo import assign, dist2, epipolar_consistency, gate
 from mocap.synth import SynthSettings
 from mocap.synth.render import Sensor
 from mocap.tracker import Tracker, _Frame, _Measurements, _Tracks
@@ -231,6 +231,25 @@ def test_gate_and_epipolar_pruning_are_the_numpy_ones(rig, both):
     assert (q[0] < 1).any() and np.isinf(q[0]).any()
     _same(*both(gate, pred[:0], radius[:0], D))
     _same(*both(gate, pred, radius, D[:, :0]))
+
+
+def test_assignment_is_the_numpy_one(both):
+    """Random gates from empty to crowded: the same detections chosen, the contested ones as the unambiguous."""
+    rng = np.random.default_rng(31)
+    contested = 0
+    for reach in (0.3, 1.0, 1.6, 3.0):
+        K, C, N = 12, 4, 9
+        q = rng.uniform(0.0, reach, size=(K, C, N))
+        q[rng.random(q.shape) < 0.1] = np.inf
+        eligible = rng.random((C, N)) < 0.85
+        ref, got = both(assign, q, eligible)
+        _same(ref, got)
+        _same(*both(assign, q))
+        contested += int((((q < 1) & eligible).sum(axis=2) > 1).sum())
+        assert (ref >= 0).any()
+    assert contested > 0
+    _same(*both(assign, np.zeros((0, 3, 4)), None))
+    _same(*both(assign, np.zeros((3, 2, 0)), None))
 
 
 def _random_tracker(rig, K: int, seed: int) -> Tracker:
