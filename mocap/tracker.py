@@ -1267,15 +1267,17 @@ class Tracker:
 
 def _gather(values: np.ndarray, asg: np.ndarray) -> np.ndarray:
     """Per-detection ``values`` (C, N, ...) picked by ``asg`` (K, C) -> (K, C, ...); NaN/False/0 where -1."""
-    C = values.shape[0]
-    if values.shape[1] == 0:
+    C, N = values.shape[:2]
+    if N == 0:
         fill = np.nan if values.dtype.kind == "f" else 0
         return np.full(asg.shape + values.shape[2:], fill, dtype=values.dtype)
-    got = values[np.arange(C)[None, :], np.maximum(asg, 0)]
+    flat = np.maximum(asg, 0)
+    flat += np.arange(0, C * N, N)  # (row of camera c in the (C N, ...) view)
+    got = values.reshape((C * N,) + values.shape[2:]).take(flat, axis=0)
     if values.dtype == bool:
         return got & (asg >= 0)
     if values.ndim == 3:
-        return np.where((asg >= 0)[..., None], got, np.nan)
+        got[asg < 0] = np.nan
     return got
 
 
