@@ -53,6 +53,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
+from mocap.anchors import rejoin_by_anchors
 from mocap.exchange import undo_exchanges
 from mocap.fill import fill_from_unconfirmed
 from mocap.plates import label_plates
@@ -154,7 +155,8 @@ class RelabelConfig:
 class RelabelStats:
     """What the repair changed: duplicate samples deleted, tail permutations applied, identities saved by the
     re-linking (``stitches``: fragments joined minus tracks cut at jumps, so negative where the cuts outnumber the
-    joins), exchanges undone where two markers passed close, cluster members reunited, samples moved to the plate
+    joins), exchanges undone where two markers passed close, cluster members reunited, fragments rejoined by their
+    anchors, samples moved to the plate
     member their shape names, unconfirmed points that joined an identity's path."""
 
     duplicates: int = 0
@@ -162,6 +164,7 @@ class RelabelStats:
     stitches: int = 0
     exchanges: int = 0
     reunited: int = 0
+    rejoined: int = 0
     plate_samples: int = 0
     filled: int = 0
 
@@ -644,7 +647,8 @@ def repair_identities(traj: Trajectories, config: RelabelConfig | None = None,
                       unconfirmed: UnconfirmedPoints | None = None) -> RelabelStats:
     """Duplicates dropped (:func:`drop_duplicates`), swap repair, fragment stitching, exchanges undone where two
     markers passed close (:mod:`mocap.exchange`), the reunion of rigid clusters
-    back after a long absence (:mod:`mocap.reunite`), then the labelling of rigid plates by their shape
+    back after a long absence (:mod:`mocap.reunite`), fragments rejoined by their distances to rigid neighbours
+    (:mod:`mocap.anchors`), then the labelling of rigid plates by their shape
     (:mod:`mocap.plates`) and the fill from unconfirmed points (:mod:`mocap.fill`), in place; empty identity columns
     are dropped. ``unconfirmed``: the tracker's points without identity (:meth:`mocap.tracker.Tracker.unconfirmed`),
     which the plate labelling and the fill may give one.
@@ -659,11 +663,12 @@ def repair_identities(traj: Trajectories, config: RelabelConfig | None = None,
     stats.stitches = relink_tracklets(traj, config)
     stats.exchanges = undo_exchanges(traj)
     stats.reunited = reunite_clusters(traj)
+    stats.rejoined = rejoin_by_anchors(traj)
     jump = (config or RelabelConfig()).jump_acc(traj.fps)
     stats.plate_samples = label_plates(traj, extra=unconfirmed, jump_acc=jump)
     if unconfirmed is not None:
         stats.filled = fill_from_unconfirmed(traj, unconfirmed)
-    if stats.reunited or stats.plate_samples:
+    if stats.reunited or stats.rejoined or stats.plate_samples:
         keep = np.isfinite(traj.positions[..., 0]).any(axis=0)
         traj.positions, traj.residuals, traj.camera_masks = (traj.positions[:, keep], traj.residuals[:, keep],
                                                              traj.camera_masks[:, keep])
