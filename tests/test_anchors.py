@@ -1,0 +1,119 @@
+"""Fragments rejoined by their distances to rigid neighbours (mocap.anchors) on scripted segments."""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from mocap.anchors import AnchorConfig, rejoin_by_anchors
+from mocap.plates import PlateConfig, label_plates
+from mocap.trajectories import Trajectories
+
+F = 600
+FPS = 120.0
+
+
+def _segment(local: np.ndarray, seed: int, noise_m: float = 0.0003) -> np.ndarray:
+    """(F, n, 3) markers at ``local`` (n, 3) m on a segment that turns and travels, with noise."""
+    rng = np.random.default_rng(seed)
+    t = np.arange(F) / FPS
+    turn = Rotation.from_rotvec(np.stack([0.9 * np.sin(2.1 * t), 0.6 * np.cos(1.3 * t), 0.8 * t], axis=1))
+    centre = np.stack([0.5 * np.sin(0.7 * t), 0.4 * np.cos(0.9 * t), 1.0 + 0.1 * t], axis=1)
+    world = np.stack([turn.apply(p) for p in local], axis=1) + centre[:, None, :]
+    return world + rng.normal(scale=noise_m, size=world.shape)
+
+
+def _columns(truth: np.ndarray, pieces: list[list[tuple[int, int, int]]]) -> Trajectories:
+    """Identity columns made of pieces (truth marker, first frame, end frame) of ``truth`` (F, n, 3)."""
+    P = np.full((F, len(pieces), 3), np.nan)
+    for col, parts in enumerate(pieces):
+        for marker, a, b in parts:
+            P[a:b, col] = truth[a:b, marker]
+    return Trajectories([f"id{k}" for k in range(len(pieces))], FPS, P)
+
+
+def _holder(traj: Trajectories, truth: np.ndarray, marker: int) -> dict[int, int]:
+    """{column: samples} of the output samples that are truth ``marker``'s."""
+    d = np.linalg.norm(traj.positions - truth[:, marker, None, :], axis=2)
+    cols, counts = np.unique(np.nonzero(d < 1e-9)[1], return_counts=True)
+    return dict(zip(cols.tolist(), counts.tolist(), strict=True))
+
+
+# The forearm of the sprint take: A1 and A2 49 mm apart; X 75 mm from A1 and 46 mm from A2, so that A2 is
+# nearly equidistant from A1 and X (the plate pass refuses such a triangle); Y 60 and 64 mm from them.
+FOREARM = np.array([[0.0, 0.0, 0.0], [0.049, 0.0, 0.0], [0.060, 0.045, 0.0], [0.020, 0.040, 0.040]])
+A1, A2, X, Y = range(4)
+
+
+def test_fragments_of_a_marker_join_it_and_its_neighbours_fragments_do_not():
+    truth = np.concatenate([_segment(FOREARM, seed=1), _segment(np.array([[0.0, 0.0, 0.15]]), seed=2)[:, :, ::-1]],
+                           axis=1)  # + a marker 0.15 m off on another, unrelated motion (not an anchor)
+    other = 4
+    traj = _columns(truth, [
+        [(A1, 0, F)], [(A2, 0, F)],
+        [(X, 0, 200)],  # X's identity, lost at frame 200
+        [(X, 250, 300)], [(X, 400, 430)],  # X back twice as new identities
+        [(Y, 0, 300), (Y, 450, F)],  # Y's identity
+        [(Y, 330, 360)],  # Y back for a while as a new identity
+        [(other, 0, F)],
+    ])
+    before = np.isfinite(traj.positions[..., 0]).sum()
+    joined = rejoin_by_anchors(traj)
+    assert joined == 3
+    assert _holder(traj, truth, X) == {2: 280}
+    assert _holder(traj, truth, Y) == {5: 480}
+    assert np.isfinite(traj.positions[..., 0]).sum() == before  # nothing dropped
+    # The plate pass cannot do it: the triangle A1-A2-X has two labellings.
+    plates = _columns(truth, [[(A1, 0, F)], [(A2, 0, F)], [(X, 0, 200)], [(X, 250, 300)], [(X, 400, 430)]])
+    label_plates(plates, PlateConfig(min_frames=30))
+    assert 3 in _holder(plates, truth, X) and 4 in _holder(plates, truth, X)
+
+
+def test_where_the_target_held_a_neighbour_the_fitting_sample_stays_and_the_other_moves_out():
+    truth = _segment(FOREARM, seed=3)
+    traj = _columns(truth, [
+        [(A1, 0, F)], [(A2, 0, F)],
+        [(X, 0, 150), (Y, 150, 170), (X, 170, 300)],  # X's identity hopped onto Y for 20 frames
+        [(X, 150, 170), (X, 500, 540)],  # X under a new identity meanwhile, and again later
+        [(Y, 0, 150), (Y, 170, F)],
+    ])
+    before = np.isfinite(traj.positions[..., 0]).sum()
+    assert rejoin_by_anchors(traj) == 1
+    assert _holder(traj, truth, X) == {2: 340}
+    held = _holder(traj, truth, Y)
+    assert held.pop(4) == 580 and list(held.values()) == [20] and list(held)[0] >= 5  # to a new identity
+    assert traj.labels[-1].startswith("fragment") and np.isfinite(traj.positions[..., 0]).sum() == before
+
+
+def test_a_fragment_that_fits_two_markers_seen_together_is_left_alone():
+    mirror = np.array([[0.0, 0.0, 0.0], [0.049, 0.0, 0.0], [0.030, 0.050, 0.0], [0.030, -0.050, 0.0]])
+    truth = _segment(mirror, seed=4)  # markers 2 and 3: the same distances to 0 and 1
+    traj = _columns(truth, [[(0, 0, F)], [(1, 0, F)], [(2, 0, 300)], [(3, 0, 300)], [(2, 400, 450)]])
+    assert rejoin_by_anchors(traj) == 0
+    assert _holder(traj, truth, 2) == {2: 300, 4: 50}
+
+
+def test_one_anchor_is_not_enough_and_the_tolerance_decides():
+    truth = _segment(FOREARM, seed=5)
+    one = _columns(truth, [[(A1, 0, F)], [(X, 0, 200)], [(X, 300, 350)]])
+    assert rejoin_by_anchors(one) == 0
+    two = [[(A1, 0, F)], [(A2, 0, F)], [(X, 0, 200)], [(X, 300, 350)]]
+    assert rejoin_by_anchors(_columns(truth, two)) == 1
+    # A marker 8 mm farther out than X is another marker at a 6 mm tolerance, the same one at 10 mm.
+    out = FOREARM[X] * (1.0 + 0.008 / np.linalg.norm(FOREARM[X]))  # (7 mm farther from A2)
+    moved = np.concatenate([truth, _segment(out[None], seed=5)], axis=1)
+    near = [[(A1, 0, F)], [(A2, 0, F)], [(X, 0, 200)], [(4, 300, 350)]]
+    assert rejoin_by_anchors(_columns(moved, near)) == 0
+    assert rejoin_by_anchors(_columns(moved, near), AnchorConfig(tolerance_m=0.010)) == 1
+
+
+def test_the_identity_repair_runs_it():
+    from mocap.relabel import RelabelConfig, repair_identities
+
+    truth = _segment(FOREARM, seed=6)
+    traj = _columns(truth, [[(A1, 0, F)], [(A2, 0, F)], [(X, 0, 200)], [(X, 260, 330)], [(Y, 0, F)]])
+    # (the re-linking joins this clean scene by itself across the gap: limited here to short gaps)
+    stats = repair_identities(traj, RelabelConfig(shape_max_s=0.05, lone_max_s=0.05))
+    assert stats.stitches == 0 and stats.rejoined == 1
+    assert traj.n_markers == 4 and traj.labels == ["M001", "M002", "M003", "M004"]
+    assert list(_holder(traj, truth, X).values()) == [270]
