@@ -7,7 +7,8 @@ moves with rigidly tell them apart where shape alone cannot: the forearm's trian
 (M1 and M4 both 48 mm from M2), so a plate of it has two labellings, but a fragment 76 mm from M1's identity
 and 47 mm from M2's is M4's, whatever it was called.
 
-On finished trajectories (after :mod:`mocap.reunite`, before :mod:`mocap.plates`), :func:`rejoin_by_anchors`:
+On finished trajectories (after :mod:`mocap.plates`: rigid plates are labelled by their shape first; run before
+it, the joins changed the plates it learned), :func:`rejoin_by_anchors`:
 
 1. measures every pair of identities over the frames both are seen in (:func:`mocap.rigid.pair_statistics`):
    an identity's anchors are the identities within ``reach_m`` whose distance to it spread (1.4826 MAD) less
@@ -18,8 +19,9 @@ On finished trajectories (after :mod:`mocap.reunite`, before :mod:`mocap.plates`
    ``min_anchors`` anchors or more and more anchors than disagree (an anchor across a joint may have moved);
 3. joins the fragment to the longest target it fits, unless it fits two targets seen together (two markers:
    ambiguous), or their samples share more than ``overlap_fraction`` of the fragment's frames. Where they
-   share frames (the target's identity held a neighbour for a while), the sample whose distances to the
-   anchors in that frame fit the target's better stays; the other moves to a new identity.
+   share frames (the target's identity held a neighbour for a while), the fragment's sample replaces the
+   target's where its distances to the anchors in that frame fit the target's (mean within ``tolerance_m``) and
+   the target's own do not; the sample left over moves to a new identity.
 
 Only whole samples move between identity columns; positions are never changed, and no sample is dropped.
 """
@@ -123,9 +125,10 @@ def rejoin_by_anchors(traj: Trajectories, config: AnchorConfig | None = None) ->
         both = here[np.isfinite(P[here, r, 0])]
         if both.size > cfg.overlap_fraction * here.size:
             continue
-        if both.size:  # the better fitting sample of each shared frame stays; the other moves out
+        if both.size:  # the target keeps its sample unless only the fragment's fits; the other moves out
             anchors = np.flatnonzero(strong[q])
-            mine = _misfit(P, both, int(p), q, anchors, median) < _misfit(P, both, r, q, anchors, median)
+            theirs = _misfit(P, both, r, q, anchors, median)
+            mine = (_misfit(P, both, int(p), q, anchors, median) <= cfg.tolerance_m) & (theirs > cfg.tolerance_m)
             out = [np.full((len(P),) + a.shape[2:], np.nan if a.dtype.kind == "f" else 0, dtype=a.dtype)
                    for a in arrays]
             leave = np.where(mine, r, p)  # the column whose sample moves out, per shared frame

@@ -38,7 +38,9 @@ A third pass, :mod:`mocap.exchange`, gives back markers two identities exchanged
 by the distances to the markers attached to them; a fourth, :mod:`mocap.reunite`, rejoins rigid clusters that
 come back after a long absence, far from every gate, by the distances between their markers; a fifth,
 :mod:`mocap.plates`, labels the markers of rigid plates frame by frame by the plate's shape; a sixth,
-:mod:`mocap.fill`, gives the tracker's unconfirmed points to the identities whose paths they continue.
+:mod:`mocap.anchors`, joins fragments of a marker's track to the identity whose rigid neighbours they keep the
+same distances to; a seventh, :mod:`mocap.fill`, gives the tracker's unconfirmed points to the identities whose
+paths they continue.
 
 All passes only move whole samples between identity columns (positions, residuals and camera
 masks together), and the first deletes the second copy of a point; they never change a position.
@@ -155,17 +157,17 @@ class RelabelConfig:
 class RelabelStats:
     """What the repair changed: duplicate samples deleted, tail permutations applied, identities saved by the
     re-linking (``stitches``: fragments joined minus tracks cut at jumps, so negative where the cuts outnumber the
-    joins), exchanges undone where two markers passed close, cluster members reunited, fragments rejoined by their
-    anchors, samples moved to the plate
-    member their shape names, unconfirmed points that joined an identity's path."""
+    joins), exchanges undone where two markers passed close, cluster members reunited, samples moved to the plate
+    member their shape names, fragments rejoined by their anchors, unconfirmed points that joined an identity's
+    path."""
 
     duplicates: int = 0
     swaps: int = 0
     stitches: int = 0
     exchanges: int = 0
     reunited: int = 0
-    rejoined: int = 0
     plate_samples: int = 0
+    rejoined: int = 0
     filled: int = 0
 
 
@@ -647,11 +649,11 @@ def repair_identities(traj: Trajectories, config: RelabelConfig | None = None,
                       unconfirmed: UnconfirmedPoints | None = None) -> RelabelStats:
     """Duplicates dropped (:func:`drop_duplicates`), swap repair, fragment stitching, exchanges undone where two
     markers passed close (:mod:`mocap.exchange`), the reunion of rigid clusters
-    back after a long absence (:mod:`mocap.reunite`), fragments rejoined by their distances to rigid neighbours
-    (:mod:`mocap.anchors`), then the labelling of rigid plates by their shape
-    (:mod:`mocap.plates`) and the fill from unconfirmed points (:mod:`mocap.fill`), in place; empty identity columns
-    are dropped. ``unconfirmed``: the tracker's points without identity (:meth:`mocap.tracker.Tracker.unconfirmed`),
-    which the plate labelling and the fill may give one.
+    back after a long absence (:mod:`mocap.reunite`), then the labelling of rigid plates by their shape
+    (:mod:`mocap.plates`), fragments rejoined by their distances to rigid neighbours (:mod:`mocap.anchors`) and the
+    fill from unconfirmed points (:mod:`mocap.fill`), in place; empty identity columns are dropped.
+    ``unconfirmed``: the tracker's points without identity (:meth:`mocap.tracker.Tracker.unconfirmed`), which the
+    plate labelling and the fill may give one.
 
     Labels of the remaining identities are renumbered ``M001``, ``M002`` ... in column order.
     """
@@ -663,9 +665,9 @@ def repair_identities(traj: Trajectories, config: RelabelConfig | None = None,
     stats.stitches = relink_tracklets(traj, config)
     stats.exchanges = undo_exchanges(traj)
     stats.reunited = reunite_clusters(traj)
-    stats.rejoined = rejoin_by_anchors(traj)
     jump = (config or RelabelConfig()).jump_acc(traj.fps)
     stats.plate_samples = label_plates(traj, extra=unconfirmed, jump_acc=jump)
+    stats.rejoined = rejoin_by_anchors(traj)
     if unconfirmed is not None:
         stats.filled = fill_from_unconfirmed(traj, unconfirmed)
     if stats.reunited or stats.rejoined or stats.plate_samples:
