@@ -37,6 +37,8 @@ from mocap.trajectories import Trajectories
 
 __all__ = ["AnchorConfig", "rejoin_by_anchors"]
 
+_EMPTY = {"f": np.nan, "u": 0}  # a missing sample: positions and residuals NaN, camera mask 0
+
 
 @dataclass(frozen=True)
 class AnchorConfig:
@@ -127,11 +129,10 @@ def rejoin_by_anchors(traj: Trajectories, config: AnchorConfig | None = None) ->
             continue
         if both.size:  # the target keeps its sample unless only the fragment's fits; the other moves out
             anchors = np.flatnonzero(strong[q])
-            theirs = _misfit(P, both, r, q, anchors, median)
-            mine = (_misfit(P, both, int(p), q, anchors, median) <= cfg.tolerance_m) & (theirs > cfg.tolerance_m)
-            out = [np.full((len(P),) + a.shape[2:], np.nan if a.dtype.kind == "f" else 0, dtype=a.dtype)
-                   for a in arrays]
+            mine = ((_misfit(P, both, int(p), q, anchors, median) <= cfg.tolerance_m)
+                    & (_misfit(P, both, r, q, anchors, median) > cfg.tolerance_m))
             leave = np.where(mine, r, p)  # the column whose sample moves out, per shared frame
+            out = [np.full((len(P),) + a.shape[2:], _EMPTY[a.dtype.kind], dtype=a.dtype) for a in arrays]
             for a, o in zip(arrays, out, strict=True):
                 o[both] = a[both, leave]
                 a[both[mine], r] = a[both[mine], p]
@@ -139,12 +140,11 @@ def rejoin_by_anchors(traj: Trajectories, config: AnchorConfig | None = None) ->
         moved = here[~np.isin(here, both)]
         for a in arrays:
             a[moved, r] = a[moved, p]
-            a[here, p] = np.nan if a.dtype.kind == "f" else 0
+            a[here, p] = _EMPTY[a.dtype.kind]
         root[p] = r
         joined += 1
     if spilled:
-        traj.positions = np.concatenate([traj.positions] + [s[0][:, None] for s in spilled], axis=1)
-        traj.residuals = np.concatenate([traj.residuals] + [s[1][:, None] for s in spilled], axis=1)
-        traj.camera_masks = np.concatenate([traj.camera_masks] + [s[2][:, None] for s in spilled], axis=1)
+        traj.positions, traj.residuals, traj.camera_masks = (
+            np.concatenate([a] + [s[i][:, None] for s in spilled], axis=1) for i, a in enumerate(arrays))
         traj.labels = list(traj.labels) + [f"fragment{k + 1}" for k in range(len(spilled))]
     return joined
