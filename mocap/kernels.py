@@ -26,7 +26,7 @@ import numpy as np
 __all__ = ["HAVE_NUMBA", "REASON", "announce", "contiguous", "robust_triangulate", "gauss_newton", "update_position",
            "repick", "predict", "update_tracks", "epipolar_consistency", "gate", "search_regions", "crowded",
            "undistort_points", "near_any", "assign_unambiguous", "frame_record", "frame_detections", "attached_learn",
-           "attached_fill"]
+           "attached_fill", "pair_distance_statistics"]
 
 _log = logging.getLogger("mocap")
 
@@ -866,3 +866,35 @@ def attached_fill(ident, X, rows, neighbour, tries, last, frame, reach2):
             neighbour[a, j] = ident[pick]
             last[a, j] = frame
             d[pick] = np.inf
+
+
+# ---------------------------------------------------------------------------------------------- identity repair
+@_jit
+def pair_distance_statistics(sample, count, min_frames):
+    """:func:`mocap.rigid.pair_statistics`'s medians: per pair of identities of ``sample`` (F, M, 3) m whose
+    co-seen count ``count`` (M, M) is ``min_frames`` or more, the median distance over the frames both are seen in
+    and 1.4826 x the median absolute deviation from it -> (M, M) median m, (M, M) spread m (NaN elsewhere)."""
+    F, M = sample.shape[0], sample.shape[1]
+    median = np.full((M, M), np.nan)
+    spread = np.full((M, M), np.nan)
+    d = np.empty(F)
+    for a in range(M):
+        for b in range(a + 1, M):
+            if count[a, b] < min_frames:
+                continue
+            n = 0
+            for f in range(F):
+                dx = sample[f, b, 0] - sample[f, a, 0]
+                dy = sample[f, b, 1] - sample[f, a, 1]
+                dz = sample[f, b, 2] - sample[f, a, 2]
+                v = math.sqrt(dx * dx + dy * dy + dz * dz)
+                if not math.isnan(v):
+                    d[n] = v
+                    n += 1
+            if n == 0:
+                continue
+            med = np.median(d[:n])
+            dev = np.abs(d[:n] - med)
+            median[a, b] = median[b, a] = med
+            spread[a, b] = spread[b, a] = 1.4826 * np.median(dev)
+    return median, spread

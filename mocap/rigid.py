@@ -12,6 +12,8 @@ import warnings
 
 import numpy as np
 
+from mocap import kernels
+
 __all__ = ["PAIRS", "PERMUTATIONS", "pair_statistics", "rigid_triangles"]
 
 STATISTICS_FRAMES = 4096  # frames per chunk of the co-seen counts, and most frames the distances are taken over
@@ -22,7 +24,8 @@ def pair_statistics(P: np.ndarray, min_frames: int) -> tuple[np.ndarray, np.ndar
     frames) and co-seen frame count of every pair of identities in ``P`` (F, M, 3).
 
     The counts are exact; the medians of long takes are taken over every k-th frame (at most
-    ``STATISTICS_FRAMES``), which bounds time and memory.
+    ``STATISTICS_FRAMES``), which bounds time and memory. With numba, one compiled loop over the pairs
+    (:func:`mocap.kernels.pair_distance_statistics`, the same numbers).
     """
     F, M = P.shape[:2]
     count = np.zeros((M, M), dtype=np.int64)
@@ -30,6 +33,8 @@ def pair_statistics(P: np.ndarray, min_frames: int) -> tuple[np.ndarray, np.ndar
         seen = np.isfinite(P[start:start + STATISTICS_FRAMES, :, 0]).astype(np.float32)
         count += np.rint(seen.T @ seen).astype(np.int64)
     sample = P[:: max(1, -(-F // STATISTICS_FRAMES))]
+    if kernels.HAVE_NUMBA:
+        return (*kernels.pair_distance_statistics(kernels.contiguous(sample), count, min_frames), count)
     median = np.full((M, M), np.nan)
     spread = np.full((M, M), np.nan)
     for a in range(M):

@@ -16,7 +16,7 @@ import pytest
 from conftest import ring_rig
 from helpers_engine import body_take
 
-from mocap import kernels
+from mocap import kernels, rigid
 from mocap.attached import AttachedDistances
 from mocap.camera import Camera, Lenses
 from mocap.detect import (
@@ -591,3 +591,21 @@ def test_attached_distance_learning_is_the_numpy_one(both):
         for a, b in zip(ref, com, strict=True):
             np.testing.assert_allclose(b, a, rtol=0, atol=1e-15)
     assert (reference[-1][2] >= 5).sum() >= 6 and reference[-1][4].sum() > 0  # steady slots, and failures
+
+
+def test_pair_distance_statistics_are_the_numpy_ones(both, monkeypatch):
+    """Identities with gaps, some never seen together and some seen together in too few frames, on a long take
+    whose medians are taken over a subsample: the same medians, spreads and counts, NaN in the same places."""
+    monkeypatch.setattr(rigid, "STATISTICS_FRAMES", 150)  # (subsampled: every 3rd of 400 frames)
+    rng = np.random.default_rng(11)
+    F, M = 400, 9
+    P = rng.normal(scale=0.2, size=(F, M, 3)) + rng.normal(size=(1, M, 3))
+    P[rng.random((F, M)) < 0.3] = np.nan
+    P[:200, 7] = np.nan
+    P[200:, 8] = np.nan  # 7 and 8 never together
+    P[3:, 6] = np.nan  # 6: with the others in at most 3 frames
+    reference, compiled = both(rigid.pair_statistics, P, 4)
+    _same(reference, compiled, rtol=1e-15)
+    median, spread, count = reference
+    assert count[7, 8] == 0 and np.isnan(median[7, 8]) and (count[6] <= 3).all() and np.isnan(spread[6]).all()
+    assert np.isfinite(median[:6, :6][~np.eye(6, dtype=bool)]).all()
