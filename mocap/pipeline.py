@@ -20,6 +20,7 @@ from typing import Any
 
 import cv2
 import numpy as np
+from threadpoolctl import threadpool_limits
 from tqdm import tqdm
 
 from mocap import __version__, kernels
@@ -173,11 +174,13 @@ def reconstruct(take: str | os.PathLike, options: ReconstructOptions | None = No
     tracker = Tracker(rig, fps, opts.tracker)
     logger = _open_mcap_logger(mcap, rig, fps, path) if mcap is not None else contextlib.nullcontext()
     fit = FitMonitor(rig, FIT_CHECK_FRAMES, spacing=max(1, int(round(FIT_CHECK_SPACING_S * fps))))
-    # OpenCV on one thread while streaming: detection's OpenCV calls are small (a dilation, labelling of small
-    # images) and a second OpenCV thread mostly waits for a core that the take reader's decoders hold
-    # (labelling 0.08 ms per call on one thread, 0.3-3 ms on two on the shared 2-core machine).
+    # OpenCV and BLAS on one thread while streaming: detection's OpenCV calls are small (a dilation, labelling of
+    # small images) and a second OpenCV thread mostly waits for a core that the take reader's decoders hold
+    # (labelling 0.08 ms per call on one thread, 0.3-3 ms on two on the shared 2-core machine); the tracker's
+    # matrix products are small too (the tracking benchmark with one core busy elsewhere: 1,162 frames/s with one
+    # BLAS thread, 1,015 with two).
     # The logger closes the MCAP on success; on failure it keeps a readable <name>.partial.
-    with logger, _opencv_threads(1), _compile_notice() as notice:
+    with logger, _opencv_threads(1), threadpool_limits(1, user_api="blas"), _compile_notice() as notice:
         frames = _detection_frames(source, kind, tracker, replace(opts, stop=stop))
         bar = tqdm(frames, total=stop - opts.start, unit="frame", desc="reconstruct",
                    disable=None if opts.progress else True, leave=False)

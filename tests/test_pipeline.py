@@ -153,3 +153,23 @@ def test_a_slow_first_frame_with_numba_says_the_kernels_are_compiling(png_take, 
         reconstruct(png_take[0], ReconstructOptions(progress=False, stop=3, relabel=False))
         time.sleep(notice_s + 0.1)  # (a notice the run failed to cancel would be logged by now)
     assert sum("compiling the numba kernels" in r.message for r in caplog.records) == expected
+
+
+def test_opencv_and_blas_run_on_one_thread_while_streaming_and_are_restored(png_take, monkeypatch):
+    from threadpoolctl import threadpool_info
+
+    def blas_threads() -> list[int]:
+        return [pool["num_threads"] for pool in threadpool_info() if pool["user_api"] == "blas"]
+
+    before_cv, before_blas = cv2.getNumThreads(), blas_threads()
+    seen = []
+    step = Tracker.step
+
+    def watched(self, frame_index, dets):
+        seen.append((cv2.getNumThreads(), blas_threads()))
+        return step(self, frame_index, dets)
+
+    monkeypatch.setattr(Tracker, "step", watched)
+    reconstruct(png_take[0], ReconstructOptions(progress=False, stop=3, relabel=False))
+    assert seen and all(cv == 1 and all(n == 1 for n in blas) for cv, blas in seen)
+    assert cv2.getNumThreads() == before_cv and blas_threads() == before_blas
