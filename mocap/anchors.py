@@ -32,10 +32,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from mocap.rigid import pair_statistics
+from mocap.rigid import pair_statistics, placement_jumps
 from mocap.trajectories import Trajectories
 
-__all__ = ["AnchorConfig", "rejoin_by_anchors"]
+__all__ = ["AnchorConfig", "move_refuted_samples", "rejoin_by_anchors"]
 
 _EMPTY = {"f": np.nan, "u": 0}  # a missing sample: positions and residuals NaN, camera mask 0
 
@@ -53,6 +53,9 @@ class AnchorConfig:
         piece_frames: frames an anchor and the fragment must be seen together.
         min_anchors: fewest anchors that must agree.
         overlap_fraction: largest share of the fragment's frames in which the target has a sample too.
+        hop_m: a run of samples moved out of an identity (:func:`move_refuted_samples`) must not continue its
+            path: the identity's two samples just before (or after) it predict its first (last) sample less
+            well than this, m.
     """
 
     tolerance_m: float = 0.006
@@ -62,6 +65,7 @@ class AnchorConfig:
     piece_frames: int = 3
     min_anchors: int = 2
     overlap_fraction: float = 0.5
+    hop_m: float = 0.015
 
 
 def _target(p: int, median: np.ndarray, spread: np.ndarray, count: np.ndarray, strong: np.ndarray,
@@ -148,3 +152,93 @@ def rejoin_by_anchors(traj: Trajectories, config: AnchorConfig | None = None) ->
             np.concatenate([a] + [s[i][:, None] for s in spilled], axis=1) for i, a in enumerate(arrays))
         traj.labels = list(traj.labels) + [f"fragment{k + 1}" for k in range(len(spilled))]
     return joined
+
+
+def _strong(P: np.ndarray, cfg: AnchorConfig) -> tuple[np.ndarray, np.ndarray]:
+    """(M, M) median distances m and (M, M) bool anchors (step 1 of the module docstring) of ``P`` (F, M, 3)."""
+    median, spread, count = pair_statistics(P, cfg.piece_frames)
+    with np.errstate(invalid="ignore"):
+        return median, (spread < cfg.spread_m) & (median <= cfg.reach_m) & (count >= cfg.min_frames)
+
+
+def _anchor_votes(P: np.ndarray, rows: np.ndarray, X: np.ndarray, median: np.ndarray, strong: np.ndarray,
+                  tolerance_m: float) -> tuple[np.ndarray, np.ndarray]:
+    """(n, M) anchors that agree and (n, M) that disagree, per identity, with points ``X`` (n, 3) m in frames
+    ``rows`` (n,) of ``P`` (F, M, 3) being that identity: the point's distance to each anchor seen in its frame
+    against the identity's median distance to it, within ``tolerance_m`` or not."""
+    ident, anchor = np.nonzero(strong)
+    owner = np.zeros((ident.size, strong.shape[0]))
+    owner[np.arange(ident.size), ident] = 1.0
+    d = np.linalg.norm(P[rows][:, anchor] - X[:, None], axis=2)  # (n, pairs), NaN where the anchor is unseen
+    with np.errstate(invalid="ignore"):
+        dev = np.abs(d - median[ident, anchor])
+    return (dev <= tolerance_m) @ owner, (dev > tolerance_m) @ owner
+
+
+def _continued(P: np.ndarray, frame: np.ndarray, col: np.ndarray, step: int, hop_m: float) -> np.ndarray:
+    """(n,) bool: identity ``col``'s samples at ``frame - step`` and ``frame - 2 step`` exist and predict its sample
+    at ``frame`` within ``hop_m`` (its path goes on through it)."""
+    F = len(P)
+    a, b = frame - step, frame - 2 * step
+    inside = (a >= 0) & (a < F) & (b >= 0) & (b < F)
+    out = np.zeros(frame.size, dtype=bool)
+    f, c = frame[inside], col[inside]
+    miss = P[f, c] - (2.0 * P[a[inside], c] - P[b[inside], c])
+    with np.errstate(invalid="ignore"):
+        out[inside] = np.sqrt((miss * miss).sum(axis=1)) < hop_m
+    return out
+
+
+def move_refuted_samples(traj: Trajectories, config: AnchorConfig | None = None, jump_acc: float = np.inf) -> int:
+    """Move samples that their identity's anchors refute to the one identity whose anchors they fit, in place: the
+    tracker's hops between markers of a cluster (a forearm's Marker3 and Marker4, mostly seen in turn, under one
+    identity for a while).
+
+    A sample is refuted when no anchor of its identity seen in its frame agrees (``tolerance_m``) and one or more
+    disagree. It moves when exactly one identity without a sample in that frame fits it (``min_anchors`` anchors or
+    more agree, more agree than disagree), no other sample of the frame moves there, it makes no acceleration above
+    ``jump_acc`` (m/frame^2) with that identity's samples next to it, and its run (the identity's consecutive samples
+    moving to the same identity) is a hop: the identity's path does not go on through the run's first or last sample
+    (``hop_m``), as it does where a marker merely strays from an anchor (skin, a merged blob) for a frame or two.
+
+    Returns the number of samples moved.
+    """
+    cfg = config or AnchorConfig()
+    P = traj.positions
+    F, M = P.shape[:2]
+    if M < cfg.min_anchors + 2:
+        return 0
+    median, strong = _strong(P, cfg)
+    if not strong.any():
+        return 0
+    seen = np.isfinite(P[..., 0])
+    frame, col = np.nonzero(seen)
+    moves = []  # (frame, column, target) of the refuted samples that fit one identity
+    step = max(1, 1_000_000 // int(strong.sum() + M))
+    for s in range(0, frame.size, step):
+        f, c = frame[s:s + step], col[s:s + step]
+        ok, off = _anchor_votes(P, f, P[f, c], median, strong, cfg.tolerance_m)
+        r = np.arange(f.size)
+        refuted = (ok[r, c] == 0) & (off[r, c] > 0)
+        fits = (ok >= cfg.min_anchors) & (ok > off) & ~seen[f]
+        one = refuted & (fits.sum(axis=1) == 1)
+        moves.append(np.stack([f[one], c[one], fits[one].argmax(axis=1)], axis=1))
+    f, c, t = np.concatenate(moves).T
+    _, at, n = np.unique(f * M + t, return_inverse=True, return_counts=True)
+    keep = (n[at] == 1) & ~placement_jumps(P, f, t, P[f, c], jump_acc)
+    f, c, t = f[keep], c[keep], t[keep]
+    if f.size == 0:
+        return 0
+    order = np.lexsort((f, c))
+    f, c, t = f[order], c[order], t[order]
+    rank = (np.cumsum(seen, axis=0) - 1)[f, c]  # the sample's index among its identity's samples
+    first = np.r_[True, (c[1:] != c[:-1]) | (t[1:] != t[:-1]) | (rank[1:] != rank[:-1] + 1)]
+    run = np.cumsum(first) - 1
+    last = np.r_[first[1:], True]
+    hop = ~(_continued(P, f[first], c[first], 1, cfg.hop_m) | _continued(P, f[last], c[last], -1, cfg.hop_m))
+    keep = hop[run]
+    f, c, t = f[keep], c[keep], t[keep]
+    for a in (traj.positions, traj.residuals, traj.camera_masks):
+        a[f, t] = a[f, c]
+        a[f, c] = _EMPTY[a.dtype.kind]
+    return int(f.size)

@@ -205,9 +205,10 @@ def reconstruct(take: str | os.PathLike, options: ReconstructOptions | None = No
         log.info("identity repair: %d duplicate samples dropped; %d swaps undone; %d identities -> %d (fragments "
                  "re-linked, tracks cut where they jumped; %d joined by the shapes of rigid clusters); %d exchanges "
                  "undone where markers passed close; %d samples labelled by rigid plates' shapes; %d fragments "
-                 "joined by their distances to rigid neighbours; %d unconfirmed points joined identities' paths",
+                 "joined by their distances to rigid neighbours, %d samples moved to the identity whose neighbours "
+                 "they fit; %d unconfirmed points joined identities' paths",
                  stats.duplicates, stats.swaps, before, traj.n_markers, stats.reunited, stats.exchanges,
-                 stats.plate_samples, stats.rejoined, stats.filled)
+                 stats.plate_samples, stats.rejoined, stats.anchor_moves, stats.filled)
     traj.camera_names = rig.names
     traj.metadata.update({"source": str(path), "software": f"mocap {__version__}", "cameras": len(rig)})
     if traj.n_markers == 0:

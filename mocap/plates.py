@@ -44,7 +44,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from mocap.rigid import PAIRS, PERMUTATIONS, pair_statistics, rigid_triangles
+from mocap.rigid import PAIRS, PERMUTATIONS, pair_statistics, placement_jumps, rigid_triangles
 from mocap.trajectories import Trajectories, UnconfirmedPoints
 
 __all__ = ["PlateConfig", "label_plates"]
@@ -371,28 +371,6 @@ def _settle(runs: list[tuple[int, np.ndarray]], dest: list[int], shape: tuple[in
             return final
 
 
-def _jumps(P: np.ndarray, rows: np.ndarray, member: np.ndarray, X: np.ndarray, limit: float) -> np.ndarray:
-    """(n,) bool: points ``X`` (n, 3) placed in ``P`` (F, M, 3) at (``rows``, ``member``) make an acceleration above
-    ``limit``, m/frame^2: with the identity's samples on both sides (one frame away, else two: a marker seen every
-    other frame), else the two on one side, else the one next to it or, failing that, the one two frames away (as if
-    at rest); False where it has no sample within two frames."""
-    F = len(P)
-
-    def at(offset: int) -> np.ndarray:
-        f = rows + offset
-        inside = (f >= 0) & (f < F)
-        out = np.full((len(rows), 3), np.nan)
-        out[inside] = P[f[inside], member[inside]]
-        return out
-
-    before, after, before2, after2 = at(-1), at(1), at(-2), at(2)
-    acc = np.full(len(rows), np.nan)
-    for change in (after - 2 * X + before, X - 2 * before + before2, X - 2 * after + after2,
-                   (after2 - 2 * X + before2) / 4, X - before, X - after, (X - before2) / 4, (X - after2) / 4):
-        acc = np.where(np.isnan(acc), np.linalg.norm(change, axis=1), acc)
-    return acc > limit
-
-
 def label_plates(traj: Trajectories, config: PlateConfig | None = None, extra: UnconfirmedPoints | None = None,
                  jump_acc: float = math.inf) -> int:
     """Label the markers of rigid plates by their shape (see the module docstring), in place.
@@ -452,7 +430,7 @@ def label_plates(traj: Trajectories, config: PlateConfig | None = None, extra: U
             other = (held[near] == member[:, None]) & (np.arange(M)[None, :] != member[:, None])
             free &= ~other.any(axis=1)
         k, member = k[free], member[free]
-        calm = ~_jumps(traj.positions, extra.rows[k], member, extra.positions[k], jump_acc)
+        calm = ~placement_jumps(traj.positions, extra.rows[k], member, extra.positions[k], jump_acc)
         k, member = k[calm], member[calm]
         traj.positions[extra.rows[k], member] = extra.positions[k]
         traj.residuals[extra.rows[k], member] = extra.residuals[k]

@@ -55,7 +55,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
-from mocap.anchors import rejoin_by_anchors
+from mocap.anchors import move_refuted_samples, rejoin_by_anchors
 from mocap.exchange import undo_exchanges
 from mocap.fill import fill_from_unconfirmed
 from mocap.plates import label_plates
@@ -64,6 +64,8 @@ from mocap.reunite import reunite_clusters
 from mocap.trajectories import Trajectories, UnconfirmedPoints
 
 __all__ = ["RelabelConfig", "RelabelStats", "drop_duplicates", "relink_tracklets", "repair_identities", "repair_swaps"]
+
+ANCHOR_ROUNDS = 4  # turns of moves by anchors and rejoins (the whole sprint settles after two or three)
 
 
 @dataclass(frozen=True)
@@ -158,8 +160,8 @@ class RelabelStats:
     """What the repair changed: duplicate samples deleted, tail permutations applied, identities saved by the
     re-linking (``stitches``: fragments joined minus tracks cut at jumps, so negative where the cuts outnumber the
     joins), exchanges undone where two markers passed close, cluster members reunited, samples moved to the plate
-    member their shape names, fragments rejoined by their anchors, unconfirmed points that joined an identity's
-    path."""
+    member their shape names, fragments rejoined by their anchors, samples moved to the identity whose anchors they
+    fit, unconfirmed points that joined an identity's path."""
 
     duplicates: int = 0
     swaps: int = 0
@@ -168,6 +170,7 @@ class RelabelStats:
     reunited: int = 0
     plate_samples: int = 0
     rejoined: int = 0
+    anchor_moves: int = 0
     filled: int = 0
 
 
@@ -650,7 +653,8 @@ def repair_identities(traj: Trajectories, config: RelabelConfig | None = None,
     """Duplicates dropped (:func:`drop_duplicates`), swap repair, fragment stitching, exchanges undone where two
     markers passed close (:mod:`mocap.exchange`), the reunion of rigid clusters
     back after a long absence (:mod:`mocap.reunite`), then the labelling of rigid plates by their shape
-    (:mod:`mocap.plates`), fragments rejoined by their distances to rigid neighbours (:mod:`mocap.anchors`) and the
+    (:mod:`mocap.plates`), fragments rejoined by their distances to rigid neighbours and samples moved to the
+    identity whose neighbours they fit (:mod:`mocap.anchors`, in turns: ``ANCHOR_ROUNDS`` at most) and the
     fill from unconfirmed points (:mod:`mocap.fill`), in place; empty identity columns are dropped.
     ``unconfirmed``: the tracker's points without identity (:meth:`mocap.tracker.Tracker.unconfirmed`), which the
     plate labelling and the fill may give one.
@@ -668,9 +672,15 @@ def repair_identities(traj: Trajectories, config: RelabelConfig | None = None,
     jump = (config or RelabelConfig()).jump_acc(traj.fps)
     stats.plate_samples = label_plates(traj, extra=unconfirmed, jump_acc=jump)
     stats.rejoined = rejoin_by_anchors(traj)
+    for _ in range(ANCHOR_ROUNDS):  # a move can make two fragments of one marker joinable, and a join new moves
+        moved = move_refuted_samples(traj, jump_acc=jump)
+        if moved == 0:
+            break
+        stats.anchor_moves += moved
+        stats.rejoined += rejoin_by_anchors(traj)
     if unconfirmed is not None:
         stats.filled = fill_from_unconfirmed(traj, unconfirmed)
-    if stats.reunited or stats.rejoined or stats.plate_samples:
+    if stats.reunited or stats.rejoined or stats.plate_samples or stats.anchor_moves:
         keep = np.isfinite(traj.positions[..., 0]).any(axis=0)
         traj.positions, traj.residuals, traj.camera_masks = (traj.positions[:, keep], traj.residuals[:, keep],
                                                              traj.camera_masks[:, keep])

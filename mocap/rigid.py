@@ -1,8 +1,9 @@
 """Distances between identities of finished trajectories, and the rigid structures they show.
 
-Shared by the identity repair's shape passes (:mod:`mocap.reunite`, :mod:`mocap.plates`): markers on one
-rigid body keep their distances, so the median distance of two identities over the frames both are seen in,
-and its robust spread, tell which identities move together.
+Shared by the identity repair's shape passes (:mod:`mocap.reunite`, :mod:`mocap.plates`, :mod:`mocap.anchors`):
+markers on one rigid body keep their distances, so the median distance of two identities over the frames both are
+seen in, and its robust spread, tell which identities move together; a sample those passes move to another
+identity must not make it jump (:func:`placement_jumps`).
 """
 
 from __future__ import annotations
@@ -14,7 +15,7 @@ import numpy as np
 
 from mocap import kernels
 
-__all__ = ["PAIRS", "PERMUTATIONS", "pair_statistics", "rigid_triangles"]
+__all__ = ["PAIRS", "PERMUTATIONS", "pair_statistics", "placement_jumps", "rigid_triangles"]
 
 STATISTICS_FRAMES = 4096  # frames per chunk of the co-seen counts, and most frames the distances are taken over
 
@@ -66,3 +67,25 @@ def rigid_triangles(rigid: np.ndarray, among: np.ndarray) -> np.ndarray:
 
 PERMUTATIONS = np.array(list(itertools.permutations(range(3))))  # (6, 3)
 PAIRS = np.array([[0, 1], [0, 2], [1, 2]])  # a triangle's three distances
+
+
+def placement_jumps(P: np.ndarray, rows: np.ndarray, member: np.ndarray, X: np.ndarray, limit: float) -> np.ndarray:
+    """(n,) bool: points ``X`` (n, 3) placed in ``P`` (F, M, 3) at (``rows``, ``member``) make an acceleration above
+    ``limit``, m/frame^2: with the identity's samples on both sides (one frame away, else two: a marker seen every
+    other frame), else the two on one side, else the one next to it or, failing that, the one two frames away (as if
+    at rest); False where it has no sample within two frames."""
+    F = len(P)
+
+    def at(offset: int) -> np.ndarray:
+        f = rows + offset
+        inside = (f >= 0) & (f < F)
+        out = np.full((len(rows), 3), np.nan)
+        out[inside] = P[f[inside], member[inside]]
+        return out
+
+    before, after, before2, after2 = at(-1), at(1), at(-2), at(2)
+    acc = np.full(len(rows), np.nan)
+    for change in (after - 2 * X + before, X - 2 * before + before2, X - 2 * after + after2,
+                   (after2 - 2 * X + before2) / 4, X - before, X - after, (X - before2) / 4, (X - after2) / 4):
+        acc = np.where(np.isnan(acc), np.linalg.norm(change, axis=1), acc)
+    return acc > limit

@@ -10,8 +10,9 @@ from helpers_rigid import FRAMES, PLATE, SQUARE, TRIANGLE, columns_follow, movin
 
 from mocap.errors import MocapError
 from mocap.evaluate import evaluate
-from mocap.plates import PlateConfig, _destinations, _distances, _jumps, _plates, _SortedPairs, label_plates
+from mocap.plates import PlateConfig, _destinations, _distances, _plates, _SortedPairs, label_plates
 from mocap.relabel import repair_identities
+from mocap.rigid import placement_jumps
 from mocap.synth import SynthSettings, ring_rig
 from mocap.tracker import Tracker
 from mocap.trajectories import Trajectories, UnconfirmedPoints
@@ -168,8 +169,8 @@ def test_a_fast_marker_seen_every_other_frame_does_not_jump_between_its_samples(
     P[[2, 6], 0] = path[[2, 6]]
     rows, member = np.array([4, 4, 8]), np.zeros(3, dtype=np.intp)
     X = np.stack([path[4], path[4] + (0.0, 0.3, 0.0), path[8]])
-    np.testing.assert_array_equal(_jumps(P, rows, member, X, 0.06), [False, True, True])
-    np.testing.assert_array_equal(_jumps(P, rows, member, X, np.inf), [False, False, False])
+    np.testing.assert_array_equal(placement_jumps(P, rows, member, X, 0.06), [False, True, True])
+    np.testing.assert_array_equal(placement_jumps(P, rows, member, X, np.inf), [False, False, False])
 
 
 def test_a_short_tracklet_between_disagreeing_neighbours_follows_the_one_its_own_votes_name():
