@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from mocap.anchors import AnchorConfig, rejoin_by_anchors
+from mocap.anchors import AnchorConfig, move_refuted_samples, rejoin_by_anchors
 from mocap.plates import PlateConfig, label_plates
 from mocap.trajectories import Trajectories
 
@@ -117,3 +117,55 @@ def test_the_identity_repair_runs_it():
     assert stats.stitches == 0 and stats.rejoined == 1
     assert traj.n_markers == 4 and traj.labels == ["M001", "M002", "M003", "M004"]
     assert list(_holder(traj, truth, X).values()) == [270]
+
+
+def test_a_run_where_an_identity_hopped_onto_a_neighbour_moves_to_the_neighbours_identity():
+    truth = _segment(FOREARM, seed=7)
+    traj = _columns(truth, [
+        [(A1, 0, F)], [(A2, 0, F)],
+        [(X, 0, 150), (Y, 150, 170), (X, 170, F)],  # X's identity on Y for 20 frames while X is hidden
+        [(Y, 0, 150), (Y, 170, F)],  # Y's identity lost meanwhile
+    ])
+    assert move_refuted_samples(traj) == 20
+    assert _holder(traj, truth, X) == {2: 580} and _holder(traj, truth, Y) == {3: F}
+    # A neighbour's identity already seen in those frames: nowhere to go.
+    kept = _columns(truth, [[(A1, 0, F)], [(A2, 0, F)], [(X, 0, 150), (Y, 150, 170), (X, 170, F)], [(Y, 0, F)]])
+    assert move_refuted_samples(kept) == 0
+
+
+def test_a_run_that_continues_the_identitys_path_stays():
+    """A marker 10 mm beyond X, away from its anchors (8-10 mm farther from each): X's identity on it for 3 frames is
+    a step of 10 mm, which its path explains at a 15 mm hop but not at 5 mm."""
+    away = FOREARM[X] - FOREARM[[A1, A2, Y]].mean(axis=0)
+    near = FOREARM[X] + 0.010 * away / np.linalg.norm(away)
+    truth = np.concatenate([_segment(FOREARM, seed=8), _segment(near[None], seed=8)], axis=1)
+    pieces = [[(A1, 0, F)], [(A2, 0, F)], [(X, 0, 300), (4, 300, 303), (X, 303, F)], [(Y, 0, F)],
+              [(4, 0, 300), (4, 303, F)]]
+    assert move_refuted_samples(_columns(truth, pieces)) == 0
+    assert move_refuted_samples(_columns(truth, pieces), AnchorConfig(hop_m=0.005)) == 3
+
+
+def test_a_sample_some_anchors_agree_with_is_not_refuted():
+    """X's identity stays on X while its anchor Y's identity holds a point 30 mm off (frames 400-410); a second
+    identity of X (frames 100-300) fits X's samples there too: with the path check off, nothing moves, because
+    two of three anchors agree."""
+    truth = _segment(FOREARM, seed=10)
+    traj = _columns(truth, [[(A1, 0, F)], [(A2, 0, F)], [(X, 0, F)], [(Y, 0, F)], [(X, 100, 300)]])
+    traj.positions[400:410, 3] += [0.03, 0.0, 0.0]
+    assert move_refuted_samples(traj, AnchorConfig(hop_m=0.0)) == 0
+
+
+def test_the_identity_repair_moves_samples_by_anchors():
+    from mocap.relabel import RelabelConfig, repair_identities
+
+    truth = _segment(FOREARM, seed=9)
+    traj = _columns(truth, [
+        [(A1, 0, F)], [(A2, 0, F)],
+        [(X, 0, 150), (Y, 150, 200), (X, 200, F)],  # X's identity on Y for 50 frames
+        [(Y, 0, 100)], [(Y, 200, F)],  # Y in two identities
+    ])
+    # (the re-linking cuts and re-links this slow scene's 57 mm hops by itself: not here, as in a fast swing)
+    stats = repair_identities(traj, RelabelConfig(shape_max_s=0.05, lone_max_s=0.05, split_acc_m=1.0,
+                                                  split_reversal_m=1.0))
+    assert stats.anchor_moves == 50 and stats.rejoined == 1
+    assert _holder(traj, truth, X) == {2: 550} and _holder(traj, truth, Y) == {3: 550}
