@@ -166,13 +166,35 @@ def _anchor_votes(P: np.ndarray, rows: np.ndarray, X: np.ndarray, median: np.nda
     """(n, M) anchors that agree and (n, M) that disagree, per identity, with points ``X`` (n, 3) m in frames
     ``rows`` (n,) of ``P`` (F, M, 3) being that identity: the point's distance to each anchor seen in its frame
     against the identity's median distance to it, within ``tolerance_m`` or not."""
-    ident, anchor = np.nonzero(strong)
-    owner = np.zeros((ident.size, strong.shape[0]))
-    owner[np.arange(ident.size), ident] = 1.0
-    d = np.linalg.norm(P[rows][:, anchor] - X[:, None], axis=2)  # (n, pairs), NaN where the anchor is unseen
+    ident, anchor = np.nonzero(strong)  # (pairs,) sorted by identity
+    d = np.linalg.norm(P[rows[:, None], anchor[None, :]] - X[:, None], axis=2)  # (n, pairs), NaN: anchor unseen
     with np.errstate(invalid="ignore"):
         dev = np.abs(d - median[ident, anchor])
-    return (dev <= tolerance_m) @ owner, (dev > tolerance_m) @ owner
+    owners, start = np.unique(ident, return_index=True)
+    ok = np.zeros((len(rows), strong.shape[0]), dtype=np.intp)
+    off = np.zeros_like(ok)
+    ok[:, owners] = np.add.reduceat(dev <= tolerance_m, start, axis=1)
+    off[:, owners] = np.add.reduceat(dev > tolerance_m, start, axis=1)
+    return ok, off
+
+
+def _refuted(P: np.ndarray, seen: np.ndarray, median: np.ndarray, strong: np.ndarray, tolerance_m: float
+             ) -> tuple[np.ndarray, np.ndarray]:
+    """(frames, columns) of the samples of ``P`` (F, M, 3) that no anchor of their identity seen in their frame
+    agrees with (within ``tolerance_m`` of the median distance) and one or more disagree with."""
+    frames, columns = [], []
+    for m in np.flatnonzero(strong.any(axis=1)):
+        anchors = np.flatnonzero(strong[m])
+        rows = np.flatnonzero(seen[:, m])
+        d = np.linalg.norm(P[rows[:, None], anchors[None, :]] - P[rows, m][:, None], axis=2)  # (n, anchors)
+        with np.errstate(invalid="ignore"):
+            dev = np.abs(d - median[m, anchors])
+        bad = ~(dev <= tolerance_m).any(axis=1) & (dev > tolerance_m).any(axis=1)
+        frames.append(rows[bad])
+        columns.append(np.full(int(bad.sum()), m))
+    if not frames:
+        return np.zeros(0, dtype=np.intp), np.zeros(0, dtype=np.intp)
+    return np.concatenate(frames), np.concatenate(columns)
 
 
 def _continued(P: np.ndarray, frame: np.ndarray, col: np.ndarray, step: int, hop_m: float) -> np.ndarray:
@@ -212,17 +234,17 @@ def move_refuted_samples(traj: Trajectories, config: AnchorConfig | None = None,
     if not strong.any():
         return 0
     seen = np.isfinite(P[..., 0])
-    frame, col = np.nonzero(seen)
+    f, c = _refuted(P, seen, median, strong, cfg.tolerance_m)
     moves = []  # (frame, column, target) of the refuted samples that fit one identity
-    step = max(1, 1_000_000 // int(strong.sum() + M))
-    for s in range(0, frame.size, step):
-        f, c = frame[s:s + step], col[s:s + step]
-        ok, off = _anchor_votes(P, f, P[f, c], median, strong, cfg.tolerance_m)
-        r = np.arange(f.size)
-        refuted = (ok[r, c] == 0) & (off[r, c] > 0)
-        fits = (ok >= cfg.min_anchors) & (ok > off) & ~seen[f]
-        one = refuted & (fits.sum(axis=1) == 1)
-        moves.append(np.stack([f[one], c[one], fits[one].argmax(axis=1)], axis=1))
+    step = max(1, 2_000_000 // int(strong.sum() + M))
+    for s in range(0, f.size, step):
+        ff, cc = f[s:s + step], c[s:s + step]
+        ok, off = _anchor_votes(P, ff, P[ff, cc], median, strong, cfg.tolerance_m)
+        fits = (ok >= cfg.min_anchors) & (ok > off) & ~seen[ff]
+        one = fits.sum(axis=1) == 1
+        moves.append(np.stack([ff[one], cc[one], fits[one].argmax(axis=1)], axis=1))
+    if not moves:
+        return 0
     f, c, t = np.concatenate(moves).T
     _, at, n = np.unique(f * M + t, return_inverse=True, return_counts=True)
     keep = (n[at] == 1) & ~placement_jumps(P, f, t, P[f, c], jump_acc)
