@@ -23,6 +23,11 @@ it, the joins changed the plates it learned), :func:`rejoin_by_anchors`:
    target's where its distances to the anchors in that frame fit the target's (mean within ``tolerance_m``) and
    the target's own do not; the sample left over moves to a new identity.
 
+:func:`move_refuted_samples` then moves single samples: one that its identity's anchors refute (none of those seen
+in its frame agrees, one or more disagree) goes to the one identity absent from that frame whose anchors it fits,
+where its run is a hop off the identity's path (the tracker's hops inside a cluster whose markers are seen in turn).
+The repair alternates the two (:func:`mocap.relabel.repair_identities`).
+
 Only whole samples move between identity columns; positions are never changed, and no sample is dropped.
 """
 
@@ -68,6 +73,14 @@ class AnchorConfig:
     hop_m: float = 0.015
 
 
+def _statistics(P: np.ndarray, cfg: AnchorConfig) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`mocap.rigid.pair_statistics` of ``P`` (F, M, 3) (median m, spread m, count) and the (M, M) bool anchors
+    (step 1 of the module docstring)."""
+    median, spread, count = pair_statistics(P, cfg.piece_frames)
+    with np.errstate(invalid="ignore"):
+        return median, spread, count, (spread < cfg.spread_m) & (median <= cfg.reach_m) & (count >= cfg.min_frames)
+
+
 def _target(p: int, median: np.ndarray, spread: np.ndarray, count: np.ndarray, strong: np.ndarray,
             frames: np.ndarray, cfg: AnchorConfig) -> int:
     """The identity fragment ``p`` joins (step 2-3 of the module docstring), or -1."""
@@ -110,9 +123,7 @@ def rejoin_by_anchors(traj: Trajectories, config: AnchorConfig | None = None) ->
     P = traj.positions
     if traj.n_markers < cfg.min_anchors + 2 or not np.isfinite(P[..., 0]).any():
         return 0
-    median, spread, count = pair_statistics(P, cfg.piece_frames)
-    with np.errstate(invalid="ignore"):
-        strong = (spread < cfg.spread_m) & (median <= cfg.reach_m) & (count >= cfg.min_frames)
+    median, spread, count, strong = _statistics(P, cfg)
     frames = np.isfinite(P[..., 0]).sum(axis=0)
     root = np.arange(traj.n_markers)
     arrays = [traj.positions, traj.residuals, traj.camera_masks]
@@ -152,13 +163,6 @@ def rejoin_by_anchors(traj: Trajectories, config: AnchorConfig | None = None) ->
             np.concatenate([a] + [s[i][:, None] for s in spilled], axis=1) for i, a in enumerate(arrays))
         traj.labels = list(traj.labels) + [f"fragment{k + 1}" for k in range(len(spilled))]
     return joined
-
-
-def _strong(P: np.ndarray, cfg: AnchorConfig) -> tuple[np.ndarray, np.ndarray]:
-    """(M, M) median distances m and (M, M) bool anchors (step 1 of the module docstring) of ``P`` (F, M, 3)."""
-    median, spread, count = pair_statistics(P, cfg.piece_frames)
-    with np.errstate(invalid="ignore"):
-        return median, (spread < cfg.spread_m) & (median <= cfg.reach_m) & (count >= cfg.min_frames)
 
 
 def _anchor_votes(P: np.ndarray, rows: np.ndarray, X: np.ndarray, median: np.ndarray, strong: np.ndarray,
@@ -230,7 +234,7 @@ def move_refuted_samples(traj: Trajectories, config: AnchorConfig | None = None,
     F, M = P.shape[:2]
     if M < cfg.min_anchors + 2:
         return 0
-    median, strong = _strong(P, cfg)
+    median, _, _, strong = _statistics(P, cfg)
     if not strong.any():
         return 0
     seen = np.isfinite(P[..., 0])
