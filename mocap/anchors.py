@@ -102,12 +102,20 @@ def _target(p: int, median: np.ndarray, spread: np.ndarray, count: np.ndarray, s
     return int(q[np.argmax(frames[q])])
 
 
+def _deviation(P: np.ndarray, rows: np.ndarray, X: np.ndarray, anchors: np.ndarray, expected: np.ndarray
+               ) -> np.ndarray:
+    """(n, A) |distance - expected| of points ``X`` (n, 3) m in frames ``rows`` (n,) of ``P`` (F, M, 3) to the
+    identities ``anchors`` (A,), against ``expected`` (A,) m; NaN where the anchor is unseen in that frame."""
+    d = np.linalg.norm(P[rows[:, None], anchors[None, :]] - X[:, None], axis=2)
+    with np.errstate(invalid="ignore"):
+        return np.abs(d - expected)
+
+
 def _misfit(P: np.ndarray, rows: np.ndarray, column: int, target: int, anchors: np.ndarray,
             median: np.ndarray) -> np.ndarray:
     """(len(rows),) mean |distance - the target's median| to its ``anchors`` of identity ``column``'s samples in
     frames ``rows`` (inf where no anchor is seen)."""
-    d = np.linalg.norm(P[np.ix_(rows, anchors)] - P[rows, column][:, None, :], axis=2)
-    dev = np.abs(d - median[target, anchors])
+    dev = _deviation(P, rows, P[rows, column], anchors, median[target, anchors])
     seen = np.isfinite(dev)
     with np.errstate(invalid="ignore", divide="ignore"):
         return np.where(seen.any(axis=1), np.where(seen, dev, 0.0).sum(axis=1) / seen.sum(axis=1), np.inf)
@@ -171,9 +179,7 @@ def _anchor_votes(P: np.ndarray, rows: np.ndarray, X: np.ndarray, median: np.nda
     ``rows`` (n,) of ``P`` (F, M, 3) being that identity: the point's distance to each anchor seen in its frame
     against the identity's median distance to it, within ``tolerance_m`` or not."""
     ident, anchor = np.nonzero(strong)  # (pairs,) sorted by identity
-    d = np.linalg.norm(P[rows[:, None], anchor[None, :]] - X[:, None], axis=2)  # (n, pairs), NaN: anchor unseen
-    with np.errstate(invalid="ignore"):
-        dev = np.abs(d - median[ident, anchor])
+    dev = _deviation(P, rows, X, anchor, median[ident, anchor])  # (n, pairs)
     owners, start = np.unique(ident, return_index=True)
     ok = np.zeros((len(rows), strong.shape[0]), dtype=np.intp)
     off = np.zeros_like(ok)
@@ -190,9 +196,7 @@ def _refuted(P: np.ndarray, seen: np.ndarray, median: np.ndarray, strong: np.nda
     for m in np.flatnonzero(strong.any(axis=1)):
         anchors = np.flatnonzero(strong[m])
         rows = np.flatnonzero(seen[:, m])
-        d = np.linalg.norm(P[rows[:, None], anchors[None, :]] - P[rows, m][:, None], axis=2)  # (n, anchors)
-        with np.errstate(invalid="ignore"):
-            dev = np.abs(d - median[m, anchors])
+        dev = _deviation(P, rows, P[rows, m], anchors, median[m, anchors])
         bad = ~(dev <= tolerance_m).any(axis=1) & (dev > tolerance_m).any(axis=1)
         frames.append(rows[bad])
         columns.append(np.full(int(bad.sum()), m))
