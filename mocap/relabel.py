@@ -17,7 +17,8 @@ the frames on both sides of a decision are known, and these identity errors are 
 * **Fragments and swaps through gaps.** An identity is lost and the marker comes back as a new one,
   or two identities exchange markers across a missing frame. :func:`relink_tracklets` cuts every
   identity into tracklets (at gaps and at acceleration spikes) and re-links them in time order:
-  tracklets starting together are assigned (Hungarian) to identities that ended before. Where
+  tracklets starting together are assigned (Hungarian; one is left unlinked rather than force the others
+  into links that cost ``unlinked_cost_m`` more) to identities that ended before. Where
   both ends have markers rigidly attached to them (the same segment: distances steady over a few
   frames) that are seen at both ends, and those distances agree (``shape_gate_m``), the cost is how
   much they changed, over any gap up to ``shape_max_s``: distances within a segment do not depend on
@@ -116,6 +117,10 @@ class RelabelConfig:
         lone_reach_m: ... that neighbour is nearer than this (a nearer neighbour's sphere holds fewer markers; a
             wrist bar's two markers are ~100 mm apart), m ...
         lone_max_s: ... and the gap is at most this long, s.
+        unlinked_cost_m: the assignment leaves a tracklet to the fallbacks (the tracker's own link, a take-back)
+            rather than make links that cost this much more, m. It is above the gated links' costs at camera rates
+            (a 12-frame gap at 5 m/s and 100 Hz gates at 0.7 m), so what it stops is an own link over a long gap,
+            extrapolated metres off, pushing the markers back from a short one onto each other's identities.
     """
 
     swap_ratio: float = 0.25
@@ -143,6 +148,7 @@ class RelabelConfig:
     lone_gate_m: float = 0.003
     lone_reach_m: float = 0.12
     lone_max_s: float = 1.0
+    unlinked_cost_m: float = 1.0
 
     def jump_acc(self, fps: float) -> float:
         """The acceleration, m/frame^2, above which a track jumped at ``fps`` Hz (``split_acc_m`` and
@@ -411,6 +417,16 @@ def _comparable(memory: dict[int, np.ndarray], head: dict[int, np.ndarray], chai
             if o != chain and _steady(h, cfg) and _steady(memory.get(o), cfg)]
 
 
+def _cheapest_links(cost: np.ndarray, unlinked: float) -> list[tuple[int, int]]:
+    """(row, column) links of the least total cost (rows x columns, inf: no link), where leaving a row unlinked costs
+    ``unlinked``: a link is made when the assignment gains more than that by it."""
+    if not np.isfinite(cost).any():
+        return []
+    n = len(cost)
+    rows, cols = linear_sum_assignment(np.hstack([cost, np.where(np.eye(n, dtype=bool), unlinked, np.inf)]))
+    return [(int(g), int(j)) for g, j in zip(rows, cols, strict=True) if j < cost.shape[1]]
+
+
 class _Linker:
     """The identities (chains of tracklets) :func:`relink_tracklets` builds in time order, and what it
     remembers of them.
@@ -530,12 +546,8 @@ class _Linker:
                     cost[g, j] = cfg.own_link_weight * miss if gap > cfg.max_gap or miss < gate else np.inf
                 elif gap <= cfg.max_gap and miss < gate:
                     cost[g, j] = miss
-        finite = np.isfinite(cost)
-        if finite.any():
-            rows, cols = linear_sum_assignment(np.where(finite, cost, 1e9))
-            for g, j in zip(rows, cols, strict=True):
-                if finite[g, j]:
-                    assigned[g] = open_chains[j]
+        for g, j in _cheapest_links(cost, cfg.unlinked_cost_m):
+            assigned[g] = open_chains[j]
 
     def _usurped(self, start: int, head: dict[int, np.ndarray]) -> int | None:
         """The identity a tracklet starting at ``start`` takes back, if any: one re-linked after a gap within

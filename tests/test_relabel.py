@@ -333,3 +333,32 @@ def test_a_neighbour_that_held_its_distance_only_briefly_does_not_decide_a_link(
     relink_tracklets(old, RelabelConfig(shape_held=0.0))  # (the rule off: steady over 6 frames is enough)
     back = [c for c in range(old.n_markers) if np.allclose(old.positions[105, c], P[105, 0])][0]
     np.testing.assert_array_equal(old.positions[:95, back], P[:95, 3])  # B's identity
+
+
+def test_a_long_gap_link_does_not_push_markers_back_from_a_short_gap_onto_each_other():
+    """The whole sprint's forearm, frame 2957 (seed 1): three markers a few centimetres apart vanish for 4 frames
+    and come back. The one back in a new column had an older identity in that column, last seen 3 m away 85
+    frames before (the tracker's link, which nothing measured). Linking every tracklet at any cost gave that link,
+    and the two others each other's identities; leaving one tracklet unlinked keeps A and B their own."""
+    t = np.arange(140)[:, None] / 50.0
+    A = np.hstack([1.5 * t, 0.1 * np.sin(4 * t), np.ones_like(t)])  # 30 mm/frame
+    B = A + np.hstack([0.04 * np.cos(3 * t), 0.04 * np.sin(3 * t), np.zeros_like(t)])  # 40 mm off, turning
+    D = A + np.hstack([0.02 * np.sin(5 * t), -0.05 + 0.01 * np.cos(7 * t), 0.02 * np.sin(2 * t)])
+    C = A + [0.0, 3.0, 0.0]
+    P = np.full((140, 5, 3), np.nan)
+    P[:20, 3] = C[:20]  # C, in the column A comes back in, long gone
+    P[30:100, 0] = A[30:100]  # A and B, hidden over frames 100-103 ...
+    P[30:100, 1] = B[30:100]
+    P[104:, 3] = A[104:]  # ... A back in C's old column,
+    P[104:, 1] = B[104:]  # B back in its own
+    P[:60, 2] = D[:60]  # D gone since frame 60 ...
+    P[104:, 4] = D[104:]  # ... back with them in a new column (near enough to both to be linked to either)
+    traj = _traj(P)
+    relink_tracklets(traj)
+
+    def owner(path: np.ndarray, frame: int) -> int:
+        return int(np.flatnonzero(np.all(traj.positions[frame] == path[frame], axis=1))[0])
+
+    assert owner(A, 50) == owner(A, 120) != owner(C, 10)
+    assert owner(B, 50) == owner(B, 120)
+    assert owner(D, 120) not in (owner(A, 50), owner(B, 50))
