@@ -30,7 +30,9 @@ the frames on both sides of a decision are known, and these identity errors are 
   after the leg was hidden) is assigned jointly: the distances between its own markers must match those between the
   identities they take, which no marker-by-marker cost can check. The tracker's own link is
   preferred and kept across any gap unless the distances clearly disagree (``shape_refuse_m``: a new
-  marker next to a hidden one took its identity); it is the fallback when nothing else fits. A newcomer
+  marker next to a hidden one took its identity); it is the fallback when nothing else fits. Across a short gap it
+  is refused too where the extrapolation misses the tracklet and the tracklet holds its distances to two identities
+  or more that the identity moved against (``loose_refuse``: a marker of another segment). A newcomer
   whose distances changed less than that can still have taken the identity: when the marker itself comes
   back and its distances fit the identity's from before the gap clearly better (``usurp_margin_m``), it
   takes the identity back and the newcomer becomes an identity of its own.
@@ -121,6 +123,11 @@ class RelabelConfig:
             rather than make links that cost this much more, m. It is above the gated links' costs at camera rates
             (a 12-frame gap at 5 m/s and 100 Hz gates at 0.7 m), so what it stops is an own link over a long gap,
             extrapolated metres off, pushing the markers back from a short one onto each other's identities.
+        loose_refuse: the tracker's own link across a short gap is refused where the extrapolation misses (beyond the
+            gate) and the tracklet is attached to this many identities or more that the identity, seen with them over
+            ``shape_window`` samples, moved loosely against (not attached): a marker of another segment, next to
+            where a hidden one was predicted (a forearm marker the tracker gave a wheelchair marker's identity
+            while the hand pushed the wheel).
     """
 
     swap_ratio: float = 0.25
@@ -149,6 +156,7 @@ class RelabelConfig:
     lone_reach_m: float = 0.12
     lone_max_s: float = 1.0
     unlinked_cost_m: float = 1.0
+    loose_refuse: int = 2
 
     def jump_acc(self, fps: float) -> float:
         """The acceleration, m/frame^2, above which a track jumped at ``fps`` Hz (``split_acc_m`` and
@@ -417,6 +425,13 @@ def _comparable(memory: dict[int, np.ndarray], head: dict[int, np.ndarray], chai
             if o != chain and _steady(h, cfg) and _steady(memory.get(o), cfg)]
 
 
+def _loose(memory: dict[int, np.ndarray], head: dict[int, np.ndarray], chain: int, cfg: RelabelConfig) -> int:
+    """How many identities a tracklet's ``head`` holds steady that an identity's ``memory`` holds unsteady (seen with
+    it over ``shape_window`` samples at least, not attached: another segment); ``chain`` itself left out."""
+    return sum(1 for o, h in head.items() if o != chain and _steady(h, cfg) and o in memory
+               and memory[o].size >= cfg.shape_window and not _steady(memory[o], cfg))
+
+
 def _cheapest_links(cost: np.ndarray, unlinked: float) -> list[tuple[int, int]]:
     """(row, column) links of the least total cost (rows x columns, inf: no link), where leaving a row unlinked costs
     ``unlinked``: a link is made when the assignment gains more than that by it."""
@@ -542,7 +557,10 @@ class _Linker:
                     if change < cfg.lone_gate_m:
                         cost[g, j] = (cfg.own_link_weight if same else 1.0) * change
                         continue
-                if same:
+                if same and gap <= cfg.max_gap and miss >= gate and (
+                        _loose(self.memory[c], heads[g], c, cfg) >= cfg.loose_refuse):
+                    refused.add((g, c))  # (a marker of another segment, where the extrapolation says it is not)
+                elif same:
                     cost[g, j] = cfg.own_link_weight * miss if gap > cfg.max_gap or miss < gate else np.inf
                 elif gap <= cfg.max_gap and miss < gate:
                     cost[g, j] = miss

@@ -362,3 +362,63 @@ def test_a_long_gap_link_does_not_push_markers_back_from_a_short_gap_onto_each_o
     assert owner(A, 50) == owner(A, 120) != owner(C, 10)
     assert owner(B, 50) == owner(B, 120)
     assert owner(D, 120) not in (owner(A, 50), owner(B, 50))
+
+
+def _forearm_and_wheel(n: int = 150, fps: float = 120.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(F, 3, 3) three markers of a turning forearm, (F, 3) a wheel marker circling beside it (5 mm/frame relative to
+    it, 0.1-0.25 m away), and the (F, 3, 3) rotations of the forearm, at ``fps`` Hz."""
+    t = np.arange(n)[:, None] / fps
+    centre = np.hstack([0.6 * t, 0.1 * np.sin(2 * t), np.ones_like(t)])  # 5 mm/frame
+    a = 1.5 * t[:, 0]  # the forearm turns
+    R = np.zeros((n, 3, 3))
+    R[:, 0, 0], R[:, 0, 1], R[:, 1, 0], R[:, 1, 1], R[:, 2, 2] = np.cos(a), -np.sin(a), np.sin(a), np.cos(a), 1.0
+    local = np.array([[0.0, 0.0, 0.0], [0.05, 0.0, 0.0], [0.02, 0.06, 0.0]])
+    forearm = centre[:, None] + np.einsum("fij,mj->fmi", R, local)
+    b = 4.0 * t[:, 0]
+    wheel = centre + [0.06, 0.0, 0.03] + 0.15 * np.stack([np.cos(b), np.sin(b), np.zeros(n)], axis=1)
+    return forearm, wheel, R
+
+
+def test_a_marker_of_another_segment_does_not_keep_a_hidden_markers_identity():
+    """The halo sprint start, frame 498: a wheelchair marker is hidden for 3 frames while the hand pushes the wheel,
+    and a forearm marker appearing 0.1 m from its prediction got its identity from the tracker. The newcomer holds
+    its distances to two forearm markers that the wheelchair marker moved against, and the extrapolation misses it:
+    the link is refused, and the wheelchair marker, back 6 frames after it vanished, gets its identity back."""
+    fps, n = 120.0, 150
+    forearm, wheel, _ = _forearm_and_wheel(n, fps)
+    P = np.full((n, 5, 3), np.nan)
+    P[:, 0:2] = forearm[:, 0:2]
+    P[:60, 2] = wheel[:60]  # the wheel marker, hidden over frames 60-65 ...
+    P[63:, 2] = forearm[63:, 2]  # ... its identity continued on the forearm's third marker, first seen at 63
+    P[66:, 3] = wheel[66:]  # ... and the wheel marker back as a new identity
+    assert np.linalg.norm(forearm[63, 2] - (2 * wheel[59] - wheel[58] + 3 * (wheel[59] - wheel[58]))) > 0.08
+    traj = Trajectories([f"M{k + 1:03d}" for k in range(5)], fps, P.copy())
+    relink_tracklets(traj)
+
+    def owner(point: np.ndarray, frame: int) -> int:
+        return int(np.flatnonzero(np.all(traj.positions[frame] == point, axis=1))[0])
+
+    assert owner(wheel[30], 30) == owner(wheel[100], 100)
+    assert owner(forearm[100, 2], 100) != owner(wheel[30], 30)
+    refuse_nothing = RelabelConfig(loose_refuse=1000)
+    traj = Trajectories([f"M{k + 1:03d}" for k in range(5)], fps, P.copy())
+    relink_tracklets(traj, refuse_nothing)
+    assert owner(forearm[100, 2], 100) == owner(wheel[30], 30)  # (the tracker's link, kept without the rule)
+
+
+def test_a_marker_that_starts_moving_with_a_segment_keeps_its_identity():
+    """The wheel marker, hidden for 3 frames, comes back moving with the forearm (the hand grips the wheel): it now
+    holds its distances to the forearm markers it moved against before, but it is where its path predicts it, so the
+    tracker's link stands."""
+    fps, n = 120.0, 150
+    forearm, wheel, R = _forearm_and_wheel(n, fps)
+    held = np.einsum("ij,j->i", R[60].T, wheel[60] - forearm[60, 0])  # where on the forearm the hand holds it
+    gripped = wheel.copy()
+    gripped[60:] = forearm[60:, 0] + np.einsum("fij,j->fi", R[60:], held)
+    P = np.full((n, 3, 3), np.nan)
+    P[:, 0:2] = forearm[:, 0:2]
+    P[:60, 2] = gripped[:60]
+    P[63:, 2] = gripped[63:]
+    traj = Trajectories(["M001", "M002", "M003"], fps, P.copy())
+    relink_tracklets(traj)
+    np.testing.assert_array_equal(traj.positions, P)
