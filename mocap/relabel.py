@@ -24,7 +24,8 @@ the frames on both sides of a decision are known, and these identity errors are 
   much they changed, over any gap up to ``shape_max_s``: distances within a segment do not depend on
   how it moved meanwhile, and they tell apart markers a few centimetres apart that come back in turn.
   Otherwise the cost is how well the constant-velocity extrapolations of both ends agree across a
-  short gap; over a longer one (up to ``lone_max_s``), one attached marker nearby seen at both ends is enough
+  short gap (an identity ending on a single sample moves at its velocity from the sample before); over a longer
+  one (up to ``lone_max_s``), one attached marker nearby seen at both ends is enough
   when its distance held to a few millimetres. Distances are kept per identity (not per output column), so a
   neighbour that was itself relinked still counts. A cluster that comes back in view together (a leg's markers
   after the leg was hidden) is assigned jointly: the distances between its own markers must match those between the
@@ -128,6 +129,9 @@ class RelabelConfig:
             ``shape_window`` samples, moved loosely against (not attached): a marker of another segment, next to
             where a hidden one was predicted (a forearm marker the tracker gave a wheelchair marker's identity
             while the hand pushed the wheel).
+        end_velocity_frames: an identity ending on a tracklet of one sample (no velocity of its own: its
+            extrapolation gate was a standing marker's) takes its velocity from its sample before, when at most this
+            many frames before.
     """
 
     swap_ratio: float = 0.25
@@ -157,6 +161,7 @@ class RelabelConfig:
     lone_max_s: float = 1.0
     unlinked_cost_m: float = 1.0
     loose_refuse: int = 2
+    end_velocity_frames: int = 3
 
     def jump_acc(self, fps: float) -> float:
         """The acceleration, m/frame^2, above which a track jumped at ``fps`` Hz (``split_acc_m`` and
@@ -508,13 +513,24 @@ class _Linker:
                 # widened radius, which a newcomer far from the marker may have taken)
                 self.junction[c] = (len(self.chains[c]), dict(self.memory[c]), changes.get((g, c), np.inf), start)
             self.chains[c].append(run)
-            self.ends[c] = _end_state(self.P, run, at_start=False)
+            self.ends[c] = self._end(c)
             self.owner[run[:, 0], run[:, 1]] = c
         for run in group:  # distances to the identities seen with it, both ways
             c = int(self.owner[run[0, 0], run[0, 1]])
             for other, d in _chain_distances(self.P, run, self.owner, c, cfg, self.history).items():
                 d = np.concatenate([self.memory[c].get(other, d[:0]), d])[-self.history:]
                 self.memory[c][other] = self.memory[other][c] = d
+
+    def _end(self, c: int) -> tuple[int, np.ndarray, np.ndarray]:
+        """Identity ``c``'s last frame, position and velocity (m/frame): its last tracklet's, or for a tracklet of one
+        sample (no velocity of its own) from the identity's sample before it (``end_velocity_frames`` at most)."""
+        run = self.chains[c][-1]
+        frame, pos, velocity = _end_state(self.P, run, at_start=False)
+        if len(run) == 1 and len(self.chains[c]) > 1:
+            before, col = self.chains[c][-2][-1]
+            if frame - before <= self.cfg.end_velocity_frames:
+                velocity = (pos - self.P[before, col]) / (frame - before)
+        return frame, pos, velocity
 
     def _column(self, c: int) -> int:
         """The output column of identity ``c``'s last tracklet (the tracker's identity there)."""

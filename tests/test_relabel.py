@@ -422,3 +422,23 @@ def test_a_marker_that_starts_moving_with_a_segment_keeps_its_identity():
     traj = Trajectories(["M001", "M002", "M003"], fps, P.copy())
     relink_tracklets(traj)
     np.testing.assert_array_equal(traj.positions, P)
+
+
+def test_single_samples_of_a_fast_marker_are_linked_by_its_velocity():
+    """A marker at 3 m/s (25 mm/frame at 120 Hz) flickers: single samples at frames 62 and 64 between its track and
+    its return at 66, each under a new identity. A single sample has no velocity of its own; taking the identity's
+    from its sample before, the extrapolation gate is a moving marker's, not a standing one's (20 mm)."""
+    fps = 120.0
+    t = np.arange(120)[:, None] / fps
+    path = np.hstack([3.0 * t, 0.05 * np.sin(5 * t), np.ones_like(t)])
+    P = np.full((120, 4, 3), np.nan)
+    P[:60, 0] = path[:60]
+    P[62, 1] = path[62]
+    P[64, 2] = path[64]
+    P[66:, 3] = path[66:]
+    traj = Trajectories(["M001", "M002", "M003", "M004"], fps, P.copy())
+    relink_tracklets(traj)
+    assert traj.n_markers == 1
+    traj = Trajectories(["M001", "M002", "M003", "M004"], fps, P.copy())
+    relink_tracklets(traj, RelabelConfig(end_velocity_frames=0))
+    assert traj.n_markers > 1  # (the gate of a standing marker)
