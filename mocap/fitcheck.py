@@ -26,6 +26,8 @@ from mocap.geometry import (
 
 __all__ = ["FitMonitor", "FitReport", "check_calibration_fit"]
 
+MIN_POINTS_IN_VIEW = 10  # supported points of the other cameras needed to say whether a camera's view holds them
+
 
 @dataclass
 class FitReport:
@@ -39,12 +41,15 @@ class FitReport:
             chance alone explains under this calibration.
         blobs: (C,) number of blobs examined per camera.
         tolerance_px: the epipolar distance tolerance used, pixels.
+        in_view: (C,) fraction of the three-camera-consistent points of the other cameras that the camera's
+            calibration puts in its image (NaN when there are too few such points to say).
     """
 
     support: np.ndarray
     chance: np.ndarray
     blobs: np.ndarray
     tolerance_px: float
+    in_view: np.ndarray | None = None
 
     def poor_cameras(self, rig: Rig, relative: float = 0.5, over_chance: float = 3.0, margin: float = 0.02,
                      few: float = 0.25) -> list[str]:
@@ -67,9 +72,14 @@ class FitReport:
         """Names of the cameras :meth:`poor_cameras` judges (enough blobs)."""
         return [name for name, ok in zip(rig.names, self._judged(few), strict=True) if ok]
 
-    def _judged(self, few: float) -> np.ndarray:
-        """(C,) bool: cameras with blobs, at least ``few`` x the busiest camera's."""
-        return (self.blobs >= few * self.blobs.max(initial=0)) & np.isfinite(self.support)
+    def _judged(self, few: float, seen: float = 0.25) -> np.ndarray:
+        """(C,) bool: cameras with blobs, at least ``few`` x the busiest camera's, in whose view the calibration
+        puts ``seen`` of the markers the other cameras agree on (or there are too few of those to say): along a
+        walkway the subject can be out of a camera's view for seconds while it sees reflections."""
+        judged = (self.blobs >= few * self.blobs.max(initial=0)) & np.isfinite(self.support)
+        if self.in_view is not None:
+            judged &= ~(self.in_view < seen)  # (NaN: too few points to say)
+        return judged
 
 
 class FitMonitor:
@@ -146,24 +156,30 @@ def check_calibration_fit(rig: Rig, frames: list[list[Detections]], tolerance_px
     Returns:
         A :class:`FitReport`.
     """
-    support, total = _support(rig, [[d.xy for d in dets] for dets in frames], tolerance_px)
+    support, total, in_view = _support(rig, [[d.xy for d in dets] for dets in frames], tolerance_px)
     sizes = np.array([cam.size for cam in rig], dtype=float) - 1.0
     mirrored = [[sizes[c] - d.xy for c, d in enumerate(dets)] for dets in frames]
-    chance, _ = _support(rig, mirrored, tolerance_px)
-    return FitReport(support, chance, total.astype(int), tolerance_px)
+    chance, _, _ = _support(rig, mirrored, tolerance_px, views=False)
+    return FitReport(support, chance, total.astype(int), tolerance_px, in_view)
 
 
-def _support(rig: Rig, frames: list[list[np.ndarray]], tolerance_px: float) -> tuple[np.ndarray, np.ndarray]:
+def _support(rig: Rig, frames: list[list[np.ndarray]], tolerance_px: float, views: bool = True
+             ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(C,) fraction of each camera's blobs (``frames[f][c]`` (N, 2) distorted px) with three-view support
-    (NaN without blobs), and (C,) the number of blobs."""
+    (NaN without blobs), (C,) the number of blobs, and (C,) the fraction of the points that other cameras' blobs
+    support (three views, each found once per pair) that project in front of the camera, inside its image (NaN below
+    ``MIN_POINTS_IN_VIEW``, or without ``views``)."""
     C = len(rig)
     P = rig.projection_matrices()
     fundamentals = {(i, j): fundamental_from_cameras(rig[i], rig[j]) for i in range(C) for j in range(i + 1, C)}
     supported = np.zeros(C)
     total = np.zeros(C)
+    others = np.zeros(C)  # supported points found without the camera
+    inside = np.zeros(C)  # ... of those, in its view
     for dets in frames:
         ideal = [rig[c].undistort(xy) for c, xy in enumerate(dets)]
         explained = [np.zeros(len(p), dtype=bool) for p in ideal]
+        points, owners = [], []  # the frame's supported points (n, 3) and (C, n) whose they are
         for (i, j), F in fundamentals.items():
             if len(ideal[i]) == 0 or len(ideal[j]) == 0:
                 continue
@@ -172,16 +188,31 @@ def _support(rig: Rig, frames: list[list[np.ndarray]], tolerance_px: float) -> t
                 continue
             confirmed = np.full(a.size, C == 2)
             X = triangulate_dlt(P[[i, j]], np.stack([ideal[i][a], ideal[j][b]]))
+            by = np.zeros((C, a.size), dtype=bool)  # confirmed by camera k
             for k in range(C):
                 if k in (i, j) or len(ideal[k]) == 0:
                     continue
                 uv, _ = reprojection_jacobians(P[k : k + 1], np.nan_to_num(X))
                 gap = np.linalg.norm(uv[0][:, None, :] - ideal[k][None, :, :], axis=2).min(axis=1)
-                confirmed |= gap < tolerance_px
+                by[k] = gap < tolerance_px
+                confirmed |= by[k]
             explained[i][a[confirmed]] = True
             explained[j][b[confirmed]] = True
+            if views:  # (a point is the camera's own if the camera is in its pair or confirmed it alone)
+                own = by[:, confirmed] & (by[:, confirmed].sum(axis=0) == 1)
+                own[[i, j]] = True
+                points.append(X[confirmed])
+                owners.append(own)
+        if views and points:
+            X, own = np.concatenate(points), np.concatenate(owners, axis=1)
+            for k in range(C):
+                X_k = X[~own[k]]
+                others[k] += len(X_k)
+                inside[k] += np.count_nonzero(rig[k].in_image(rig[k].project(X_k))
+                                              & (rig[k].world_to_camera(X_k)[:, 2] > 0))
         for c in range(C):
             supported[c] += explained[c].sum()
             total[c] += len(explained[c])
     with np.errstate(invalid="ignore", divide="ignore"):
-        return np.where(total > 0, supported / total, np.nan), total
+        return (np.where(total > 0, supported / total, np.nan), total,
+                np.where(others >= MIN_POINTS_IN_VIEW, inside / others, np.nan))

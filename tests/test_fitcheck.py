@@ -3,10 +3,11 @@
 from __future__ import annotations
 
 import numpy as np
+from scipy.spatial.transform import Rotation
 
 from mocap.camera import Rig
 from mocap.detections import Detections
-from mocap.fitcheck import FitMonitor, check_calibration_fit
+from mocap.fitcheck import FitMonitor, FitReport, check_calibration_fit
 from tests.conftest import ring_rig
 
 
@@ -146,3 +147,32 @@ def test_a_short_take_is_judged_on_what_it_has():
     _, names = _feed(FitMonitor(swapped, frames=10, spacing=10), _frames(rig, n_frames=6, n_markers=40))
     assert names == ["cam2", "cam4"]
     assert _feed(FitMonitor(rig, frames=10, spacing=10), []) is None
+
+
+def _turned(cam, degrees: float):
+    """``cam`` turned about its own vertical image axis by ``degrees`` (its centre kept)."""
+    R = Rotation.from_euler("y", degrees, degrees=True).as_matrix() @ cam.R
+    return cam.with_pose(Rotation.from_matrix(R).as_rotvec(), -R @ cam.center)
+
+
+def test_a_camera_whose_view_holds_none_of_the_subject_is_not_judged():
+    """The whole sprint's window after its gap (cam10): the walkway's far camera sees 1-2 reflections a frame while
+    the subject, a few markers, is out of its view for seconds; by blob count it was judged, found poor in every
+    window and named. The markers the other cameras agree on fall outside its view, so it is not judged; a camera
+    bumped by 3 degrees, whose view still holds them, is named."""
+    rig = ring_rig(6)
+    rng = np.random.default_rng(11)
+    cams = list(rig.cameras)
+    cams[5] = _turned(cams[5], 180.0)  # (looks away from the volume)
+    away = Rig(cams)
+    frames = _frames(away, n_markers=8, seed=11)
+    for dets in frames:
+        dets[5] = Detections(rng.uniform(0, 700, (6, 2)))  # reflections
+    report = check_calibration_fit(away, frames)
+    assert report.in_view[5] == 0.0 and report.in_view[:5].min() == 1.0
+    assert report.poor_cameras(away) == []
+    assert report.blobs[5] >= 0.25 * report.blobs.max()  # (judged by the blob count alone, it was named:)
+    assert FitReport(report.support, report.chance, report.blobs, report.tolerance_px).poor_cameras(away) == ["cam6"]
+    frames = _frames(rig, n_markers=8, seed=11)
+    bumped = Rig(list(rig.cameras[:5]) + [_turned(rig[5], 3.0)])
+    assert check_calibration_fit(bumped, frames).poor_cameras(rig) == ["cam6"]
