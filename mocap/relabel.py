@@ -126,7 +126,8 @@ class RelabelConfig:
             extrapolated metres off, pushing the markers back from a short one onto each other's identities.
         loose_refuse: the tracker's own link across a short gap is refused where the extrapolation misses (beyond the
             gate) and the tracklet is attached to this many identities or more that the identity, seen with them over
-            ``shape_window`` samples, moved loosely against (not attached): a marker of another segment, next to
+            ``shape_window`` samples, moved loosely against (robust spread over ``shape_steady_m``; a hop of the
+            identity's last samples onto a neighbour does not count): a marker of another segment, next to
             where a hidden one was predicted (a forearm marker the tracker gave a wheelchair marker's identity
             while the hand pushed the wheel).
         end_velocity_frames: an identity ending on a tracklet of one sample (no velocity of its own: its
@@ -431,10 +432,18 @@ def _comparable(memory: dict[int, np.ndarray], head: dict[int, np.ndarray], chai
 
 
 def _loose(memory: dict[int, np.ndarray], head: dict[int, np.ndarray], chain: int, cfg: RelabelConfig) -> int:
-    """How many identities a tracklet's ``head`` holds steady that an identity's ``memory`` holds unsteady (seen with
-    it over ``shape_window`` samples at least, not attached: another segment); ``chain`` itself left out."""
+    """How many identities a tracklet's ``head`` holds steady that an identity's ``memory`` holds loosely (seen with
+    it over ``shape_window`` samples at least, robust spread over ``shape_steady_m``: another segment); ``chain``
+    itself left out."""
     return sum(1 for o, h in head.items() if o != chain and _steady(h, cfg) and o in memory
-               and memory[o].size >= cfg.shape_window and not _steady(memory[o], cfg))
+               and memory[o].size >= cfg.shape_window and _robust_spread(memory[o]) > cfg.shape_steady_m)
+
+
+def _robust_spread(distances: np.ndarray) -> float:
+    """1.4826 x the median absolute deviation of ``distances`` (n,) m: a hop of a few samples at the end of an
+    identity (onto a neighbour) leaves it at the marker's own spread."""
+    middle = quick_median(distances)
+    return 1.4826 * quick_median(np.abs(distances - middle))
 
 
 def _cheapest_links(cost: np.ndarray, unlinked: float) -> list[tuple[int, int]]:

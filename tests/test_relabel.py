@@ -442,3 +442,26 @@ def test_single_samples_of_a_fast_marker_are_linked_by_its_velocity():
     traj = Trajectories(["M001", "M002", "M003", "M004"], fps, P.copy())
     relink_tracklets(traj, RelabelConfig(end_velocity_frames=0))
     assert traj.n_markers > 1  # (the gate of a standing marker)
+
+
+def test_a_hop_at_the_end_of_an_identity_does_not_make_its_neighbours_loose():
+    """The halo sprint start at seed 5, frame 514: ForearmL Marker3's identity hopped onto the hand for its last 2
+    samples before a 3-frame gap; the marker back after it held its distances to the forearm's markers, as its
+    identity had for 0.4 s but those 2 samples. The relations are judged over everything remembered (robust spread),
+    so the tracker's link stands."""
+    fps, n = 120.0, 150
+    forearm, _, _ = _forearm_and_wheel(n, fps)
+    t = np.arange(n) / fps
+    hand = forearm[:, 2] + 0.1 * np.stack([np.cos(9 * t), np.sin(9 * t), np.zeros(n)], axis=1)
+    P = np.full((n, 3, 3), np.nan)
+    P[:, 0:2] = forearm[:, 0:2]
+    P[:58, 2] = forearm[:58, 2]
+    P[58:60, 2] = hand[58:60]  # the hop
+    P[63:, 2] = forearm[63:, 2]
+    traj = Trajectories(["M001", "M002", "M003"], fps, P.copy())
+    relink_tracklets(traj)
+
+    def owner(frame: int) -> int:
+        return int(np.flatnonzero(np.all(traj.positions[frame] == forearm[frame, 2], axis=1))[0])
+
+    assert owner(30) == owner(100)
