@@ -208,8 +208,7 @@ def _support(rig: Rig, frames: list[list[np.ndarray]], tolerance_px: float, view
             for k in range(C):
                 X_k = X[~own[k]]
                 others[k] += len(X_k)
-                inside[k] += np.count_nonzero(rig[k].in_image(rig[k].project(X_k))
-                                              & (rig[k].world_to_camera(X_k)[:, 2] > 0))
+                inside[k] += np.count_nonzero(rig[k].in_image(rig[k].project(X_k)))  # (behind it: NaN, outside)
         for c in range(C):
             supported[c] += explained[c].sum()
             total[c] += len(explained[c])
