@@ -16,7 +16,10 @@ it, the joins changed the plates it learned), :func:`rejoin_by_anchors`:
 2. takes the identities shortest first, and offers each (the fragment) to every longer identity (the target):
    the fragment's median distance to each of the target's anchors it was seen with (``piece_frames`` frames
    at least) must equal the target's within ``tolerance_m`` and spread less than ``spread_m``, for
-   ``min_anchors`` anchors or more and more anchors than disagree (an anchor across a joint may have moved);
+   ``min_anchors`` anchors or more and more anchors than disagree (an anchor across a joint may have moved).
+   The fragment's own anchors count as the target's too where the target's distance to them spreads less
+   than ``joint_spread_m``: an elbow marker keeps its distances to the forearm's markers over a fragment of
+   a few seconds, not over the take;
 3. joins the fragment to the longest target it fits, unless it fits two targets seen together (two markers:
    ambiguous), or their samples share more than ``overlap_fraction`` of the fragment's frames. Where they
    share frames (the target's identity held a neighbour for a while), the fragment's sample replaces the
@@ -53,6 +56,7 @@ class AnchorConfig:
         tolerance_m: a fragment's median distance to an anchor must be within this of the target's, m (skin
             markers: a few millimetres; the cluster's other markers differ by centimetres).
         spread_m: an anchor's distance to the target (and to the fragment) spreads less than this, m.
+        joint_spread_m: ... or less than this for the fragment's own anchors (a marker by a joint), m.
         reach_m: anchors are within this of the target (median), m.
         min_frames: frames an anchor and the target must be seen together.
         piece_frames: frames an anchor and the fragment must be seen together.
@@ -65,6 +69,7 @@ class AnchorConfig:
 
     tolerance_m: float = 0.006
     spread_m: float = 0.003
+    joint_spread_m: float = 0.006
     reach_m: float = 0.3
     min_frames: int = 30
     piece_frames: int = 3
@@ -77,14 +82,22 @@ def _statistics(P: np.ndarray, cfg: AnchorConfig) -> tuple[np.ndarray, np.ndarra
     """:func:`mocap.rigid.pair_statistics` of ``P`` (F, M, 3) (median m, spread m, count) and the (M, M) bool anchors
     (step 1 of the module docstring)."""
     median, spread, count = pair_statistics(P, cfg.piece_frames)
+    return median, spread, count, _steady(median, spread, count, cfg, cfg.spread_m)
+
+
+def _steady(median: np.ndarray, spread: np.ndarray, count: np.ndarray, cfg: AnchorConfig, spread_m: float
+            ) -> np.ndarray:
+    """(M, M) bool: pairs within ``reach_m``, seen together ``min_frames`` frames or more, whose distance spreads
+    less than ``spread_m``."""
     with np.errstate(invalid="ignore"):
-        return median, spread, count, (spread < cfg.spread_m) & (median <= cfg.reach_m) & (count >= cfg.min_frames)
+        return (spread < spread_m) & (median <= cfg.reach_m) & (count >= cfg.min_frames)
 
 
 def _target(p: int, median: np.ndarray, spread: np.ndarray, count: np.ndarray, strong: np.ndarray,
             frames: np.ndarray, cfg: AnchorConfig) -> int:
     """The identity fragment ``p`` joins (step 2-3 of the module docstring), or -1."""
-    anchors = strong & (count[p] >= cfg.piece_frames)[None, :]  # (target, anchor)
+    joint = strong[p][None, :] & _steady(median, spread, count, cfg, cfg.joint_spread_m)
+    anchors = (strong | joint) & (count[p] >= cfg.piece_frames)[None, :]  # (target, anchor)
     anchors[:, p] = False
     with np.errstate(invalid="ignore"):
         ok = anchors & (np.abs(median[p][None, :] - median) <= cfg.tolerance_m) & (spread[p] < cfg.spread_m)[None, :]

@@ -107,6 +107,21 @@ def test_one_anchor_is_not_enough_and_the_tolerance_decides():
     assert rejoin_by_anchors(_columns(moved, near), AnchorConfig(tolerance_m=0.010)) == 1
 
 
+def test_a_fragment_of_a_marker_by_a_joint_joins_it():
+    # An elbow marker 0.12 m from A1 and A2: its distances to them change by +-5 mm with the joint over the take
+    # (spread about 5 mm, over the 3 mm of a rigid anchor), but hardly over a fragment of 50 frames.
+    base = _segment(np.vstack([FOREARM[[A1, A2]], [0.02, -0.12, 0.0]]), seed=6)
+    outward = base[:, 2] - base[:, :2].mean(axis=1)
+    truth = base.copy()
+    truth[:, 2] += 0.005 * np.sin(2 * np.pi * np.arange(F) / 300)[:, None] * outward / np.linalg.norm(
+        outward, axis=1, keepdims=True)
+    pieces = [[(0, 0, F)], [(1, 0, F)], [(2, 0, 300)], [(2, 400, 450)]]
+    assert rejoin_by_anchors(_columns(truth, pieces), AnchorConfig(joint_spread_m=0.003)) == 0
+    traj = _columns(truth, pieces)
+    assert rejoin_by_anchors(traj) == 1
+    assert _holder(traj, truth, 2) == {2: 350}
+
+
 def test_the_identity_repair_runs_it():
     from mocap.relabel import RelabelConfig, repair_identities
 
