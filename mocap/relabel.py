@@ -65,6 +65,7 @@ from mocap.fill import fill_from_unconfirmed
 from mocap.plates import label_plates
 from mocap.quickstats import quick_median
 from mocap.reunite import reunite_clusters
+from mocap.rigid import split_tracklets
 from mocap.trajectories import Trajectories, UnconfirmedPoints
 
 __all__ = ["RelabelConfig", "RelabelStats", "drop_duplicates", "relink_tracklets", "repair_identities", "repair_swaps"]
@@ -291,35 +292,6 @@ def repair_swaps(traj: Trajectories, config: RelabelConfig | None = None) -> int
     return swaps
 
 
-def _tracklets(P: np.ndarray, split_acc: float, reversal_acc: float = np.inf) -> list[np.ndarray]:
-    """Cut every identity column into runs of consecutive samples, also where the acceleration (second
-    difference, m/frame^2) exceeds ``split_acc`` on both samples of a step, or ``reversal_acc`` on both with
-    opposite directions; returns (frames, column) index pairs per run."""
-    valid = np.isfinite(P[:, :, 0])
-    vec = np.full(P.shape, np.nan)
-    vec[1:-1] = P[2:] - 2 * P[1:-1] + P[:-2]
-    acc = np.full(valid.shape, np.inf)
-    acc[1:-1] = np.linalg.norm(vec[1:-1], axis=2)
-    with np.errstate(invalid="ignore"):  # (NaN where a sample is missing: no reversal)
-        turned = np.zeros(valid.shape, dtype=bool)  # [k]: the accelerations at k - 1 and k reverse, both large
-        turned[1:] = ((acc[:-1] > reversal_acc) & (acc[1:] > reversal_acc)
-                      & ((vec[:-1] * vec[1:]).sum(axis=2) < -0.5 * acc[:-1] * acc[1:]))
-    runs = []
-    for col in range(P.shape[1]):
-        frames = np.flatnonzero(valid[:, col])
-        if frames.size == 0:
-            continue
-        # A break before sample k: a gap, or a jump at k-1 -> k (acceleration spike at k-1 or k).
-        jump = np.zeros(frames.size, dtype=bool)
-        jump[1:] = (np.diff(frames) > 1) | (
-            (acc[frames[:-1], col] > split_acc) & np.isfinite(acc[frames[:-1], col])
-            & (acc[frames[1:], col] > split_acc) & np.isfinite(acc[frames[1:], col]))
-        jump[1:] |= turned[frames[1:], col] & (np.diff(frames) == 1)
-        for piece in np.split(frames, np.flatnonzero(jump)):
-            runs.append(np.stack([piece, np.full(piece.size, col)], axis=1))
-    return runs
-
-
 def _end_state(P: np.ndarray, run: np.ndarray, at_start: bool) -> tuple[int, np.ndarray, np.ndarray]:
     """Frame, position and velocity (m/frame, pointing forward in time) at one end of a tracklet."""
     frame, col = run[0] if at_start else run[-1]
@@ -384,7 +356,7 @@ def _shape_misfit(pairs: list[tuple[float, float]]) -> float:
 def relink_tracklets(traj: Trajectories, config: RelabelConfig | None = None) -> int:
     """Re-link identities globally, in place; returns the number of identities saved.
 
-    Tracklets (see :func:`_tracklets`) are taken in order of their first frame; those starting at
+    Tracklets (see :func:`mocap.rigid.split_tracklets`) are taken in order of their first frame; those starting at
     the same frame are assigned together (Hungarian) to identities that ended before: by how much
     their distances to attached identities changed, else by the mean disagreement of the two
     constant-velocity extrapolations across a short gap (the identity's forwards, the tracklet's
@@ -394,7 +366,7 @@ def relink_tracklets(traj: Trajectories, config: RelabelConfig | None = None) ->
     one. Output columns are the resulting identities.
     """
     cfg = config or RelabelConfig()
-    runs = _tracklets(traj.positions, cfg.jump_acc(traj.fps), cfg.reversal_acc(traj.fps))
+    runs = split_tracklets(traj.positions, cfg.jump_acc(traj.fps), cfg.reversal_acc(traj.fps))
     if not runs:
         return 0
     runs.sort(key=lambda r: int(r[0, 0]))

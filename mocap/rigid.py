@@ -3,7 +3,8 @@
 Shared by the identity repair's shape passes (:mod:`mocap.reunite`, :mod:`mocap.plates`, :mod:`mocap.anchors`):
 markers on one rigid body keep their distances, so the median distance of two identities over the frames both are
 seen in, and its robust spread, tell which identities move together; a sample those passes move to another
-identity must not make it jump (:func:`placement_jumps`).
+identity must not make it jump (:func:`placement_jumps`), and the pieces they move are runs of an identity's
+samples cut where it jumped (:func:`split_tracklets`).
 """
 
 from __future__ import annotations
@@ -15,7 +16,7 @@ import numpy as np
 
 from mocap import kernels
 
-__all__ = ["PAIRS", "PERMUTATIONS", "pair_statistics", "placement_jumps", "rigid_triangles"]
+__all__ = ["PAIRS", "PERMUTATIONS", "pair_statistics", "placement_jumps", "rigid_triangles", "split_tracklets"]
 
 STATISTICS_FRAMES = 4096  # frames per chunk of the co-seen counts, and most frames the distances are taken over
 
@@ -89,3 +90,32 @@ def placement_jumps(P: np.ndarray, rows: np.ndarray, member: np.ndarray, X: np.n
                    (after2 - 2 * X + before2) / 4, X - before, X - after, (X - before2) / 4, (X - after2) / 4):
         acc = np.where(np.isnan(acc), np.linalg.norm(change, axis=1), acc)
     return acc > limit
+
+
+def split_tracklets(P: np.ndarray, split_acc: float, reversal_acc: float = np.inf) -> list[np.ndarray]:
+    """Cut every identity column into runs of consecutive samples, also where the acceleration (second
+    difference, m/frame^2) exceeds ``split_acc`` on both samples of a step, or ``reversal_acc`` on both with
+    opposite directions; returns (frames, column) index pairs per run."""
+    valid = np.isfinite(P[:, :, 0])
+    vec = np.full(P.shape, np.nan)
+    vec[1:-1] = P[2:] - 2 * P[1:-1] + P[:-2]
+    acc = np.full(valid.shape, np.inf)
+    acc[1:-1] = np.linalg.norm(vec[1:-1], axis=2)
+    with np.errstate(invalid="ignore"):  # (NaN where a sample is missing: no reversal)
+        turned = np.zeros(valid.shape, dtype=bool)  # [k]: the accelerations at k - 1 and k reverse, both large
+        turned[1:] = ((acc[:-1] > reversal_acc) & (acc[1:] > reversal_acc)
+                      & ((vec[:-1] * vec[1:]).sum(axis=2) < -0.5 * acc[:-1] * acc[1:]))
+    runs = []
+    for col in range(P.shape[1]):
+        frames = np.flatnonzero(valid[:, col])
+        if frames.size == 0:
+            continue
+        # A break before sample k: a gap, or a jump at k-1 -> k (acceleration spike at k-1 or k).
+        jump = np.zeros(frames.size, dtype=bool)
+        jump[1:] = (np.diff(frames) > 1) | (
+            (acc[frames[:-1], col] > split_acc) & np.isfinite(acc[frames[:-1], col])
+            & (acc[frames[1:], col] > split_acc) & np.isfinite(acc[frames[1:], col]))
+        jump[1:] |= turned[frames[1:], col] & (np.diff(frames) == 1)
+        for piece in np.split(frames, np.flatnonzero(jump)):
+            runs.append(np.stack([piece, np.full(piece.size, col)], axis=1))
+    return runs

@@ -6,12 +6,12 @@ import numpy as np
 
 from mocap.relabel import (
     RelabelConfig,
-    _tracklets,
     drop_duplicates,
     relink_tracklets,
     repair_identities,
     repair_swaps,
 )
+from mocap.rigid import split_tracklets
 from mocap.trajectories import Trajectories
 
 
@@ -202,9 +202,9 @@ def test_a_fast_swing_at_50_hz_is_not_cut_where_a_jump_is():
     cfg = RelabelConfig()
     split = cfg.jump_acc(fps)
     assert np.linalg.norm(P[2:] - 2 * P[1:-1] + P[:-2], axis=2).max() > cfg.split_acc_m  # above the old cut
-    assert len(_tracklets(P, split)) == 1
+    assert len(split_tracklets(P, split)) == 1
     P[50:, 0, 2] += 0.15
-    assert len(_tracklets(P, split)) == 2
+    assert len(split_tracklets(P, split)) == 2
 
 
 def test_a_step_onto_a_neighbour_45_mm_away_and_back_is_cut():
