@@ -26,9 +26,12 @@ it, the joins changed the plates it learned), :func:`rejoin_by_anchors`:
    target's where its distances to the anchors in that frame fit the target's (mean within ``tolerance_m``) and
    the target's own do not; the sample left over moves to a new identity.
 
-:func:`move_refuted_samples` then moves single samples: one that its identity's anchors refute (none of those seen
-in its frame agrees, one or more disagree) goes to the one identity absent from that frame whose anchors it fits,
-where its run is a hop off the identity's path (the tracker's hops inside a cluster whose markers are seen in turn).
+:func:`move_refuted_samples` then moves the tracker's hops: pieces of an identity (its samples cut at gaps, jumps
+and hops there and back) whose samples fit another identity's anchors go to that identity where it is free.
+Samples vote: one its identity's anchors refute (none of those seen in its frame agrees, one or more disagree),
+or any sample of an identity with no anchors (the tracker's mix of two markers has none: its distances spread),
+votes for the one identity absent from its frame whose anchors it fits; a piece moves where half its samples vote
+for one identity and none for another.
 The repair alternates the two (:func:`mocap.relabel.repair_identities`).
 
 Only whole samples move between identity columns; positions are never changed, and no sample is dropped.
@@ -40,7 +43,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from mocap.rigid import pair_statistics, placement_jumps
+from mocap.rigid import pair_statistics, placement_jumps, split_tracklets
 from mocap.trajectories import Trajectories
 
 __all__ = ["AnchorConfig", "move_refuted_samples", "rejoin_by_anchors"]
@@ -62,9 +65,9 @@ class AnchorConfig:
         piece_frames: frames an anchor and the fragment must be seen together.
         min_anchors: fewest anchors that must agree.
         overlap_fraction: largest share of the fragment's frames in which the target has a sample too.
-        hop_m: a run of samples moved out of an identity (:func:`move_refuted_samples`) must not continue its
-            path: the identity's two samples just before (or after) it predict its first (last) sample less
-            well than this, m.
+        hop_m: pieces moved by :func:`move_refuted_samples` are also cut where the acceleration exceeds this on two
+            consecutive samples in opposite directions (a hop onto a neighbour and back), m/frame^2.
+        vote_fraction: fewest samples of a piece, as a fraction, that must fit the identity it moves to.
     """
 
     tolerance_m: float = 0.006
@@ -76,6 +79,7 @@ class AnchorConfig:
     min_anchors: int = 2
     overlap_fraction: float = 0.5
     hop_m: float = 0.015
+    vote_fraction: float = 0.5
 
 
 def _statistics(P: np.ndarray, cfg: AnchorConfig) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
@@ -201,10 +205,11 @@ def _anchor_votes(P: np.ndarray, rows: np.ndarray, X: np.ndarray, median: np.nda
     return ok, off
 
 
-def _refuted(P: np.ndarray, seen: np.ndarray, median: np.ndarray, strong: np.ndarray, tolerance_m: float
-             ) -> tuple[np.ndarray, np.ndarray]:
-    """(frames, columns) of the samples of ``P`` (F, M, 3) that no anchor of their identity seen in their frame
-    agrees with (within ``tolerance_m`` of the median distance) and one or more disagree with."""
+def _candidates(P: np.ndarray, seen: np.ndarray, median: np.ndarray, strong: np.ndarray, tolerance_m: float
+                ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(frames, columns, anchored) of the samples of ``P`` (F, M, 3) that may belong to another identity: those that no
+    anchor of their identity seen in their frame agrees with (within ``tolerance_m`` of the median distance) and
+    one or more disagree with (``anchored`` True), and every sample of an identity without anchors (False)."""
     frames, columns = [], []
     for m in np.flatnonzero(strong.any(axis=1)):
         anchors = np.flatnonzero(strong[m])
@@ -213,36 +218,29 @@ def _refuted(P: np.ndarray, seen: np.ndarray, median: np.ndarray, strong: np.nda
         bad = ~(dev <= tolerance_m).any(axis=1) & (dev > tolerance_m).any(axis=1)
         frames.append(rows[bad])
         columns.append(np.full(int(bad.sum()), m))
-    if not frames:
-        return np.zeros(0, dtype=np.intp), np.zeros(0, dtype=np.intp)
-    return np.concatenate(frames), np.concatenate(columns)
-
-
-def _continued(P: np.ndarray, frame: np.ndarray, col: np.ndarray, step: int, hop_m: float) -> np.ndarray:
-    """(n,) bool: identity ``col``'s samples at ``frame - step`` and ``frame - 2 step`` exist and predict its sample
-    at ``frame`` within ``hop_m`` (its path goes on through it)."""
-    F = len(P)
-    a, b = frame - step, frame - 2 * step
-    inside = (a >= 0) & (a < F) & (b >= 0) & (b < F)
-    out = np.zeros(frame.size, dtype=bool)
-    f, c = frame[inside], col[inside]
-    miss = P[f, c] - (2.0 * P[a[inside], c] - P[b[inside], c])
-    with np.errstate(invalid="ignore"):
-        out[inside] = np.sqrt((miss * miss).sum(axis=1)) < hop_m
-    return out
+    loose = ~strong.any(axis=1)
+    free_f, free_c = np.nonzero(seen[:, loose])
+    frames.append(free_f)
+    columns.append(np.flatnonzero(loose)[free_c])
+    frames, columns = np.concatenate(frames), np.concatenate(columns)
+    return frames, columns, ~loose[columns]
 
 
 def move_refuted_samples(traj: Trajectories, config: AnchorConfig | None = None, jump_acc: float = np.inf) -> int:
-    """Move samples that their identity's anchors refute to the one identity whose anchors they fit, in place: the
+    """Move pieces of identities whose samples another identity's anchors fit to that identity, in place: the
     tracker's hops between markers of a cluster (a forearm's Marker3 and Marker4, mostly seen in turn, under one
     identity for a while).
 
-    A sample is refuted when no anchor of its identity seen in its frame agrees (``tolerance_m``) and one or more
-    disagree. It moves when exactly one identity without a sample in that frame fits it (``min_anchors`` anchors or
-    more agree, more agree than disagree), no other sample of the frame moves there, it makes no acceleration above
-    ``jump_acc`` (m/frame^2) with that identity's samples next to it, and its run (the identity's consecutive samples
-    moving to the same identity) is a hop: the identity's path does not go on through the run's first or last sample
-    (``hop_m``), as it does where a marker merely strays from an anchor (skin, a merged blob) for a frame or two.
+    A sample votes when its identity's anchors refute it (none seen in its frame agrees within ``tolerance_m``,
+    one or more disagree), or when its identity has no anchors; it votes for the one identity without a sample in
+    its frame that it fits (``min_anchors`` anchors or more agree, more agree than disagree, none disagree for a
+    sample of an identity without anchors), unless another sample of its frame votes for that identity too. Each
+    identity is cut into pieces at gaps, at jumps (an acceleration over ``jump_acc``, m/frame^2, on both samples
+    of a step) and at hops there and back (over ``hop_m`` in opposite directions); a piece moves when
+    ``vote_fraction`` of its samples or more vote for one identity and none for another, that identity has no sample
+    over its frames, and it makes no acceleration above ``jump_acc`` with that identity's samples next to its ends.
+    A marker that merely strays from an anchor for a frame or two (skin, a merged blob) is a small share of its
+    piece and stays. Pieces with more votes move first.
 
     Returns the number of samples moved.
     """
@@ -255,33 +253,36 @@ def move_refuted_samples(traj: Trajectories, config: AnchorConfig | None = None,
     if not strong.any():
         return 0
     seen = np.isfinite(P[..., 0])
-    f, c = _refuted(P, seen, median, strong, cfg.tolerance_m)
-    moves = []  # (frame, column, target) of the refuted samples that fit one identity
+    f, c, anchored = _candidates(P, seen, median, strong, cfg.tolerance_m)
+    votes = [np.zeros((0, 3), dtype=np.intp)]  # (frame, column, identity) of the samples that fit one identity
     step = max(1, 2_000_000 // int(strong.sum() + M))
     for s in range(0, f.size, step):
         ff, cc = f[s:s + step], c[s:s + step]
         ok, off = _anchor_votes(P, ff, P[ff, cc], median, strong, cfg.tolerance_m)
-        fits = (ok >= cfg.min_anchors) & (ok > off) & ~seen[ff]
+        fits = (ok >= cfg.min_anchors) & (ok > off) & ~seen[ff] & (anchored[s:s + step, None] | (off == 0))
         one = fits.sum(axis=1) == 1
-        moves.append(np.stack([ff[one], cc[one], fits[one].argmax(axis=1)], axis=1))
-    if not moves:
-        return 0
-    f, c, t = np.concatenate(moves).T
+        votes.append(np.stack([ff[one], cc[one], fits[one].argmax(axis=1)], axis=1))
+    f, c, t = np.concatenate(votes).T
     _, at, n = np.unique(f * M + t, return_inverse=True, return_counts=True)
-    keep = (n[at] == 1) & ~placement_jumps(P, f, t, P[f, c], jump_acc)
-    f, c, t = f[keep], c[keep], t[keep]
-    if f.size == 0:
-        return 0
-    order = np.lexsort((f, c))
-    f, c, t = f[order], c[order], t[order]
-    rank = (np.cumsum(seen, axis=0) - 1)[f, c]  # the sample's index among its identity's samples
-    first = np.r_[True, (c[1:] != c[:-1]) | (t[1:] != t[:-1]) | (rank[1:] != rank[:-1] + 1)]
-    run = np.cumsum(first) - 1
-    last = np.r_[first[1:], True]
-    hop = ~(_continued(P, f[first], c[first], 1, cfg.hop_m) | _continued(P, f[last], c[last], -1, cfg.hop_m))
-    keep = hop[run]
-    f, c, t = f[keep], c[keep], t[keep]
-    for a in (traj.positions, traj.residuals, traj.camera_masks):
-        a[f, t] = a[f, c]
-        a[f, c] = _EMPTY[a.dtype.kind]
-    return int(f.size)
+    f, c, t = f[n[at] == 1], c[n[at] == 1], t[n[at] == 1]
+    pieces = split_tracklets(P, jump_acc, cfg.hop_m)
+    piece = np.full((F, M), -1)
+    for k, run in enumerate(pieces):
+        piece[run[:, 0], run[:, 1]] = k
+    length = np.array([len(run) for run in pieces])
+    key, count = np.unique(piece[f, c] * M + t, return_counts=True)
+    k, target = key // M, key % M
+    alone = np.bincount(k, minlength=len(pieces))[k] == 1  # the piece votes for one identity only
+    chosen = np.flatnonzero(alone & (count >= cfg.vote_fraction * length[k]))
+    moved = 0
+    for j in chosen[np.argsort(-count[chosen], kind="stable")]:
+        rows, col, tgt = pieces[k[j]][:, 0], int(pieces[k[j]][0, 1]), int(target[j])
+        ends = rows[[0, -1]]
+        if seen[rows, tgt].any() or placement_jumps(P, ends, np.full(2, tgt), P[ends, col], jump_acc).any():
+            continue
+        for a in (traj.positions, traj.residuals, traj.camera_masks):
+            a[rows, tgt] = a[rows, col]
+            a[rows, col] = _EMPTY[a.dtype.kind]
+        seen[rows, tgt], seen[rows, col] = True, False
+        moved += rows.size
+    return moved

@@ -150,7 +150,8 @@ def test_a_run_where_an_identity_hopped_onto_a_neighbour_moves_to_the_neighbours
 
 def test_a_run_that_continues_the_identitys_path_stays():
     """A marker 10 mm beyond X, away from its anchors (8-10 mm farther from each): X's identity on it for 3 frames is
-    a step of 10 mm, which its path explains at a 15 mm hop but not at 5 mm."""
+    a step of 10 mm there and back. Under the 15 mm hop those frames are 3 of X's piece of 600; at 5 mm they are a
+    piece of their own, and move."""
     away = FOREARM[X] - FOREARM[[A1, A2, Y]].mean(axis=0)
     near = FOREARM[X] + 0.010 * away / np.linalg.norm(away)
     truth = np.concatenate([_segment(FOREARM, seed=8), _segment(near[None], seed=8)], axis=1)
@@ -162,12 +163,26 @@ def test_a_run_that_continues_the_identitys_path_stays():
 
 def test_a_sample_some_anchors_agree_with_is_not_refuted():
     """X's identity stays on X while its anchor Y's identity holds a point 30 mm off (frames 400-410); a second
-    identity of X (frames 100-300) fits X's samples there too: with the path check off, nothing moves, because
-    two of three anchors agree."""
+    identity of X (frames 100-300) fits X's samples there too: even with every piece cut at each reversal
+    (``hop_m`` 0), nothing moves, because two of three anchors agree."""
     truth = _segment(FOREARM, seed=10)
     traj = _columns(truth, [[(A1, 0, F)], [(A2, 0, F)], [(X, 0, F)], [(Y, 0, F)], [(X, 100, 300)]])
     traj.positions[400:410, 3] += [0.03, 0.0, 0.0]
     assert move_refuted_samples(traj, AnchorConfig(hop_m=0.0)) == 0
+
+
+def test_pieces_of_an_identity_without_anchors_go_where_they_fit_whole():
+    """The tracker's identity for X and Y seen in turn (frames 250-400, 75 samples each) has no anchors: its distances
+    spread. Its pieces go to X's and Y's identities, whole: two samples 8 mm off (a merged blob), out of the
+    tolerance, go with their piece."""
+    truth = _segment(FOREARM, seed=11)
+    pieces = [[(A1, 0, F)], [(A2, 0, F)], [(X, 0, 250), (X, 400, F)], [(Y, 0, 250), (Y, 400, F)],
+              [(X, 250, 300), (Y, 300, 375), (X, 375, 400)]]
+    traj = _columns(truth, pieces)
+    traj.positions[[270, 271], 4] += [0.008, 0.0, 0.0]
+    assert move_refuted_samples(traj) == 150
+    assert _holder(traj, truth, X) == {2: 523} and _holder(traj, truth, Y) == {3: 525}
+    assert np.isfinite(traj.positions[[270, 271], 2, 0]).all() and not np.isfinite(traj.positions[:, 4, 0]).any()
 
 
 def test_the_identity_repair_moves_samples_by_anchors():
