@@ -26,13 +26,12 @@ it, the joins changed the plates it learned), :func:`rejoin_by_anchors`:
    target's where its distances to the anchors in that frame fit the target's (mean within ``tolerance_m``) and
    the target's own do not; the sample left over moves to a new identity.
 
-:func:`move_refuted_samples` then moves the tracker's hops: pieces of an identity (its samples cut at gaps, jumps
-and hops there and back) whose samples fit another identity's anchors go to that identity where it is free.
-Samples vote: one its identity's anchors refute (none of those seen in its frame agrees, one or more disagree),
-or any sample of an identity with no anchors (the tracker's mix of two markers has none: its distances spread),
-votes for the one identity absent from its frame whose anchors it fits; a piece moves where half its samples vote
-for one identity and none for another.
-The repair alternates the two (:func:`mocap.relabel.repair_identities`).
+:func:`move_refuted_samples` then moves the tracker's hops: pieces of an identity (its samples cut at gaps, jumps,
+hops there and back, and where the fit to the anchors changes and the path breaks) whose samples fit another
+identity's anchors go to that identity where it is free. Samples vote: one its identity's anchors refute (none of
+those seen in its frame agrees, one or more disagree), or any sample of an identity with no anchors (the tracker's
+mix of two markers has none: its distances spread), votes for the one identity absent from its frame whose anchors
+it fits; a piece moves where half its samples vote for one identity and none for another. The repair alternates the two (:func:`mocap.relabel.repair_identities`).
 
 Only whole samples move between identity columns; positions are never changed, and no sample is dropped.
 """
@@ -206,16 +205,19 @@ def _anchor_votes(P: np.ndarray, rows: np.ndarray, X: np.ndarray, median: np.nda
 
 
 def _candidates(P: np.ndarray, seen: np.ndarray, median: np.ndarray, strong: np.ndarray, tolerance_m: float
-                ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """(frames, columns, anchored) of the samples of ``P`` (F, M, 3) that may belong to another identity: those that no
     anchor of their identity seen in their frame agrees with (within ``tolerance_m`` of the median distance) and
-    one or more disagree with (``anchored`` True), and every sample of an identity without anchors (False)."""
+    one or more disagree with (``anchored`` True), and every sample of an identity without anchors (False); and the
+    (F, M) bool samples that an anchor of their identity agrees with."""
     frames, columns = [], []
+    agreed = np.zeros(seen.shape, dtype=bool)
     for m in np.flatnonzero(strong.any(axis=1)):
         anchors = np.flatnonzero(strong[m])
         rows = np.flatnonzero(seen[:, m])
         dev = _deviation(P, rows, P[rows, m], anchors, median[m, anchors])
-        bad = ~(dev <= tolerance_m).any(axis=1) & (dev > tolerance_m).any(axis=1)
+        agreed[rows, m] = (dev <= tolerance_m).any(axis=1)
+        bad = ~agreed[rows, m] & (dev > tolerance_m).any(axis=1)
         frames.append(rows[bad])
         columns.append(np.full(int(bad.sum()), m))
     loose = ~strong.any(axis=1)
@@ -223,7 +225,38 @@ def _candidates(P: np.ndarray, seen: np.ndarray, median: np.ndarray, strong: np.
     frames.append(free_f)
     columns.append(np.flatnonzero(loose)[free_c])
     frames, columns = np.concatenate(frames), np.concatenate(columns)
-    return frames, columns, ~loose[columns]
+    return frames, columns, ~loose[columns], agreed
+
+
+def _continued(P: np.ndarray, frame: np.ndarray, col: np.ndarray, step: int, hop_m: float) -> np.ndarray:
+    """(n,) bool: identity ``col``'s samples at ``frame - step`` and ``frame - 2 step`` exist and predict its sample
+    at ``frame`` within ``hop_m`` (its path goes on through it)."""
+    F = len(P)
+    a, b = frame - step, frame - 2 * step
+    inside = (a >= 0) & (a < F) & (b >= 0) & (b < F)
+    out = np.zeros(frame.size, dtype=bool)
+    f, c = frame[inside], col[inside]
+    miss = P[f, c] - (2.0 * P[a[inside], c] - P[b[inside], c])
+    with np.errstate(invalid="ignore"):
+        out[inside] = np.sqrt((miss * miss).sum(axis=1)) < hop_m
+    return out
+
+
+def _pieces(P: np.ndarray, state: np.ndarray, jump_acc: float, hop_m: float) -> list[np.ndarray]:
+    """(n, 2) (frame, column) runs of the identities of ``P`` (F, M, 3) cut at gaps, jumps (``jump_acc``) and hops
+    there and back (:func:`mocap.rigid.split_tracklets`), and where the (F, M) ``state`` of the samples changes
+    (-2: its identity's anchors agree, k >= 0: it votes for identity k; -1, neither, goes with the samples before
+    it) and the path does not go on through the change (a hop right after a gap: no acceleration to see)."""
+    out = []
+    for run in split_tracklets(P, jump_acc, hop_m):
+        s = state[run[:, 0], run[:, 1]]
+        decided = np.flatnonzero(s != -1)
+        cuts = decided[1:][s[decided[1:]] != s[decided[:-1]]]
+        if cuts.size:
+            col = run[cuts, 1]
+            cuts = cuts[~(_continued(P, run[cuts, 0], col, 1, hop_m) | _continued(P, run[cuts - 1, 0], col, -1, hop_m))]
+        out.extend(np.split(run, cuts))
+    return out
 
 
 def move_refuted_samples(traj: Trajectories, config: AnchorConfig | None = None, jump_acc: float = np.inf) -> int:
@@ -236,7 +269,9 @@ def move_refuted_samples(traj: Trajectories, config: AnchorConfig | None = None,
     its frame that it fits (``min_anchors`` anchors or more agree, more agree than disagree, none disagree for a
     sample of an identity without anchors), unless another sample of its frame votes for that identity too. Each
     identity is cut into pieces at gaps, at jumps (an acceleration over ``jump_acc``, m/frame^2, on both samples
-    of a step) and at hops there and back (over ``hop_m`` in opposite directions); a piece moves when
+    of a step), at hops there and back (over ``hop_m`` in opposite directions), and where the votes change (to or
+    from a sample its own anchors agree with, or between two identities) and its path does not go on through the
+    change (``hop_m``: a hop on the first sample after a gap shows no acceleration); a piece moves when
     ``vote_fraction`` of its samples or more vote for one identity and none for another, that identity has no sample
     over its frames, and it makes no acceleration above ``jump_acc`` with that identity's samples next to its ends.
     A marker that merely strays from an anchor for a frame or two (skin, a merged blob) is a small share of its
@@ -253,7 +288,7 @@ def move_refuted_samples(traj: Trajectories, config: AnchorConfig | None = None,
     if not strong.any():
         return 0
     seen = np.isfinite(P[..., 0])
-    f, c, anchored = _candidates(P, seen, median, strong, cfg.tolerance_m)
+    f, c, anchored, agreed = _candidates(P, seen, median, strong, cfg.tolerance_m)
     votes = [np.zeros((0, 3), dtype=np.intp)]  # (frame, column, identity) of the samples that fit one identity
     step = max(1, 2_000_000 // int(strong.sum() + M))
     for s in range(0, f.size, step):
@@ -265,7 +300,9 @@ def move_refuted_samples(traj: Trajectories, config: AnchorConfig | None = None,
     f, c, t = np.concatenate(votes).T
     _, at, n = np.unique(f * M + t, return_inverse=True, return_counts=True)
     f, c, t = f[n[at] == 1], c[n[at] == 1], t[n[at] == 1]
-    pieces = split_tracklets(P, jump_acc, cfg.hop_m)
+    state = np.where(agreed, -2, -1)
+    state[f, c] = t
+    pieces = _pieces(P, state, jump_acc, cfg.hop_m)
     piece = np.full((F, M), -1)
     for k, run in enumerate(pieces):
         piece[run[:, 0], run[:, 1]] = k

@@ -185,6 +185,16 @@ def test_pieces_of_an_identity_without_anchors_go_where_they_fit_whole():
     assert np.isfinite(traj.positions[[270, 271], 2, 0]).all() and not np.isfinite(traj.positions[:, 4, 0]).any()
 
 
+def test_a_hop_on_the_first_sample_after_a_gap_moves():
+    """X's identity comes back from a gap on Y for one frame, then goes on with X: no acceleration shows the hop (the
+    sample before it is missing), but the votes change there, and X's path does not go through Y's sample."""
+    truth = _segment(FOREARM, seed=12)
+    pieces = [[(A1, 0, F)], [(A2, 0, F)], [(X, 0, 200), (Y, 210, 211), (X, 211, F)], [(Y, 0, 210), (Y, 211, F)]]
+    traj = _columns(truth, pieces)
+    assert move_refuted_samples(traj) == 1
+    assert _holder(traj, truth, X) == {2: 589} and _holder(traj, truth, Y) == {3: F}
+
+
 def test_the_identity_repair_moves_samples_by_anchors():
     from mocap.relabel import RelabelConfig, repair_identities
 
