@@ -31,7 +31,8 @@ hops there and back, and where the fit to the anchors changes and the path break
 identity's anchors go to that identity where it is free. Samples vote: one its identity's anchors refute (none of
 those seen in its frame agrees, one or more disagree), or any sample of an identity with no anchors (the tracker's
 mix of two markers has none: its distances spread), votes for the one identity absent from its frame whose anchors
-it fits; a piece moves where half its samples vote for one identity and none for another. The repair alternates the two (:func:`mocap.relabel.repair_identities`).
+it fits; a piece moves where half its samples vote for one identity and none for another. The repair alternates
+the two (:func:`mocap.relabel.repair_identities`).
 
 Only whole samples move between identity columns; positions are never changed, and no sample is dropped.
 """
