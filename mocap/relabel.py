@@ -93,11 +93,9 @@ class RelabelConfig:
         split_acc_mps2: ... and exceeds this real acceleration, m/s^2 (a serve's wrist reaches ~200 m/s^2:
             at 50 Hz that is 80 mm/frame^2, which must not read as a jump) ...
         split_reversal_m: ... or, where the two accelerations point opposite ways, exceeds this, m/frame^2 (and
-            ``split_reversal_mps2``): a step onto a marker this far away and on along it, or back. Real motion does
+            ``split_acc_mps2``): a step onto a marker this far away and on along it, or back. Real motion does
             not reverse a centimetres-per-frame^2 acceleration from one frame to the next; neighbouring markers
             of a cluster, 40-50 mm apart, step below ``split_acc_m``.
-        split_reversal_mps2: the real acceleration a reversal must also exceed, m/s^2 (at 50 Hz 60 mm/frame^2: a
-            serve's forearm marker stepping onto the wrist's, 12 cm away, mid-swing at 9 m/s).
         shape_window: samples at each tracklet end over which the distances to its neighbours are taken.
         shape_radius_m: neighbours within this distance ...
         shape_steady_m: ... whose distance varies less than this over the window count as attached ...
@@ -147,7 +145,6 @@ class RelabelConfig:
     split_acc_m: float = 0.06
     split_acc_mps2: float = 250.0
     split_reversal_m: float = 0.035
-    split_reversal_mps2: float = 150.0
     shape_window: int = 6
     shape_radius_m: float = 0.25
     shape_steady_m: float = 0.004
@@ -175,8 +172,8 @@ class RelabelConfig:
 
     def reversal_acc(self, fps: float) -> float:
         """The acceleration, m/frame^2, above which two consecutive opposite accelerations are a jump at ``fps``
-        Hz (``split_reversal_m`` and ``split_reversal_mps2``)."""
-        return max(self.split_reversal_m, self.split_reversal_mps2 / fps**2)
+        Hz (``split_reversal_m`` and ``split_acc_mps2``)."""
+        return max(self.split_reversal_m, self.split_acc_mps2 / fps**2)
 
 
 @dataclass

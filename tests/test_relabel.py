@@ -207,22 +207,6 @@ def test_a_fast_swing_at_50_hz_is_not_cut_where_a_jump_is():
     assert len(split_tracklets(P, split)) == 2
 
 
-def test_a_step_onto_a_neighbour_on_the_swinging_arm_is_cut_at_50_hz():
-    """The wrist of the test above and a forearm marker 12 cm inward on the same swing: an identity stepping from one
-    to the other at 50 Hz accelerates 196 then 68 mm/frame^2 the other way, under the 100 mm/frame^2 jump threshold
-    on the second. The reversal cuts it (60 mm/frame^2 at 50 Hz; the two players' RFRM onto RWRB at frame 332)."""
-    fps, turns = 50.0, 3.2
-    angle = 2 * np.pi * turns * np.arange(100) / fps
-    wrist, forearm = ([r * np.cos(angle), r * np.sin(angle), np.ones_like(angle)] for r in (0.5, 0.38))
-    P = np.stack(wrist, axis=1)[:, None, :]
-    P[50:, 0] = np.stack(forearm, axis=1)[50:]
-    cfg = RelabelConfig()
-    assert len(split_tracklets(P, cfg.jump_acc(fps), cfg.reversal_acc(fps))) == 2
-    assert len(split_tracklets(P[:50], cfg.jump_acc(fps), cfg.reversal_acc(fps))) == 1  # the swing alone is not cut
-    old = RelabelConfig(split_reversal_mps2=250.0)
-    assert len(split_tracklets(P, old.jump_acc(fps), old.reversal_acc(fps))) == 1
-
-
 def test_a_step_onto_a_neighbour_45_mm_away_and_back_is_cut():
     """The sprint start's forearm at 120 Hz: marker A's identity misses a frame and takes marker B, 45 mm away and
     just back in view, for 3 frames, then A again. The steps (45 mm/frame^2 there and back) stay below the 60 mm
