@@ -206,11 +206,11 @@ def _anchor_votes(P: np.ndarray, rows: np.ndarray, X: np.ndarray, median: np.nda
 
 
 def _candidates(P: np.ndarray, seen: np.ndarray, median: np.ndarray, strong: np.ndarray, tolerance_m: float
-                ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """(frames, columns, anchored) of the samples of ``P`` (F, M, 3) that may belong to another identity: those that no
-    anchor of their identity seen in their frame agrees with (within ``tolerance_m`` of the median distance) and
-    one or more disagree with (``anchored`` True), and every sample of an identity without anchors (False); and the
-    (F, M) bool samples that an anchor of their identity agrees with."""
+                ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(frames, columns) of the samples of ``P`` (F, M, 3) that may belong to another identity: those that no anchor
+    of their identity seen in their frame agrees with (within ``tolerance_m`` of the median distance) and one or more
+    disagree with, and every sample of an identity without anchors; and the (F, M) bool samples that an anchor of
+    their identity agrees with."""
     frames, columns = [], []
     agreed = np.zeros(seen.shape, dtype=bool)
     for m in np.flatnonzero(strong.any(axis=1)):
@@ -225,8 +225,7 @@ def _candidates(P: np.ndarray, seen: np.ndarray, median: np.ndarray, strong: np.
     free_f, free_c = np.nonzero(seen[:, loose])
     frames.append(free_f)
     columns.append(np.flatnonzero(loose)[free_c])
-    frames, columns = np.concatenate(frames), np.concatenate(columns)
-    return frames, columns, ~loose[columns], agreed
+    return np.concatenate(frames), np.concatenate(columns), agreed
 
 
 def _continued(P: np.ndarray, frame: np.ndarray, col: np.ndarray, step: int, hop_m: float) -> np.ndarray:
@@ -289,7 +288,8 @@ def move_refuted_samples(traj: Trajectories, config: AnchorConfig | None = None,
     if not strong.any():
         return 0
     seen = np.isfinite(P[..., 0])
-    f, c, anchored, agreed = _candidates(P, seen, median, strong, cfg.tolerance_m)
+    f, c, agreed = _candidates(P, seen, median, strong, cfg.tolerance_m)
+    anchored = strong.any(axis=1)[c]
     votes = [np.zeros((0, 3), dtype=np.intp)]  # (frame, column, identity) of the samples that fit one identity
     step = max(1, 2_000_000 // int(strong.sum() + M))
     for s in range(0, f.size, step):
