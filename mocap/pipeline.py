@@ -204,11 +204,11 @@ def reconstruct(take: str | os.PathLike, options: ReconstructOptions | None = No
         stats = repair_identities(traj, unconfirmed=tracker.unconfirmed())
         log.info("identity repair: %d duplicate samples dropped; %d swaps undone; %d identities -> %d (fragments "
                  "re-linked, tracks cut where they jumped; %d joined by the shapes of rigid clusters); %d exchanges "
-                 "undone where markers passed close; %d samples labelled by rigid plates' shapes; %d fragments "
-                 "joined by their distances to rigid neighbours, %d samples moved to the identity whose neighbours "
-                 "they fit; %d unconfirmed points joined identities' paths",
+                 "undone where markers passed close; %d bursts of hops unscrambled; %d samples labelled by rigid "
+                 "plates' shapes; %d fragments joined by their distances to rigid neighbours, %d samples moved to the "
+                 "identity whose neighbours they fit; %d unconfirmed points joined identities' paths",
                  stats.duplicates, stats.swaps, before, traj.n_markers, stats.reunited, stats.exchanges,
-                 stats.plate_samples, stats.rejoined, stats.anchor_moves, stats.filled)
+                 stats.unscrambled, stats.plate_samples, stats.rejoined, stats.anchor_moves, stats.filled)
     traj.camera_names = rig.names
     traj.metadata.update({"source": str(path), "software": f"mocap {__version__}", "cameras": len(rig)})
     if traj.n_markers == 0:

@@ -39,12 +39,13 @@ the frames on both sides of a decision are known, and these identity errors are 
   takes the identity back and the newcomer becomes an identity of its own.
 
 A third pass, :mod:`mocap.exchange`, gives back markers two identities exchanged where the markers passed close,
-by the distances to the markers attached to them; a fourth, :mod:`mocap.reunite`, rejoins rigid clusters that
-come back after a long absence, far from every gate, by the distances between their markers; a fifth,
-:mod:`mocap.plates`, labels the markers of rigid plates frame by frame by the plate's shape; a sixth,
-:mod:`mocap.anchors`, joins fragments of a marker's track to the identity whose rigid neighbours they keep the
-same distances to; a seventh, :mod:`mocap.fill`, gives the tracker's unconfirmed points to the identities whose
-paths they continue.
+by the distances to the markers attached to them; a fourth, :mod:`mocap.scramble`, puts back jointly the tails of
+identities permuted in a burst of hops (a serve's swing), by every distance that held through it; a fifth,
+:mod:`mocap.reunite`, rejoins rigid clusters that come back after a long absence, far from every gate, by the
+distances between their markers; a sixth, :mod:`mocap.plates`, labels the markers of rigid plates frame by frame by
+the plate's shape; a seventh, :mod:`mocap.anchors`, joins fragments of a marker's track to the identity whose rigid
+neighbours they keep the same distances to; an eighth, :mod:`mocap.fill`, gives the tracker's unconfirmed points to
+the identities whose paths they continue.
 
 All passes only move whole samples between identity columns (positions, residuals and camera
 masks together), and the first deletes the second copy of a point; they never change a position.
@@ -66,6 +67,7 @@ from mocap.plates import label_plates
 from mocap.quickstats import quick_median
 from mocap.reunite import reunite_clusters
 from mocap.rigid import split_tracklets
+from mocap.scramble import unscramble_bursts
 from mocap.trajectories import Trajectories, UnconfirmedPoints
 
 __all__ = ["RelabelConfig", "RelabelStats", "drop_duplicates", "relink_tracklets", "repair_identities", "repair_swaps"]
@@ -180,14 +182,15 @@ class RelabelConfig:
 class RelabelStats:
     """What the repair changed: duplicate samples deleted, tail permutations applied, identities saved by the
     re-linking (``stitches``: fragments joined minus tracks cut at jumps, so negative where the cuts outnumber the
-    joins), exchanges undone where two markers passed close, cluster members reunited, samples moved to the plate
-    member their shape names, fragments rejoined by their anchors, samples moved to the identity whose anchors they
-    fit, unconfirmed points that joined an identity's path."""
+    joins), exchanges undone where two markers passed close, bursts of hops unscrambled, cluster members reunited,
+    samples moved to the plate member their shape names, fragments rejoined by their anchors, samples moved to the
+    identity whose anchors they fit, unconfirmed points that joined an identity's path."""
 
     duplicates: int = 0
     swaps: int = 0
     stitches: int = 0
     exchanges: int = 0
+    unscrambled: int = 0
     reunited: int = 0
     plate_samples: int = 0
     rejoined: int = 0
@@ -678,9 +681,9 @@ class _Linker:
 def repair_identities(traj: Trajectories, config: RelabelConfig | None = None,
                       unconfirmed: UnconfirmedPoints | None = None) -> RelabelStats:
     """Duplicates dropped (:func:`drop_duplicates`), swap repair, fragment stitching, exchanges undone where two
-    markers passed close (:mod:`mocap.exchange`), the reunion of rigid clusters
-    back after a long absence (:mod:`mocap.reunite`), then the labelling of rigid plates by their shape
-    (:mod:`mocap.plates`), fragments rejoined by their distances to rigid neighbours and samples moved to the
+    markers passed close (:mod:`mocap.exchange`), bursts of hops unscrambled (:mod:`mocap.scramble`), the reunion
+    of rigid clusters back after a long absence (:mod:`mocap.reunite`), then the labelling of rigid plates by their
+    shape (:mod:`mocap.plates`), fragments rejoined by their distances to rigid neighbours and samples moved to the
     identity whose neighbours they fit (:mod:`mocap.anchors`, in turns: ``ANCHOR_ROUNDS`` at most) and the
     fill from unconfirmed points (:mod:`mocap.fill`), in place; empty identity columns are dropped.
     ``unconfirmed``: the tracker's points without identity (:meth:`mocap.tracker.Tracker.unconfirmed`), which the
@@ -695,8 +698,9 @@ def repair_identities(traj: Trajectories, config: RelabelConfig | None = None,
     stats.swaps = repair_swaps(traj, config)
     stats.stitches = relink_tracklets(traj, config)
     stats.exchanges = undo_exchanges(traj)
-    stats.reunited = reunite_clusters(traj)
     jump = (config or RelabelConfig()).jump_acc(traj.fps)
+    stats.unscrambled = unscramble_bursts(traj, jump)
+    stats.reunited = reunite_clusters(traj)
     stats.plate_samples = label_plates(traj, extra=unconfirmed, jump_acc=jump)
     stats.rejoined = rejoin_by_anchors(traj)
     for _ in range(ANCHOR_ROUNDS):  # a move can make two fragments of one marker joinable, and a join new moves

@@ -1,0 +1,208 @@
+"""Identities scrambled in a burst of hops get their markers back, jointly, by the distances that held (offline).
+
+A tennis serve's elbow opens at 10 m/s: for a few frames the arm's markers move 100-250 mm per frame, and the
+tracker's identities hop between them (accelerations of 140-300 mm/frame^2, where the markers' own stay under 90).
+The re-linking (:func:`mocap.relabel.relink_tracklets`) cuts the hops but can only extrapolate across them, which
+misses by more than the markers are apart, and the markers' distances to each other change too fast there for its
+marker-by-marker costs: three or more identities can come out of the burst permuted. Their tails are put back
+jointly, by every distance of every marker involved at once.
+
+:func:`unscramble_bursts`:
+
+1. finds the bursts: hops (accelerations above the jump threshold) of different identities at most ``join_s``
+   apart in time and ``reach_m`` apart in space (in one frame). A burst's identities are those that hopped, those
+   within ``near_m`` of a hop during the burst, and those hidden during it within ``reach_m``;
+2. measures, over the ``window_s`` before the burst, each burst identity's distance to every identity within
+   ``reach_m`` (median and robust spread), and over the ``window_s`` from ``gap`` frames after it, the same from
+   each burst identity's tail;
+3. scores every permutation of the burst identities' tails by the log-likelihood ratio of those distances against
+   "no information": a distance is rigid with prior probability ``exp(-spread / rigid_scale_m)`` (a wrist bar's
+   two markers, 0.5 mm over the window, almost surely; an elbow's skin marker, 3 mm, hardly), and then stays within
+   ``spread + noise_m`` (Gaussian); else it is anywhere within ``reach_m``. A marker with no rigid neighbour costs
+   the same under every permutation, so the steady distances decide;
+4. among the permutations within ``tie_nats`` of the best, takes the one that moves the fewest identities (markers
+   whose distances cannot tell them apart keep the tracker's choice), and applies it where it beats keeping the tails
+   by ``margin_nats``: from the frame of the burst that gives the tracks the smoothest paths through it.
+
+Only whole samples move between identity columns; positions are never changed.
+"""
+
+from __future__ import annotations
+
+import itertools
+import warnings
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components
+
+from mocap.trajectories import Trajectories
+
+__all__ = ["ScrambleConfig", "unscramble_bursts"]
+
+
+@dataclass(frozen=True)
+class ScrambleConfig:
+    """Settings of the burst repair (see the module docstring).
+
+    Attributes:
+        join_s: hops at most this far apart in time, s ...
+        reach_m: ... and in space, m, are one burst; identities hidden in the burst within this of a hop join it,
+            and distances within this are measured.
+        near_m: identities seen within this of a hop during the burst join it, m.
+        window_s: distances are taken over this long before the burst and after it, s ...
+        gap: ... the after window starting this many frames after the burst's last hop (its tails settle).
+        rigid_scale_m: a distance whose robust spread over the window before is s is rigid with prior probability
+            exp(-s / this) ...
+        noise_m: ... and then stays within s + this, m (one standard deviation).
+        tie_nats: permutations within this of the best log-likelihood are ties, the fewest moves winning ...
+        margin_nats: ... and the winner is applied where it beats keeping the tails by this.
+        max_identities: a burst of more identities is left alone (their permutations are too many to try).
+    """
+
+    join_s: float = 0.2
+    reach_m: float = 0.3
+    near_m: float = 0.2
+    window_s: float = 0.3
+    gap: int = 2
+    rigid_scale_m: float = 0.001
+    noise_m: float = 0.001
+    tie_nats: float = 3.0
+    margin_nats: float = 5.0
+    max_identities: int = 8
+
+
+def unscramble_bursts(traj: Trajectories, jump_acc: float, config: ScrambleConfig | None = None) -> int:
+    """Permute back, in place, the tails of identities scrambled in a burst of hops (accelerations over
+    ``jump_acc``, m/frame^2; see the module docstring); returns how many bursts were put back."""
+    cfg = config or ScrambleConfig()
+    P = traj.positions
+    window = max(3, int(round(cfg.window_s * traj.fps)))  # frames
+    enough = window // 2  # samples a distance needs in a window
+    done = 0
+    join = max(1, int(round(cfg.join_s * traj.fps)))  # frames
+    column = np.arange(P.shape[1])  # where each identity's tail after the bursts put back so far now is
+    for first, last, found in _bursts(P, _hop_frames(P, jump_acc), join, cfg):
+        ids = column[found]
+        start = last + 1 + cfg.gap
+        if ids.size > cfg.max_identities or first < window or start + window > len(P):
+            continue
+        was, spread, count = _window_distances(P, slice(first - window, first), ids)
+        near = (count >= enough) & (was < cfg.reach_m)
+        near[np.arange(ids.size), ids] = False
+        if not near.any():
+            continue
+        now, _, seen = _window_distances(P, slice(start, start + window), ids)
+        order = _least_moves(*_permutation_costs(ids, near, was, spread, now, seen >= enough, cfg), cfg)
+        if order is not None:
+            traj.permute_tails(_smoothest_split(P, first, last, ids, ids[order]), ids[order], ids)
+            moved = np.arange(P.shape[1])
+            moved[ids[order]] = ids
+            column = moved[column]
+            done += 1
+    return done
+
+
+def _hop_frames(P: np.ndarray, jump_acc: float) -> np.ndarray:
+    """(n, 2) frame, identity of every sample of ``P`` (F, M, 3) accelerating over ``jump_acc`` m/frame^2, in frame
+    order."""
+    acc = np.full(P.shape[:2], np.nan)
+    acc[1:-1] = np.linalg.norm(P[2:] - 2 * P[1:-1] + P[:-2], axis=2)
+    with np.errstate(invalid="ignore"):
+        return np.argwhere(acc > jump_acc)
+
+
+def _bursts(P: np.ndarray, hops: np.ndarray, join: int, cfg: ScrambleConfig) -> list[tuple[int, int, np.ndarray]]:
+    """(first frame, last frame, identities (g,)) of every burst of ``hops`` (n, 2) frame, identity in frame order
+    (step 1 of the module docstring)."""
+    n = len(hops)
+    if n == 0:
+        return []
+    frames, owners = hops[:, 0], hops[:, 1]
+    pos = P[frames, owners]  # (n, 3)
+    ends = np.searchsorted(frames, frames + join, side="right")
+    rows, cols = [np.arange(n)], [np.arange(n)]
+    with np.errstate(invalid="ignore"):
+        for i in range(n):
+            later = np.arange(i + 1, ends[i])
+            if later.size:  # in either hop's frame, the other hop's identity is within reach
+                apart = np.fmin(np.linalg.norm(P[frames[i], owners[later]] - pos[i], axis=1),
+                                np.linalg.norm(P[frames[later], owners[i]] - pos[later], axis=1))
+                later = later[apart < cfg.reach_m]
+                rows.append(np.full(later.size, i))
+                cols.append(later)
+    rows, cols = np.concatenate(rows), np.concatenate(cols)
+    _, component = connected_components(coo_matrix((np.ones(rows.size), (rows, cols)), shape=(n, n)), directed=False)
+    out = []
+    for c in np.unique(component):
+        mine = component == c
+        first, last = int(frames[mine].min()), int(frames[mine].max())
+        span = P[first:last + 1]  # (s, M, 3)
+        hidden = np.isnan(span[..., 0]).any(axis=0) & np.isfinite(span[..., 0]).any(axis=0)
+        with np.errstate(invalid="ignore"), warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)  # (identities never seen in the burst: no distance)
+            closest = np.nanmin(np.linalg.norm(span[:, :, None] - pos[mine][None, None], axis=3), axis=(0, 2))
+        ids = np.union1d(owners[mine], np.flatnonzero((hidden & (closest < cfg.reach_m)) | (closest < cfg.near_m)))
+        if ids.size >= 2:
+            out.append((first, last, ids))
+    return out
+
+
+def _permutation_costs(ids: np.ndarray, near: np.ndarray, was: np.ndarray, spread: np.ndarray, now: np.ndarray,
+                       seen: np.ndarray, cfg: ScrambleConfig) -> tuple[np.ndarray, np.ndarray]:
+    """Every permutation of the burst identities' tails ((p, g): member k takes the tail of ``ids[perm[k]]``, the
+    first one keeping them) and its cost (p,), the negative log-likelihood ratio of its distances (step 3 of the
+    module docstring). ``near`` (g, M): the distances measured before; ``was``, ``spread`` (g, M): their medians
+    and robust spreads, m; ``now``, ``seen`` (g, M): each tail's median distances after, m, and whether measured."""
+    g = ids.size
+    members, partners = np.nonzero(near)  # (n,) each: a burst member and an identity it was measured to
+    then, s = was[members, partners], spread[members, partners]
+    prior = np.exp(-s / cfg.rigid_scale_m)
+    sigma = s + cfg.noise_m
+    slot = np.full(now.shape[1], -1)
+    slot[ids] = np.arange(g)
+    inside = slot[partners] >= 0  # the partner is a burst member too: its tail moves with the permutation
+    perms = np.array(list(itertools.permutations(range(g))), dtype=np.intp)  # (p, g)
+    tails = perms[:, members]  # (p, n): which member's tail each distance now starts from
+    others = np.where(inside, ids[perms[:, np.maximum(slot[partners], 0)]], partners)  # (p, n) identity
+    z = (now[tails, others] - then) / sigma
+    with np.errstate(invalid="ignore"):  # (unmeasured: NaN, scored 0 below)
+        ratio = prior * np.exp(-0.5 * z * z) * cfg.reach_m / (np.sqrt(2 * np.pi) * sigma) + (1 - prior)
+        cost = -np.where(seen[tails, others], np.log(ratio), 0.0).sum(axis=1)
+    return perms, cost
+
+
+def _least_moves(perms: np.ndarray, cost: np.ndarray, cfg: ScrambleConfig) -> np.ndarray | None:
+    """The permutation to apply (step 4 of the module docstring), None to keep the tails; ``perms`` (p, g) with
+    the identity first, ``cost`` (p,) nats."""
+    moves = (perms != np.arange(perms.shape[1])).sum(axis=1)
+    tied = np.flatnonzero(cost - cost.min() < cfg.tie_nats)
+    k = tied[np.lexsort((cost[tied], moves[tied]))[0]]
+    if moves[k] == 0 or cost[0] - cost[k] < cfg.margin_nats:
+        return None
+    return perms[k]
+
+
+def _smoothest_split(P: np.ndarray, first: int, last: int, ids: np.ndarray, tails: np.ndarray) -> int:
+    """The frame from which identities ``ids`` take the tails of ``tails`` (both (g,)): the one of ``first`` + 1 ..
+    ``last`` + 1 that gives their tracks in ``P`` (F, M, 3) the smallest summed squared accelerations over the
+    burst."""
+    frames = np.arange(max(first - 2, 0), min(last + 4, len(P)))
+    best, best_cost = last + 1, np.inf
+    for split in range(first + 1, last + 2):
+        path = np.where((frames >= split)[:, None, None], P[frames][:, tails], P[frames][:, ids])  # (n, g, 3)
+        cost = float(np.nansum((path[2:] - 2 * path[1:-1] + path[:-2]) ** 2))
+        if cost < best_cost:
+            best, best_cost = split, cost
+    return best
+
+
+def _window_distances(P: np.ndarray, frames: slice, ids: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Median, robust spread (1.4826 x median absolute deviation) and count of the distances (m) from identities
+    ``ids`` (g,) of ``P`` (F, M, 3) to every identity over ``frames``: three (g, M) arrays."""
+    with np.errstate(invalid="ignore"), warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # (all-NaN: no distance)
+        d = np.linalg.norm(P[frames, ids, None] - P[frames, None, :], axis=3)  # (w, g, M)
+        middle = np.nanmedian(d, axis=0)
+        return middle, 1.4826 * np.nanmedian(np.abs(d - middle), axis=0), np.isfinite(d).sum(axis=0)

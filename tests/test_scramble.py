@@ -1,0 +1,82 @@
+"""Identities scrambled in a burst of hops get their markers back by the distances that held through it."""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from mocap.scramble import ScrambleConfig, unscramble_bursts
+from tests.test_relabel import _traj
+
+FPS = 50.0  # (the frame rate of tests.test_relabel._traj)
+JUMP = 0.1  # m/frame^2: the repair's jump threshold at 50 Hz
+UPPER = np.array([[0.0, 0.0, 0.0], [0.16, 0.0, 0.0], [0.26, 0.02, 0.0]])  # shoulder, upper arm, elbow; m
+FORE = np.array([[0.0, 0.0, 0.0], [0.154, 0.0, 0.0], [0.1018, 0.0841, 0.0]])  # forearm, wrist bar A and B (scalene)
+
+
+def _arm(frames: int = 100, seed: int = 0) -> np.ndarray:
+    """(F, 6, 3) at 50 Hz: shoulder, upper arm, elbow, forearm and a wrist bar's two markers of an arm turning about
+    the shoulder at 6 rad/s, the elbow opening from 90 to 10 degrees over frames 40-60; 0.3 mm noise."""
+    t = np.arange(frames) / FPS
+    arm = Rotation.from_rotvec(np.c_[np.zeros(frames), 0.3 * np.sin(2 * t), 6.0 * t])
+    bend = np.deg2rad(90 - 80 * np.clip((np.arange(frames) - 40) / 20, 0, 1))
+    fore = arm * Rotation.from_rotvec(np.c_[np.zeros(frames), np.zeros(frames), bend])
+    shoulder = np.array([0.0, 0.0, 1.4])
+    upper = np.einsum("fij,nj->fni", arm.as_matrix(), UPPER) + shoulder
+    elbow = upper[:, 2] + arm.apply([0.04, 0.0, 0.0])
+    forearm = np.einsum("fij,nj->fni", fore.as_matrix(), FORE + [0.05, 0.0, 0.0]) + elbow[:, None]
+    P = np.concatenate([upper, forearm], axis=1)
+    return P + np.random.default_rng(seed).normal(0, 0.0003, P.shape)
+
+
+def _scrambled(P: np.ndarray, frame: int) -> np.ndarray:
+    """``P`` with the upper arm's, the elbow's and the forearm's tails permuted in a cycle from ``frame`` on, as
+    the tracker left them after the swing: the upper arm's identity on the forearm marker, the elbow's on the upper
+    arm marker, the forearm's on the elbow marker."""
+    seen = P.copy()
+    seen[frame:, [1, 2, 3]] = P[frame:, [3, 1, 2]]
+    return seen
+
+
+def test_three_identities_permuted_in_a_swing_get_their_markers_back():
+    """The three tails hop by 100-250 mm at frame 50 (accelerations far over the threshold); the wrist bar keeps
+    150 and 130 mm to the forearm marker and the upper arm marker 100 mm to the elbow: only one permutation fits."""
+    P = _arm()
+    traj = _traj(_scrambled(P, 50))
+    assert unscramble_bursts(traj, JUMP) == 1
+    np.testing.assert_array_equal(traj.positions, P)
+
+
+def test_an_arm_that_kept_its_identities_is_left_alone():
+    P = _arm()
+    traj = _traj(P)
+    assert unscramble_bursts(traj, JUMP) == 0
+    np.testing.assert_array_equal(traj.positions, P)
+
+
+def test_markers_no_distance_tells_apart_keep_the_trackers_choice():
+    """The upper arm and elbow markers' one rigid distance is the same both ways round: of the permutations that
+    fit, the one moving the fewest identities wins. Without the shoulder and the wrist bar, the forearm's identity
+    gets its marker back and the upper arm pair keeps what the tracker gave it."""
+    P = _arm()[:, 1:4]
+    seen = _scrambled(np.concatenate([P[:, :1], P], axis=1), 50)[:, 1:]  # (the same cycle on these three)
+    traj = _traj(seen)
+    assert unscramble_bursts(traj, JUMP) == 1
+    np.testing.assert_array_equal(traj.positions[:, 2], P[:, 2])
+    np.testing.assert_array_equal(traj.positions[50:, [0, 1]], P[50:, [1, 0]])
+    strict = _traj(seen)
+    assert unscramble_bursts(strict, JUMP, ScrambleConfig(margin_nats=1e3)) == 0
+    np.testing.assert_array_equal(strict.positions, seen)
+
+
+def test_markers_with_no_steady_distance_are_left_alone():
+    """Three markers that move independently and hop between each other: no permutation is likelier than another."""
+    t = np.arange(100)[:, None] / FPS
+    rng = np.random.default_rng(1)
+    P = 0.08 * np.sin(2 * np.pi * rng.uniform(0.5, 2.0, (1, 3, 3)) * t[..., None] + rng.uniform(0, 6, (1, 3, 3)))
+    P += np.array([[0.0, 0.0, 1.0], [0.1, 0.0, 1.0], [0.0, 0.1, 1.0]])
+    seen = P.copy()
+    seen[50:] = P[50:, [2, 0, 1]]
+    traj = _traj(seen)
+    assert unscramble_bursts(traj, JUMP) == 0
+    np.testing.assert_array_equal(traj.positions, seen)
