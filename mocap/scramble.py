@@ -11,7 +11,8 @@ jointly, by every distance of every marker involved at once.
 
 1. finds the bursts: hops (accelerations above the jump threshold) of different identities at most ``join_s``
    apart in time and ``reach_m`` apart in space (in one frame). A burst's identities are those that hopped, those
-   within ``near_m`` of a hop during the burst, and those hidden during it within ``reach_m``;
+   hidden during it within ``reach_m`` of a hop, and the bystanders seen within ``near_m`` of one (only those shaken
+   in the burst, where there are more than ``max_identities`` in all);
 2. measures, over the ``window_s`` before the burst, each burst identity's distance to every identity within
    ``reach_m`` (median and robust spread), and over the ``window_s`` from ``gap`` frames after it, the same from
    each burst identity's tail;
@@ -58,7 +59,9 @@ class ScrambleConfig:
         noise_m: ... and then stays within s + this, m (one standard deviation).
         tie_nats: permutations within this of the best log-likelihood are ties, the fewest moves winning ...
         margin_nats: ... and the winner is applied where it beats keeping the tails by this.
-        max_identities: a burst of more identities is left alone (their permutations are too many to try).
+        max_identities: a burst of more identities is left alone (their permutations are too many to try) ...
+        calm: ... once the bystanders (identities only seen near it) that accelerated less than this fraction of the
+            jump threshold through it are left out (an arm's swing next to the head: the head's markers).
     """
 
     join_s: float = 0.2
@@ -71,6 +74,7 @@ class ScrambleConfig:
     tie_nats: float = 3.0
     margin_nats: float = 5.0
     max_identities: int = 8
+    calm: float = 0.4
 
 
 def unscramble_bursts(traj: Trajectories, jump_acc: float, config: ScrambleConfig | None = None) -> int:
@@ -83,7 +87,7 @@ def unscramble_bursts(traj: Trajectories, jump_acc: float, config: ScrambleConfi
     done = 0
     join = max(1, int(round(cfg.join_s * traj.fps)))  # frames
     column = np.arange(P.shape[1])  # where each identity's tail after the bursts put back so far now is
-    for first, last, found in _bursts(P, _hop_frames(P, jump_acc), join, cfg):
+    for first, last, found in _bursts(P, _hop_frames(P, jump_acc), join, jump_acc, cfg):
         ids = column[found]
         start = last + 1 + cfg.gap
         if ids.size > cfg.max_identities or first < window or start + window > len(P):
@@ -113,9 +117,10 @@ def _hop_frames(P: np.ndarray, jump_acc: float) -> np.ndarray:
         return np.argwhere(acc > jump_acc)
 
 
-def _bursts(P: np.ndarray, hops: np.ndarray, join: int, cfg: ScrambleConfig) -> list[tuple[int, int, np.ndarray]]:
-    """(first frame, last frame, identities (g,)) of every burst of ``hops`` (n, 2) frame, identity in frame order
-    (step 1 of the module docstring)."""
+def _bursts(P: np.ndarray, hops: np.ndarray, join: int, jump_acc: float, cfg: ScrambleConfig
+            ) -> list[tuple[int, int, np.ndarray]]:
+    """(first frame, last frame, identities (g,)) of every burst of ``hops`` (n, 2) frame, identity in frame order,
+    hops accelerating over ``jump_acc`` m/frame^2 (step 1 of the module docstring)."""
     n = len(hops)
     if n == 0:
         return []
@@ -143,10 +148,22 @@ def _bursts(P: np.ndarray, hops: np.ndarray, join: int, cfg: ScrambleConfig) -> 
         with np.errstate(invalid="ignore"), warnings.catch_warnings():
             warnings.simplefilter("ignore", RuntimeWarning)  # (identities never seen in the burst: no distance)
             closest = np.nanmin(np.linalg.norm(span[:, :, None] - pos[mine][None, None], axis=3), axis=(0, 2))
-        ids = np.union1d(owners[mine], np.flatnonzero((hidden & (closest < cfg.reach_m)) | (closest < cfg.near_m)))
+        hopped_or_hidden = np.union1d(owners[mine], np.flatnonzero(hidden & (closest < cfg.reach_m)))
+        bystanders = np.setdiff1d(np.flatnonzero(closest < cfg.near_m), hopped_or_hidden)
+        if hopped_or_hidden.size + bystanders.size > cfg.max_identities:  # too many: leave out the calm bystanders
+            bystanders = bystanders[_shaken(P[max(first - 1, 0):last + 2, bystanders]) > cfg.calm * jump_acc]
+        ids = np.union1d(hopped_or_hidden, bystanders)
         if ids.size >= 2:
             out.append((first, last, ids))
     return out
+
+
+def _shaken(P: np.ndarray) -> np.ndarray:
+    """(M,) the largest acceleration, m/frame^2, of each identity of ``P`` (F, M, 3) over its frames (0 where never
+    measured)."""
+    with np.errstate(invalid="ignore"):
+        acc = np.linalg.norm(P[2:] - 2 * P[1:-1] + P[:-2], axis=2)
+    return np.where(np.isfinite(acc), acc, 0.0).max(axis=0, initial=0.0)
 
 
 def _permutation_costs(ids: np.ndarray, near: np.ndarray, was: np.ndarray, spread: np.ndarray, now: np.ndarray,

@@ -80,3 +80,19 @@ def test_markers_with_no_steady_distance_are_left_alone():
     traj = _traj(seen)
     assert unscramble_bursts(traj, JUMP) == 0
     np.testing.assert_array_equal(traj.positions, seen)
+
+
+def test_calm_bystanders_of_a_crowded_burst_are_left_out():
+    """Four standing markers (a head's) within 0.2 m of the swing make ten identities, too many permutations to try:
+    they did not move through the burst, so they are left out and the arm's six are put back."""
+    P = _arm()
+    rng = np.random.default_rng(2)
+    head = P[50, 2] + np.array([[0.1, 0.0, 0.05], [0.0, 0.1, 0.05], [-0.1, 0.0, 0.05], [0.0, -0.1, 0.05]])
+    head = np.broadcast_to(head, (len(P), 4, 3)) + rng.normal(0, 0.0003, (len(P), 4, 3))
+    truth = np.concatenate([P, head], axis=1)
+    seen = np.concatenate([_scrambled(P, 50), head], axis=1)
+    traj = _traj(seen)
+    assert unscramble_bursts(traj, JUMP) == 1
+    np.testing.assert_array_equal(traj.positions, truth)
+    crowded = _traj(seen)
+    assert unscramble_bursts(crowded, JUMP, ScrambleConfig(calm=0.0)) == 0
