@@ -42,6 +42,8 @@ from mocap.trajectories import Trajectories
 
 __all__ = ["ScrambleConfig", "unscramble_bursts"]
 
+_PERMUTATIONS_PER_BLOCK = 5040  # permutations scored at once (7!: a few MB of distances per block)
+
 
 @dataclass(frozen=True)
 class ScrambleConfig:
@@ -181,12 +183,15 @@ def _permutation_costs(ids: np.ndarray, near: np.ndarray, was: np.ndarray, sprea
     slot[ids] = np.arange(g)
     inside = slot[partners] >= 0  # the partner is a burst member too: its tail moves with the permutation
     perms = np.array(list(itertools.permutations(range(g))), dtype=np.intp)  # (p, g)
-    tails = perms[:, members]  # (p, n): which member's tail each distance now starts from
-    others = np.where(inside, ids[perms[:, np.maximum(slot[partners], 0)]], partners)  # (p, n) identity
-    z = (now[tails, others] - then) / sigma
-    with np.errstate(invalid="ignore"):  # (unmeasured: NaN, scored 0 below)
-        ratio = prior * np.exp(-0.5 * z * z) * cfg.reach_m / (np.sqrt(2 * np.pi) * sigma) + (1 - prior)
-        cost = -np.where(seen[tails, others], np.log(ratio), 0.0).sum(axis=1)
+    cost = np.empty(len(perms))
+    for start in range(0, len(perms), _PERMUTATIONS_PER_BLOCK):
+        block = perms[start:start + _PERMUTATIONS_PER_BLOCK]
+        tails = block[:, members]  # (b, n): which member's tail each distance now starts from
+        others = np.where(inside, ids[block[:, np.maximum(slot[partners], 0)]], partners)  # (b, n) identity
+        z = (now[tails, others] - then) / sigma
+        with np.errstate(invalid="ignore"):  # (unmeasured: NaN, scored 0 below)
+            ratio = prior * np.exp(-0.5 * z * z) * cfg.reach_m / (np.sqrt(2 * np.pi) * sigma) + (1 - prior)
+            cost[start:start + len(block)] = -np.where(seen[tails, others], np.log(ratio), 0.0).sum(axis=1)
     return perms, cost
 
 
