@@ -21,9 +21,12 @@ jointly, by every distance of every marker involved at once.
    two markers, 0.5 mm over the window, almost surely; an elbow's skin marker, 3 mm, hardly), and then stays within
    ``spread + noise_m`` (Gaussian); else it is anywhere within ``reach_m``. A marker with no rigid neighbour costs
    the same under every permutation, so the steady distances decide;
-4. among the permutations within ``tie_nats`` of the best, takes the one that moves the fewest identities (markers
-   whose distances cannot tell them apart keep the tracker's choice), and applies it where it beats keeping the tails
-   by ``margin_nats``: from the frame of the burst that gives the tracks the smoothest paths through it.
+4. among the permutations within ``tie_nats`` of the best (a pair whose one rigid distance reads the same both ways
+   round: an upper arm's two markers), takes the one whose distances changed least in all, loose ones too (each
+   change capped at ``drift_cap_m``, the cap where unmeasured: the upper arm marker stays 100 mm nearer the shoulder
+   than the elbow's), where it does so by ``drift_gap_m`` over the next; else the one that moves the fewest
+   identities (the tracker's choice stands where nothing tells). It is applied where it beats keeping the tails by
+   ``margin_nats``: from the frame of the burst that gives the tracks the smoothest paths through it.
 
 Only whole samples move between identity columns; positions are never changed.
 """
@@ -59,7 +62,9 @@ class ScrambleConfig:
         rigid_scale_m: a distance whose robust spread over the window before is s is rigid with prior probability
             exp(-s / this) ...
         noise_m: ... and then stays within s + this, m (one standard deviation).
-        tie_nats: permutations within this of the best log-likelihood are ties, the fewest moves winning ...
+        tie_nats: permutations within this of the best log-likelihood are ties ...
+        drift_cap_m: ... decided by their summed distance changes, each capped at this, m ...
+        drift_gap_m: ... where the least is below the next by this, m; else the fewest moves win ...
         margin_nats: ... and the winner is applied where it beats keeping the tails by this.
         max_identities: a burst of more identities is left alone (their permutations are too many to try) ...
         calm: ... once the bystanders (identities only seen near it) that accelerated less than this fraction of the
@@ -74,6 +79,8 @@ class ScrambleConfig:
     rigid_scale_m: float = 0.001
     noise_m: float = 0.001
     tie_nats: float = 3.0
+    drift_cap_m: float = 0.1
+    drift_gap_m: float = 0.05
     margin_nats: float = 5.0
     max_identities: int = 8
     calm: float = 0.4
@@ -100,7 +107,7 @@ def unscramble_bursts(traj: Trajectories, jump_acc: float, config: ScrambleConfi
         if not near.any():
             continue
         now, _, seen = _window_distances(P, slice(start, start + window), ids)
-        order = _least_moves(*_permutation_costs(ids, near, was, spread, now, seen >= enough, cfg), cfg)
+        order = _choose(*_permutation_costs(ids, near, was, spread, now, seen >= enough, cfg), cfg)
         if order is not None:
             traj.permute_tails(_smoothest_split(P, first, last, ids, ids[order]), ids[order], ids)
             moved = np.arange(P.shape[1])
@@ -169,11 +176,12 @@ def _shaken(P: np.ndarray) -> np.ndarray:
 
 
 def _permutation_costs(ids: np.ndarray, near: np.ndarray, was: np.ndarray, spread: np.ndarray, now: np.ndarray,
-                       seen: np.ndarray, cfg: ScrambleConfig) -> tuple[np.ndarray, np.ndarray]:
+                       seen: np.ndarray, cfg: ScrambleConfig) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Every permutation of the burst identities' tails ((p, g): member k takes the tail of ``ids[perm[k]]``, the
-    first one keeping them) and its cost (p,), the negative log-likelihood ratio of its distances (step 3 of the
-    module docstring). ``near`` (g, M): the distances measured before; ``was``, ``spread`` (g, M): their medians
-    and robust spreads, m; ``now``, ``seen`` (g, M): each tail's median distances after, m, and whether measured."""
+    first one keeping them), its cost (p,), the negative log-likelihood ratio of its distances (step 3 of the
+    module docstring), and its drift (p,), their summed capped changes, m (step 4). ``near`` (g, M): the distances
+    measured before; ``was``, ``spread`` (g, M): their medians and robust spreads, m; ``now``, ``seen`` (g, M): each
+    tail's median distances after, m, and whether measured."""
     g = ids.size
     members, partners = np.nonzero(near)  # (n,) each: a burst member and an identity it was measured to
     then, s = was[members, partners], spread[members, partners]
@@ -183,24 +191,32 @@ def _permutation_costs(ids: np.ndarray, near: np.ndarray, was: np.ndarray, sprea
     slot[ids] = np.arange(g)
     inside = slot[partners] >= 0  # the partner is a burst member too: its tail moves with the permutation
     perms = np.array(list(itertools.permutations(range(g))), dtype=np.intp)  # (p, g)
-    cost = np.empty(len(perms))
+    cost, drift = np.empty(len(perms)), np.empty(len(perms))
     for start in range(0, len(perms), _PERMUTATIONS_PER_BLOCK):
         block = perms[start:start + _PERMUTATIONS_PER_BLOCK]
         tails = block[:, members]  # (b, n): which member's tail each distance now starts from
         others = np.where(inside, ids[block[:, np.maximum(slot[partners], 0)]], partners)  # (b, n) identity
-        z = (now[tails, others] - then) / sigma
-        with np.errstate(invalid="ignore"):  # (unmeasured: NaN, scored 0 below)
+        measured = seen[tails, others]
+        change = now[tails, others] - then
+        z = change / sigma
+        with np.errstate(invalid="ignore"):  # (unmeasured: NaN, scored 0 and the cap below)
             ratio = prior * np.exp(-0.5 * z * z) * cfg.reach_m / (np.sqrt(2 * np.pi) * sigma) + (1 - prior)
-            cost[start:start + len(block)] = -np.where(seen[tails, others], np.log(ratio), 0.0).sum(axis=1)
-    return perms, cost
+            cost[start:start + len(block)] = -np.where(measured, np.log(ratio), 0.0).sum(axis=1)
+            capped = np.minimum(np.abs(change), cfg.drift_cap_m)
+        drift[start:start + len(block)] = np.where(measured, capped, cfg.drift_cap_m).sum(axis=1)
+    return perms, cost, drift
 
 
-def _least_moves(perms: np.ndarray, cost: np.ndarray, cfg: ScrambleConfig) -> np.ndarray | None:
+def _choose(perms: np.ndarray, cost: np.ndarray, drift: np.ndarray, cfg: ScrambleConfig) -> np.ndarray | None:
     """The permutation to apply (step 4 of the module docstring), None to keep the tails; ``perms`` (p, g) with
-    the identity first, ``cost`` (p,) nats."""
+    the identity first, ``cost`` (p,) nats, ``drift`` (p,) m."""
     moves = (perms != np.arange(perms.shape[1])).sum(axis=1)
     tied = np.flatnonzero(cost - cost.min() < cfg.tie_nats)
-    k = tied[np.lexsort((cost[tied], moves[tied]))[0]]
+    steadiest = tied[np.lexsort((moves[tied], drift[tied]))]
+    if steadiest.size == 1 or drift[steadiest[1]] - drift[steadiest[0]] >= cfg.drift_gap_m:
+        k = steadiest[0]
+    else:
+        k = tied[np.lexsort((cost[tied], moves[tied]))[0]]
     if moves[k] == 0 or cost[0] - cost[k] < cfg.margin_nats:
         return None
     return perms[k]

@@ -54,19 +54,46 @@ def test_an_arm_that_kept_its_identities_is_left_alone():
     np.testing.assert_array_equal(traj.positions, P)
 
 
-def test_markers_no_distance_tells_apart_keep_the_trackers_choice():
-    """The upper arm and elbow markers' one rigid distance is the same both ways round: of the permutations that
-    fit, the one moving the fewest identities wins. Without the shoulder and the wrist bar, the forearm's identity
-    gets its marker back and the upper arm pair keeps what the tracker gave it."""
+def test_a_pair_one_rigid_distance_cannot_tell_apart_is_told_by_the_loose_ones():
+    """Without the shoulder and the wrist bar, the upper arm and elbow markers' one rigid distance reads the same both
+    ways round: the permutations putting the forearm back tie. The one whose distances changed least in all (the
+    forearm marker stays nearer the elbow's than the upper arm's) puts all three back; where that is not clear enough
+    (a gap over the whole drift), the one moving the fewest identities wins: the forearm's identity gets its marker
+    back and the upper arm pair keeps what the tracker gave it."""
     P = _arm()[:, 1:4]
     seen = _scrambled(np.concatenate([P[:, :1], P], axis=1), 50)[:, 1:]  # (the same cycle on these three)
     traj = _traj(seen)
     assert unscramble_bursts(traj, JUMP) == 1
-    np.testing.assert_array_equal(traj.positions[:, 2], P[:, 2])
-    np.testing.assert_array_equal(traj.positions[50:, [0, 1]], P[50:, [1, 0]])
+    np.testing.assert_array_equal(traj.positions, P)
+    unclear = _traj(seen)
+    assert unscramble_bursts(unclear, JUMP, ScrambleConfig(drift_gap_m=1e3)) == 1
+    np.testing.assert_array_equal(unclear.positions[:, 2], P[:, 2])
+    np.testing.assert_array_equal(unclear.positions[50:, [0, 1]], P[50:, [1, 0]])
     strict = _traj(seen)
     assert unscramble_bursts(strict, JUMP, ScrambleConfig(margin_nats=1e3)) == 0
     np.testing.assert_array_equal(strict.positions, seen)
+
+
+def test_loose_distances_a_few_millimetres_apart_do_not_decide():
+    """A rigid pair (100 mm) and a marker wobbling 109-121 mm from it (not rigid), 3 mm nearer one end than the
+    other: both ways round fit the pair, and the loose distances differ by too little to trust, so the fewest moves
+    win."""
+    frames = 100
+    t = np.arange(frames) / FPS
+    turn = Rotation.from_rotvec(np.c_[np.zeros(frames), np.zeros(frames), 5.0 * t])
+    reach = 0.115 + 0.006 * np.sin(2 * np.pi * 3.1 * t)
+    local = np.zeros((frames, 3, 3))
+    local[:, 1, 0] = 0.1
+    local[:, 2, 0] = 0.054  # 4 mm off the pair's middle: 3 mm nearer one end
+    local[:, 2, 1] = reach
+    P = np.einsum("fij,fnj->fni", turn.as_matrix(), local) + [0.0, 0.0, 1.0]
+    P += np.random.default_rng(3).normal(0, 0.0003, P.shape)
+    seen = P.copy()
+    seen[50:] = P[50:, [2, 0, 1]]
+    traj = _traj(seen)
+    assert unscramble_bursts(traj, JUMP) == 1
+    np.testing.assert_array_equal(traj.positions[:, 2], P[:, 2])
+    np.testing.assert_array_equal(traj.positions[50:, [0, 1]], P[50:, [1, 0]])
 
 
 def test_markers_with_no_steady_distance_are_left_alone():
