@@ -117,13 +117,19 @@ def unscramble_bursts(traj: Trajectories, jump_acc: float, config: ScrambleConfi
     return done
 
 
+def _accelerations(P: np.ndarray) -> np.ndarray:
+    """(F, M) the acceleration (second difference) of every sample of ``P`` (F, M, 3), m/frame^2; NaN at the ends
+    and next to missing samples."""
+    acc = np.full(P.shape[:2], np.nan)
+    acc[1:-1] = np.linalg.norm(P[2:] - 2 * P[1:-1] + P[:-2], axis=2)
+    return acc
+
+
 def _hop_frames(P: np.ndarray, jump_acc: float) -> np.ndarray:
     """(n, 2) frame, identity of every sample of ``P`` (F, M, 3) accelerating over ``jump_acc`` m/frame^2, in frame
     order."""
-    acc = np.full(P.shape[:2], np.nan)
-    acc[1:-1] = np.linalg.norm(P[2:] - 2 * P[1:-1] + P[:-2], axis=2)
     with np.errstate(invalid="ignore"):
-        return np.argwhere(acc > jump_acc)
+        return np.argwhere(_accelerations(P) > jump_acc)
 
 
 def _bursts(P: np.ndarray, hops: np.ndarray, join: int, jump_acc: float, cfg: ScrambleConfig
@@ -170,8 +176,7 @@ def _bursts(P: np.ndarray, hops: np.ndarray, join: int, jump_acc: float, cfg: Sc
 def _shaken(P: np.ndarray) -> np.ndarray:
     """(M,) the largest acceleration, m/frame^2, of each identity of ``P`` (F, M, 3) over its frames (0 where never
     measured)."""
-    with np.errstate(invalid="ignore"):
-        acc = np.linalg.norm(P[2:] - 2 * P[1:-1] + P[:-2], axis=2)
+    acc = _accelerations(P)
     return np.where(np.isfinite(acc), acc, 0.0).max(axis=0, initial=0.0)
 
 
