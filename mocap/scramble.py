@@ -26,7 +26,9 @@ jointly, by every distance of every marker involved at once.
    change capped at ``drift_cap_m``, the cap where unmeasured: the upper arm marker stays 100 mm nearer the shoulder
    than the elbow's), where it does so by ``drift_gap_m`` over the next; else the one that moves the fewest
    identities (the tracker's choice stands where nothing tells). It is applied where it beats keeping the tails by
-   ``margin_nats``: from the frame of the burst that gives the tracks the smoothest paths through it.
+   ``margin_nats`` and, scored against the window before ending ``recheck_s`` earlier, is still tied with the best
+   and no worse than keeping the tails (frames right before a burst can hold the recording's own garbled labels): from
+   the frame of the burst that gives the tracks the smoothest paths through it.
 
 Only whole samples move between identity columns; positions are never changed.
 """
@@ -65,7 +67,9 @@ class ScrambleConfig:
         tie_nats: permutations within this of the best log-likelihood are ties ...
         drift_cap_m: ... decided by their summed distance changes, each capped at this, m ...
         drift_gap_m: ... where the least is below the next by this, m; else the fewest moves win ...
-        margin_nats: ... and the winner is applied where it beats keeping the tails by this.
+        margin_nats: ... and the winner is applied where it beats keeping the tails by this ...
+        recheck_s: ... and, against the window before ending this much earlier, is still tied with the best and no
+            worse than keeping the tails (a window half in the recording's garbled labels is not the only witness).
         max_identities: a burst of more identities is left alone (their permutations are too many to try) ...
         calm: ... once the bystanders (identities only seen near it) that accelerated less than this fraction of the
             jump threshold through it are left out (an arm's swing next to the head: the head's markers).
@@ -82,6 +86,7 @@ class ScrambleConfig:
     drift_cap_m: float = 0.1
     drift_gap_m: float = 0.05
     margin_nats: float = 5.0
+    recheck_s: float = 0.16
     max_identities: int = 8
     calm: float = 0.4
 
@@ -95,19 +100,23 @@ def unscramble_bursts(traj: Trajectories, jump_acc: float, config: ScrambleConfi
     enough = window // 2  # samples a distance needs in a window
     done = 0
     join = max(1, int(round(cfg.join_s * traj.fps)))  # frames
+    recheck = max(1, int(round(cfg.recheck_s * traj.fps)))  # frames
     column = np.arange(P.shape[1])  # where each identity's tail after the bursts put back so far now is
     for first, last, found in _bursts(P, _hop_frames(P, jump_acc), join, jump_acc, cfg):
         ids = column[found]
         start = last + 1 + cfg.gap
         if ids.size > cfg.max_identities or first < window or start + window > len(P):
             continue
-        was, spread, count = _window_distances(P, slice(first - window, first), ids)
-        near = (count >= enough) & (was < cfg.reach_m)
-        near[np.arange(ids.size), ids] = False
-        if not near.any():
-            continue
         now, _, seen = _window_distances(P, slice(start, start + window), ids)
-        order = _choose(*_permutation_costs(ids, near, was, spread, now, seen >= enough, cfg), cfg)
+        scores = _scores(P, ids, slice(first - window, first), now, seen >= enough, cfg)
+        order = None if scores is None else _choose(*scores, cfg)
+        if order is not None and first - recheck - window >= 0:  # the window before must not be the only witness
+            earlier = _scores(P, ids, slice(first - recheck - window, first - recheck), now, seen >= enough, cfg)
+            if earlier is not None:
+                perms, cost, _ = earlier
+                k = np.flatnonzero((perms == order).all(axis=1))[0]
+                if cost[k] - cost.min() >= cfg.tie_nats or cost[k] > cost[0]:
+                    order = None
         if order is not None:
             traj.permute_tails(_smoothest_split(P, first, last, ids, ids[order]), ids[order], ids)
             moved = np.arange(P.shape[1])
@@ -178,6 +187,20 @@ def _shaken(P: np.ndarray) -> np.ndarray:
     measured)."""
     acc = _accelerations(P)
     return np.where(np.isfinite(acc), acc, 0.0).max(axis=0, initial=0.0)
+
+
+def _scores(P: np.ndarray, ids: np.ndarray, before: slice, now: np.ndarray, seen: np.ndarray, cfg: ScrambleConfig
+            ) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+    """:func:`_permutation_costs` of the burst identities ``ids`` of ``P`` (F, M, 3) against their distances over
+    the frames ``before``; ``now``, ``seen`` (g, M): their tails' median distances after, m, and whether measured.
+    None where no distance was measured before."""
+    enough = max(1, (before.stop - before.start) // 2)
+    was, spread, count = _window_distances(P, before, ids)
+    near = (count >= enough) & (was < cfg.reach_m)
+    near[np.arange(ids.size), ids] = False
+    if not near.any():
+        return None
+    return _permutation_costs(ids, near, was, spread, now, seen, cfg)
 
 
 def _permutation_costs(ids: np.ndarray, near: np.ndarray, was: np.ndarray, spread: np.ndarray, now: np.ndarray,

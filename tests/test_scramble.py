@@ -96,6 +96,22 @@ def test_loose_distances_a_few_millimetres_apart_do_not_decide():
     np.testing.assert_array_equal(traj.positions[50:, [0, 1]], P[50:, [1, 0]])
 
 
+def test_a_burst_right_after_garbled_labels_is_left_alone():
+    """The recording's labels garbled before a burst: the forearm's and the wrist bar's first marker exchanged for
+    frames 40-49 after a 2-frame gap (no hop where it starts), then their own again. The window before the hop at 50
+    is mostly the garbled labels, and alone it would 'put back' the exchange; the window ending 0.16 s earlier
+    disagrees, so nothing moves."""
+    P = _arm()
+    seen = P.copy()
+    seen[40:50, [3, 4]] = P[40:50, [4, 3]]
+    seen[38:40, [3, 4]] = np.nan
+    traj = _traj(seen)
+    assert unscramble_bursts(traj, JUMP) == 0
+    np.testing.assert_array_equal(traj.positions, seen)
+    unchecked = _traj(seen)  # (the earlier window one frame back: the same witness)
+    assert unscramble_bursts(unchecked, JUMP, ScrambleConfig(recheck_s=0.0)) == 1
+
+
 def test_markers_with_no_steady_distance_are_left_alone():
     """Three markers that move independently and hop between each other: no permutation is likelier than another."""
     t = np.arange(100)[:, None] / FPS
