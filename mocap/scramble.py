@@ -48,6 +48,7 @@ from mocap.trajectories import Trajectories
 __all__ = ["ScrambleConfig", "unscramble_bursts"]
 
 _PERMUTATIONS_PER_BLOCK = 5040  # permutations scored at once (7!: a few MB of distances per block)
+_HOPS_PER_BLOCK = 64  # hops a burst's identities are measured against at once (bounds a long burst's memory)
 
 
 @dataclass(frozen=True)
@@ -166,12 +167,17 @@ def _bursts(P: np.ndarray, hops: np.ndarray, join: int, jump_acc: float, cfg: Sc
     out = []
     for c in np.unique(component):
         mine = component == c
+        if np.unique(owners[mine]).size > cfg.max_identities:
+            continue  # (too many permutations to try, whoever else is near)
         first, last = int(frames[mine].min()), int(frames[mine].max())
         span = P[first:last + 1]  # (s, M, 3)
         hidden = np.isnan(span[..., 0]).any(axis=0) & np.isfinite(span[..., 0]).any(axis=0)
+        closest = np.full(P.shape[1], np.inf)  # (M,) each identity's nearest approach to a hop of the burst, m
         with np.errstate(invalid="ignore"), warnings.catch_warnings():
             warnings.simplefilter("ignore", RuntimeWarning)  # (identities never seen in the burst: no distance)
-            closest = np.nanmin(np.linalg.norm(span[:, :, None] - pos[mine][None, None], axis=3), axis=(0, 2))
+            for block in np.array_split(pos[mine], max(1, int(np.count_nonzero(mine)) // _HOPS_PER_BLOCK)):
+                d = np.linalg.norm(span[:, :, None] - block[None, None], axis=3)  # (s, M, b)
+                closest = np.fmin(closest, np.nanmin(d, axis=(0, 2)))
         hopped_or_hidden = np.union1d(owners[mine], np.flatnonzero(hidden & (closest < cfg.reach_m)))
         bystanders = np.setdiff1d(np.flatnonzero(closest < cfg.near_m), hopped_or_hidden)
         if hopped_or_hidden.size + bystanders.size > cfg.max_identities:  # too many: leave out the calm bystanders
