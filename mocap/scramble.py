@@ -109,16 +109,17 @@ def unscramble_bursts(traj: Trajectories, jump_acc: float, config: ScrambleConfi
         if ids.size > cfg.max_identities or first < window or start + window > len(P):
             continue
         now, _, seen = _window_distances(P, slice(start, start + window), ids)
-        scores = _scores(P, ids, slice(first - window, first), now, seen >= enough, cfg)
-        order = None if scores is None else _choose(*scores, cfg)
-        if order is not None and first - recheck - window >= 0:  # the window before must not be the only witness
-            earlier = _scores(P, ids, slice(first - recheck - window, first - recheck), now, seen >= enough, cfg)
-            if earlier is not None:
-                perms, cost, _ = earlier
-                k = np.flatnonzero((perms == order).all(axis=1))[0]
+        scores = _scores(P, ids, slice(first - window, first), now, seen >= enough, enough, cfg)
+        k = None if scores is None else _choose(*scores, cfg)
+        if k is not None and first - recheck - window >= 0:  # the window before must not be the only witness
+            earlier = _scores(P, ids, slice(first - recheck - window, first - recheck), now, seen >= enough, enough,
+                              cfg)
+            if earlier is not None:  # (the same permutations, in the same order)
+                cost = earlier[1]
                 if cost[k] - cost.min() >= cfg.tie_nats or cost[k] > cost[0]:
-                    order = None
-        if order is not None:
+                    k = None
+        if k is not None:
+            order = scores[0][k]
             traj.permute_tails(_smoothest_split(P, first, last, ids, ids[order]), ids[order], ids)
             moved = np.arange(P.shape[1])
             moved[ids[order]] = ids
@@ -195,12 +196,11 @@ def _shaken(P: np.ndarray) -> np.ndarray:
     return np.where(np.isfinite(acc), acc, 0.0).max(axis=0, initial=0.0)
 
 
-def _scores(P: np.ndarray, ids: np.ndarray, before: slice, now: np.ndarray, seen: np.ndarray, cfg: ScrambleConfig
-            ) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+def _scores(P: np.ndarray, ids: np.ndarray, before: slice, now: np.ndarray, seen: np.ndarray, enough: int,
+            cfg: ScrambleConfig) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
     """:func:`_permutation_costs` of the burst identities ``ids`` of ``P`` (F, M, 3) against their distances over
-    the frames ``before``; ``now``, ``seen`` (g, M): their tails' median distances after, m, and whether measured.
-    None where no distance was measured before."""
-    enough = max(1, (before.stop - before.start) // 2)
+    the frames ``before`` (measured in ``enough`` of them at least); ``now``, ``seen`` (g, M): their tails' median
+    distances after, m, and whether measured. None where no distance was measured before."""
     was, spread, count = _window_distances(P, before, ids)
     near = (count >= enough) & (was < cfg.reach_m)
     near[np.arange(ids.size), ids] = False
@@ -241,9 +241,9 @@ def _permutation_costs(ids: np.ndarray, near: np.ndarray, was: np.ndarray, sprea
     return perms, cost, drift
 
 
-def _choose(perms: np.ndarray, cost: np.ndarray, drift: np.ndarray, cfg: ScrambleConfig) -> np.ndarray | None:
-    """The permutation to apply (step 4 of the module docstring), None to keep the tails; ``perms`` (p, g) with
-    the identity first, ``cost`` (p,) nats, ``drift`` (p,) m."""
+def _choose(perms: np.ndarray, cost: np.ndarray, drift: np.ndarray, cfg: ScrambleConfig) -> int | None:
+    """The index in ``perms`` (p, g), the identity first, of the permutation to apply (step 4 of the module
+    docstring), None to keep the tails; ``cost`` (p,) nats, ``drift`` (p,) m."""
     moves = (perms != np.arange(perms.shape[1])).sum(axis=1)
     tied = np.flatnonzero(cost - cost.min() < cfg.tie_nats)
     steadiest = tied[np.lexsort((moves[tied], drift[tied]))]
@@ -253,7 +253,7 @@ def _choose(perms: np.ndarray, cost: np.ndarray, drift: np.ndarray, cfg: Scrambl
         k = tied[np.lexsort((cost[tied], moves[tied]))[0]]
     if moves[k] == 0 or cost[0] - cost[k] < cfg.margin_nats:
         return None
-    return perms[k]
+    return int(k)
 
 
 def _smoothest_split(P: np.ndarray, first: int, last: int, ids: np.ndarray, tails: np.ndarray) -> int:
