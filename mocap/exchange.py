@@ -64,7 +64,7 @@ def undo_exchanges(traj: Trajectories, config: ExchangeConfig | None = None) -> 
     undone = 0
     for frame, a, b in _passages(traj.positions, cfg.near_m):
         if _exchanged(traj.positions, frame, a, b, cfg):
-            start = _smoothest_split(traj.positions, frame, a, b)
+            start = smoothest_split(traj.positions, frame - 2, frame, np.array([a, b]), np.array([b, a]))
             traj.permute_tails(start, [b, a], [a, b])
             undone += 1
     return undone
@@ -121,17 +121,15 @@ def _exchanged(P: np.ndarray, frame: int, a: int, b: int, cfg: ExchangeConfig) -
     return bool(swapped.mean() < cfg.fit_m and kept.mean() > cfg.step_m)
 
 
-def _smoothest_split(P: np.ndarray, frame: int, a: int, b: int) -> int:
-    """The first frame of the exchanged tails: ``frame`` - 1, ``frame`` or ``frame`` + 1, whichever gives the
-    smallest summed squared accelerations of both tracks over the three samples either side."""
-    best, best_cost = frame, np.inf
-    for start in (frame - 1, frame, frame + 1):
-        if start < 3 or start + 3 > len(P):
-            continue
-        cost = 0.0
-        for head, tail in ((a, b), (b, a)):
-            path = np.concatenate([P[start - 3:start, head], P[start:start + 3, tail]])
-            cost += float(np.nansum((path[2:] - 2 * path[1:-1] + path[:-2]) ** 2))
+def smoothest_split(P: np.ndarray, first: int, last: int, ids: np.ndarray, tails: np.ndarray) -> int:
+    """The frame from which identities ``ids`` take the tails of ``tails`` (both (g,)): the one of ``first`` + 1 ..
+    ``last`` + 1 that gives their tracks in ``P`` (F, M, 3) the smallest summed squared accelerations over frames
+    ``first`` - 2 .. ``last`` + 3 (a passage of two markers, or a burst of hops: :mod:`mocap.scramble`)."""
+    frames = np.arange(max(first - 2, 0), min(last + 4, len(P)))
+    best, best_cost = last + 1, np.inf
+    for split in range(first + 1, last + 2):
+        path = np.where((frames >= split)[:, None, None], P[frames][:, tails], P[frames][:, ids])  # (n, g, 3)
+        cost = float(np.nansum((path[2:] - 2 * path[1:-1] + path[:-2]) ** 2))
         if cost < best_cost:
-            best, best_cost = start, cost
+            best, best_cost = split, cost
     return best

@@ -43,6 +43,7 @@ import numpy as np
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 
+from mocap.exchange import smoothest_split
 from mocap.trajectories import Trajectories
 
 __all__ = ["ScrambleConfig", "unscramble_bursts"]
@@ -120,7 +121,7 @@ def unscramble_bursts(traj: Trajectories, jump_acc: float, config: ScrambleConfi
                     k = None
         if k is not None:
             order = scores[0][k]
-            traj.permute_tails(_smoothest_split(P, first, last, ids, ids[order]), ids[order], ids)
+            traj.permute_tails(smoothest_split(P, first, last, ids, ids[order]), ids[order], ids)
             moved = np.arange(P.shape[1])
             moved[ids[order]] = ids
             column = moved[column]
@@ -254,20 +255,6 @@ def _choose(perms: np.ndarray, cost: np.ndarray, drift: np.ndarray, cfg: Scrambl
     if moves[k] == 0 or cost[0] - cost[k] < cfg.margin_nats:
         return None
     return int(k)
-
-
-def _smoothest_split(P: np.ndarray, first: int, last: int, ids: np.ndarray, tails: np.ndarray) -> int:
-    """The frame from which identities ``ids`` take the tails of ``tails`` (both (g,)): the one of ``first`` + 1 ..
-    ``last`` + 1 that gives their tracks in ``P`` (F, M, 3) the smallest summed squared accelerations over the
-    burst."""
-    frames = np.arange(max(first - 2, 0), min(last + 4, len(P)))
-    best, best_cost = last + 1, np.inf
-    for split in range(first + 1, last + 2):
-        path = np.where((frames >= split)[:, None, None], P[frames][:, tails], P[frames][:, ids])  # (n, g, 3)
-        cost = float(np.nansum((path[2:] - 2 * path[1:-1] + path[:-2]) ** 2))
-        if cost < best_cost:
-            best, best_cost = split, cost
-    return best
 
 
 def _window_distances(P: np.ndarray, frames: slice, ids: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
