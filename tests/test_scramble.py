@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import warnings
+
 import numpy as np
 from scipy.spatial.transform import Rotation
 
@@ -139,3 +141,34 @@ def test_calm_bystanders_of_a_crowded_burst_are_left_out():
     np.testing.assert_array_equal(traj.positions, truth)
     crowded = _traj(seen)
     assert unscramble_bursts(crowded, JUMP, ScrambleConfig(calm=0.0)) == 0
+
+
+def test_a_burst_of_nine_identities_is_put_back_and_one_over_the_limit_left_alone():
+    """Two players' serve, seed 58: after the swing 9 identities (the arm's and its neighbours') hop in one burst.
+    The arm and a smaller rigid triangle 0.15 m beside it (its own distances: 0.7 x the upper arm's) have all nine
+    tails shifted by one at frame 50; the 9! permutations are scored and the one fitting every rigid distance puts
+    them back. With the limit at 8 the burst is left as it is."""
+    arm = _arm()
+    other = _arm(seed=1)[:, :3]
+    P = np.concatenate([arm, 0.7 * (other - other[:, :1]) + other[:, :1] + [0.0, 0.15, 0.0]], axis=1)
+    seen = P.copy()
+    seen[50:] = P[50:, [8, 0, 1, 2, 3, 4, 5, 6, 7]]
+    traj = _traj(seen.copy())
+    assert unscramble_bursts(traj, JUMP) == 1
+    np.testing.assert_array_equal(traj.positions, P)
+    limited = _traj(seen.copy())
+    assert unscramble_bursts(limited, JUMP, ScrambleConfig(max_identities=8)) == 0
+    np.testing.assert_array_equal(limited.positions, seen)
+
+
+def test_a_distance_that_never_varied_scores_without_warnings():
+    """Prior 1 (spread 0) and a tail far off made a likelihood ratio of 0: log(0) warned and scored infinity. The wrist
+    bar's second marker here is an exact copy of the first 99 mm along x (no noise): the swing is put back as
+    before, silently."""
+    P = _arm()
+    P[:, 5] = P[:, 4] + [0.099, 0.0, 0.0]
+    traj = _traj(_scrambled(P, 50))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        assert unscramble_bursts(traj, JUMP) == 1
+    np.testing.assert_array_equal(traj.positions, P)
