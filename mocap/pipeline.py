@@ -25,6 +25,7 @@ from tqdm import tqdm
 
 from mocap import __version__, kernels
 from mocap.atomic import check_output_path
+from mocap.blind import BlindCameras
 from mocap.camera import Rig, rig_to_toml
 from mocap.detect import detect
 from mocap.detections import Detections
@@ -150,6 +151,15 @@ def _report_calibration_fit(rig: Rig, verdict: tuple[FitReport, list[str]], wher
         log.debug("calibration fit: epipolar support per camera %s", np.round(report.support, 3))
 
 
+def _report_blind_cameras(blind: BlindCameras, where: Path) -> None:
+    """Warn about the cameras that saw no blob in frames where the calibration put reconstructed markers in view."""
+    for name, n, runs in blind.report():
+        spans = ", ".join(f"{a}-{b}" if b > a else f"{a}" for a, b in runs[:3]) + (", ..." if len(runs) > 3 else "")
+        log.warning("%s: camera %s saw no blob in %d frames (%s) although the calibration puts reconstructed markers "
+                    "in its view there; those markers come from the other cameras alone. Check that camera's lens, "
+                    "cable, exposure and lighting, and that it was not moved.", where, name, n, spans)
+
+
 def reconstruct(take: str | os.PathLike, options: ReconstructOptions | None = None,
                 mcap: str | os.PathLike | None = None) -> Trajectories:
     """Reconstruct labelled 3D trajectories from a take folder or an MCAP log.
@@ -174,6 +184,7 @@ def reconstruct(take: str | os.PathLike, options: ReconstructOptions | None = No
     tracker = Tracker(rig, fps, opts.tracker)
     logger = _open_mcap_logger(mcap, rig, fps, path) if mcap is not None else contextlib.nullcontext()
     fit = FitMonitor(rig, FIT_CHECK_FRAMES, spacing=max(1, int(round(FIT_CHECK_SPACING_S * fps))))
+    blind = BlindCameras(rig)
     # OpenCV and BLAS on one thread while streaming: detection's OpenCV calls are small (a dilation, labelling of
     # small images) and a second OpenCV thread mostly waits for a core that the take reader's decoders hold
     # (labelling 0.08 ms per call on one thread, 0.3-3 ms on two on the shared 2-core machine); the tracker's
@@ -189,6 +200,7 @@ def reconstruct(take: str | os.PathLike, options: ReconstructOptions | None = No
             if verdict is not None:
                 _report_calibration_fit(rig, verdict, path)
             result = tracker.step(frame_index, dets)
+            blind.offer(frame_index, [len(d) for d in dets], result.positions)
             if notice is not None:
                 notice.cancel()  # (the first frame is done)
             if mcap is not None:
@@ -197,6 +209,7 @@ def reconstruct(take: str | os.PathLike, options: ReconstructOptions | None = No
         verdict = fit.finish()
         if verdict is not None:
             _report_calibration_fit(rig, verdict, path)
+    _report_blind_cameras(blind, path)
     traj = tracker.finish()
     if opts.relabel:
         before = traj.n_markers

@@ -73,13 +73,17 @@ def test_cli_reconstruct_writes_every_format(png_take, tmp_path, capsys):
     assert "markers" in capsys.readouterr().out
 
 
-def test_camera_black_for_a_while(png_take, tmp_path):
+def test_camera_black_for_a_while(png_take, tmp_path, caplog):
+    """Camera 3 black in frames 10-24: the other cameras carry on, and one warning names the camera and frames."""
     take = _copy(png_take[0], tmp_path / "take")
     black = np.zeros(cv2.imread(str(next((take / "cam3").iterdir())), cv2.IMREAD_GRAYSCALE).shape, np.uint8)
     frames = sorted((take / "cam3").iterdir())
     for f in frames[10:25]:
         cv2.imwrite(str(f), black)
-    traj = reconstruct(take, ReconstructOptions(progress=False))
+    with caplog.at_level(logging.WARNING, logger="mocap.pipeline"):
+        traj = reconstruct(take, ReconstructOptions(progress=False))
+    blind = [r.getMessage() for r in caplog.records if "saw no blob" in r.getMessage()]
+    assert len(blind) == 1 and "camera cam3 saw no blob in 15 frames (10-24)" in blind[0]
     truth = load_truth(png_take[1])
     report = evaluate(traj, truth)
     assert report.switches == 0 and report.ghost_rate < 0.005
