@@ -24,7 +24,8 @@ class BlindCameras:
 
     def __init__(self, rig: Rig) -> None:
         self.rig = rig
-        self._frames: list[list[int]] = [[] for _ in range(len(rig))]
+        self._runs: list[list[list[int]]] = [[] for _ in range(len(rig))]  # per camera, [first, last] frames
+        self._count = [0] * len(rig)  # per camera, blind frames
 
     def offer(self, frame_index: int, blob_counts: list[int], positions: np.ndarray, min_markers: int = 3) -> None:
         """One frame: each camera's number of blobs, and the markers reconstructed in it, (K, 3) m. A camera with no
@@ -35,17 +36,15 @@ class BlindCameras:
         need = min(min_markers, len(positions))
         for c, count in enumerate(blob_counts):
             if count == 0 and np.count_nonzero(self.rig[c].in_image(self.rig[c].project(positions))) >= need:
-                self._frames[c].append(frame_index)
+                runs = self._runs[c]  # (runs, not frames: a camera black for an hour keeps memory flat)
+                if runs and runs[-1][1] == frame_index - 1:
+                    runs[-1][1] = frame_index
+                else:
+                    runs.append([frame_index, frame_index])
+                self._count[c] += 1
 
     def report(self, min_frames: int = 3) -> list[tuple[str, int, list[tuple[int, int]]]]:
         """``(camera name, blind frames, runs of consecutive frames as (first, last))`` for every camera blind in
         ``min_frames`` frames or more (a single undecodable frame is reported by the take reader)."""
-        out = []
-        for name, frames in zip(self.rig.names, self._frames, strict=True):
-            if len(frames) < min_frames:
-                continue
-            f = np.asarray(frames)
-            breaks = np.flatnonzero(np.diff(f) > 1)
-            firsts, lasts = np.r_[f[0], f[breaks + 1]], np.r_[f[breaks], f[-1]]
-            out.append((name, len(frames), list(zip(firsts.tolist(), lasts.tolist(), strict=True))))
-        return out
+        return [(name, n, [(a, b) for a, b in runs])
+                for name, n, runs in zip(self.rig.names, self._count, self._runs, strict=True) if n >= min_frames]
