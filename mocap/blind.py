@@ -20,10 +20,13 @@ class BlindCameras:
 
     Args:
         rig: the calibrated cameras (rig order, as the detections).
+        every: frames between the frames offered (searching only the tracker's predicted windows, the run offers
+            its full-frame scans alone: a window can miss its marker); blind frames this far apart form one run.
     """
 
-    def __init__(self, rig: Rig) -> None:
+    def __init__(self, rig: Rig, every: int = 1) -> None:
         self.rig = rig
+        self.every = every
         self._runs: list[list[list[int]]] = [[] for _ in range(len(rig))]  # per camera, [first, last] frames
         self._count = [0] * len(rig)  # per camera, blind frames
 
@@ -37,7 +40,7 @@ class BlindCameras:
         for c, count in enumerate(blob_counts):
             if count == 0 and np.count_nonzero(self.rig[c].in_image(self.rig[c].project(positions))) >= need:
                 runs = self._runs[c]  # (runs, not frames: a camera black for an hour keeps memory flat)
-                if runs and runs[-1][1] == frame_index - 1:
+                if runs and frame_index - runs[-1][1] <= self.every:
                     runs[-1][1] = frame_index
                 else:
                     runs.append([frame_index, frame_index])

@@ -92,6 +92,11 @@ def _opencv_threads(n: int) -> Iterator[None]:
         cv2.setNumThreads(before)
 
 
+def _full_scan(opts: ReconstructOptions, frame_index: int) -> bool:
+    """Whether ``frame_index`` is searched over the whole image (every frame unless ``opts.roi_scan_every``)."""
+    return opts.roi_scan_every <= 0 or (frame_index - opts.start) % opts.roi_scan_every == 0
+
+
 def _detection_frames(source: Any, kind: str, tracker: Tracker, opts: ReconstructOptions
                       ) -> Iterator[tuple[int, list[Detections]]]:
     """Yield ``(frame_index, detections per camera)``, detecting blobs in images when needed."""
@@ -99,9 +104,7 @@ def _detection_frames(source: Any, kind: str, tracker: Tracker, opts: Reconstruc
         yield from source.centroids(opts.start, opts.stop)
         return
     for frame_index, images in source.images(opts.start, opts.stop):
-        rois = None
-        if opts.roi_scan_every > 0 and (frame_index - opts.start) % opts.roi_scan_every != 0:
-            rois = tracker.predicted_rois()
+        rois = None if _full_scan(opts, frame_index) else tracker.predicted_rois()
         seeds = tracker.predicted_centres()
         dets = []
         for c, image in enumerate(images):
@@ -153,11 +156,12 @@ def _report_calibration_fit(rig: Rig, verdict: tuple[FitReport, list[str]], wher
 
 def _report_blind_cameras(blind: BlindCameras, where: Path) -> None:
     """Warn about the cameras that saw no blob in frames where the calibration put reconstructed markers in view."""
+    judged = "frames" if blind.every == 1 else f"full-frame scans (one every {blind.every} frames)"
     for name, n, runs in blind.report():
         spans = ", ".join(f"{a}-{b}" if b > a else f"{a}" for a, b in runs[:3]) + (", ..." if len(runs) > 3 else "")
-        log.warning("%s: camera %s saw no blob in %d frames (%s) although the calibration puts reconstructed markers "
+        log.warning("%s: camera %s saw no blob in %d %s (%s) although the calibration puts reconstructed markers "
                     "in its view there; those markers come from the other cameras alone. Check that camera's lens, "
-                    "cable, exposure and lighting, and that it was not moved.", where, name, n, spans)
+                    "cable, exposure and lighting, and that it was not moved.", where, name, n, judged, spans)
 
 
 def reconstruct(take: str | os.PathLike, options: ReconstructOptions | None = None,
@@ -184,7 +188,7 @@ def reconstruct(take: str | os.PathLike, options: ReconstructOptions | None = No
     tracker = Tracker(rig, fps, opts.tracker)
     logger = _open_mcap_logger(mcap, rig, fps, path) if mcap is not None else contextlib.nullcontext()
     fit = FitMonitor(rig, FIT_CHECK_FRAMES, spacing=max(1, int(round(FIT_CHECK_SPACING_S * fps))))
-    blind = BlindCameras(rig)
+    blind = BlindCameras(rig, every=max(opts.roi_scan_every, 1) if kind == "images" else 1)
     # OpenCV and BLAS on one thread while streaming: detection's OpenCV calls are small (a dilation, labelling of
     # small images) and a second OpenCV thread mostly waits for a core that the take reader's decoders hold
     # (labelling 0.08 ms per call on one thread, 0.3-3 ms on two on the shared 2-core machine); the tracker's
@@ -200,7 +204,8 @@ def reconstruct(take: str | os.PathLike, options: ReconstructOptions | None = No
             if verdict is not None:
                 _report_calibration_fit(rig, verdict, path)
             result = tracker.step(frame_index, dets)
-            blind.offer(frame_index, [len(d) for d in dets], result.positions)
+            if kind != "images" or _full_scan(opts, frame_index):  # (a window that missed its marker is not blind)
+                blind.offer(frame_index, [len(d) for d in dets], result.positions)
             if notice is not None:
                 notice.cancel()  # (the first frame is done)
             if mcap is not None:

@@ -73,17 +73,21 @@ def test_cli_reconstruct_writes_every_format(png_take, tmp_path, capsys):
     assert "markers" in capsys.readouterr().out
 
 
-def test_camera_black_for_a_while(png_take, tmp_path, caplog):
-    """Camera 3 black in frames 10-24: the other cameras carry on, and one warning names the camera and frames."""
+@pytest.mark.parametrize(("scan_every", "named"), [
+    (0, "camera cam3 saw no blob in 15 frames (10-24)"),
+    (5, "camera cam3 saw no blob in 3 full-frame scans (one every 5 frames) (10-20)")])
+def test_camera_black_for_a_while(png_take, tmp_path, caplog, scan_every, named):
+    """Camera 3 black in frames 10-24: the other cameras carry on, and one warning names the camera and frames
+    (searching predicted windows, its full-frame scans)."""
     take = _copy(png_take[0], tmp_path / "take")
     black = np.zeros(cv2.imread(str(next((take / "cam3").iterdir())), cv2.IMREAD_GRAYSCALE).shape, np.uint8)
     frames = sorted((take / "cam3").iterdir())
     for f in frames[10:25]:
         cv2.imwrite(str(f), black)
     with caplog.at_level(logging.WARNING, logger="mocap.pipeline"):
-        traj = reconstruct(take, ReconstructOptions(progress=False))
+        traj = reconstruct(take, ReconstructOptions(progress=False, roi_scan_every=scan_every))
     blind = [r.getMessage() for r in caplog.records if "saw no blob" in r.getMessage()]
-    assert len(blind) == 1 and "camera cam3 saw no blob in 15 frames (10-24)" in blind[0]
+    assert len(blind) == 1 and named in blind[0]
     truth = load_truth(png_take[1])
     report = evaluate(traj, truth)
     assert report.switches == 0 and report.ghost_rate < 0.005
@@ -91,6 +95,24 @@ def test_camera_black_for_a_while(png_take, tmp_path, caplog):
     cam3_bit = np.uint32(1 << 2)
     assert not np.any(traj.camera_masks[10:25] & cam3_bit)
     assert np.any(traj.camera_masks[30:] & cam3_bit)
+
+
+def test_predicted_windows_that_miss_are_not_a_blind_camera(png_take, monkeypatch, caplog):
+    """Between full-frame scans a camera searches the tracker's windows only; windows that hold no blob (here: none
+    at all for camera 3) do not make it blind."""
+    predicted = Tracker.predicted_rois
+
+    def none_for_cam3(self: Tracker) -> list[np.ndarray]:
+        rois = predicted(self)
+        rois[2] = rois[2][:0]
+        return rois
+
+    monkeypatch.setattr(Tracker, "predicted_rois", none_for_cam3)
+    with caplog.at_level(logging.WARNING, logger="mocap.pipeline"):
+        traj = reconstruct(png_take[0], ReconstructOptions(progress=False, roi_scan_every=4))
+    assert not [r for r in caplog.records if "saw no blob" in r.getMessage()]
+    cam3_bit = np.uint32(1 << 2)
+    assert np.any(traj.camera_masks[8::4] & cam3_bit) and not np.any(traj.camera_masks[9::4] & cam3_bit)
 
 
 def test_marker_free_take_gives_empty_output_and_a_warning(tmp_path, caplog):
