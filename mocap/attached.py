@@ -23,6 +23,8 @@ from mocap import kernels
 
 __all__ = ["AttachedDistances"]
 
+_WIDE_M = 0.02  # neighbours that carry an identity span at least this (RMS) across their main line, m
+
 
 class AttachedDistances:
     """Steady distances of each identity to up to ``slots`` neighbouring identities.
@@ -135,22 +137,32 @@ class AttachedDistances:
         identity's steady neighbours among ``here_ident`` (h,), measured this frame at ``here_X`` (h, 3) m, at
         least two of them: ``misfit``, every such neighbour's distance to the point is off by more than
         ``tolerance_m``; ``fits``, most are not (a neighbour across a joint may have moved)."""
-        misfit, fits = np.zeros(len(ident), dtype=bool), np.zeros(len(ident), dtype=bool)
+        at, mean, usable = self.steady_here(ident, here_ident, here_X)
+        d = np.linalg.norm(points[:, None, :] - at, axis=2)
+        off = np.abs(d - mean) > self._tol
+        n_off, n_ok = (usable & off).sum(axis=1), (usable & ~off).sum(axis=1)
+        return (n_off >= 2) & (n_ok == 0), (n_ok >= 2) & (n_ok > n_off)
+
+    def steady_here(self, ident: np.ndarray, here_ident: np.ndarray, here_X: np.ndarray
+                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The steady neighbours of each identity ``ident`` (n,) among ``here_ident`` (h,), measured at ``here_X``
+        (h, 3) m: their positions (n, J, 3) m, their running mean distances (n, J) m, and which slots hold one
+        (n, J) bool."""
+        n = len(ident)
+        at, mean = np.zeros((n, self._J, 3)), np.zeros((n, self._J))
+        usable = np.zeros((n, self._J), dtype=bool)
         known = ident < len(self.neighbour)
         if not known.any() or here_ident.size == 0:
-            return misfit, fits
+            return at, mean, usable
         where = np.full(max(len(self.neighbour), int(here_ident.max()) + 1), -1, dtype=np.intp)
         where[here_ident] = np.arange(here_ident.size)
         i = np.flatnonzero(known)
         nb = self.neighbour[ident[i]]  # (m, J)
         row = np.where(nb >= 0, where[np.maximum(nb, 0)], -1)
-        usable = (row >= 0) & (self.held[ident[i]] >= self._steady)
-        d = np.linalg.norm(points[i, None, :] - here_X[np.maximum(row, 0)], axis=2)
-        off = np.abs(d - self.distance[ident[i]]) > self._tol
-        n_off, n_ok = (usable & off).sum(axis=1), (usable & ~off).sum(axis=1)
-        misfit[i] = (n_off >= 2) & (n_ok == 0)
-        fits[i] = (n_ok >= 2) & (n_ok > n_off)
-        return misfit, fits
+        usable[i] = (row >= 0) & (self.held[ident[i]] >= self._steady)
+        at[i] = here_X[np.maximum(row, 0)]
+        mean[i] = self.distance[ident[i]]
+        return at, mean, usable
 
     def judge_pairs(self, ident: np.ndarray, points: np.ndarray, here_ident: np.ndarray, here_X: np.ndarray
                     ) -> tuple[np.ndarray, np.ndarray]:
@@ -159,3 +171,35 @@ class AttachedDistances:
         L, T = len(points), len(ident)
         misfit, fits = self.judge(np.tile(ident, L), np.repeat(points, T, axis=0), here_ident, here_X)
         return misfit.reshape(L, T), fits.reshape(L, T)
+
+    def carry(self, ident: np.ndarray, before: np.ndarray, before_ident: np.ndarray, before_X: np.ndarray,
+              here_ident: np.ndarray, here_X: np.ndarray, min_neighbours: int) -> tuple[np.ndarray, np.ndarray]:
+        """Where each identity ``ident`` (n,), last at ``before`` (n, 3) m, lies now if it moved rigidly with its
+        steady neighbours: the rotation and translation (Kabsch) taking those measured at ``before_X`` (b, 3) m
+        (identities ``before_ident``) in the previous frame to ``here_X`` (h, 3) m (``here_ident``) now. Returns the
+        positions (n, 3) m and (n,) bool: ``min_neighbours`` or more seen both times, not in a line (a turn about
+        it would be free: a bar's row of markers), fitted within ``tolerance_m`` (RMS)."""
+        at, _, usable = self.steady_here(ident, here_ident, here_X)
+        was, _, usable_before = self.steady_here(ident, before_ident, before_X)
+        w = (usable & usable_before).astype(float)
+        ok = w.sum(axis=1) >= min_neighbours
+        x = np.array(before, dtype=float)
+        if not ok.any():
+            return x, ok
+        P, Q, w = was[ok], at[ok], w[ok]
+        n = w.sum(axis=1)[:, None]
+        cp = (P * w[:, :, None]).sum(axis=1) / n
+        cq = (Q * w[:, :, None]).sum(axis=1) / n
+        H = np.einsum("mj,mji,mjk->mik", w, P - cp[:, None], Q - cq[:, None])
+        U, _, Vt = np.linalg.svd(H)
+        d = np.sign(np.linalg.det(np.einsum("mij,mjk->mik", U, Vt)))
+        Vt[:, 2] *= d[:, None]
+        R = np.einsum("mij,mjk->mki", U, Vt)  # (R = V U^T, with the reflection removed)
+        fit = np.einsum("mik,mjk->mji", R, P - cp[:, None]) + cq[:, None]
+        rms = np.sqrt((((fit - Q) ** 2).sum(axis=2) * w).sum(axis=1) / n[:, 0])
+        C = np.einsum("mj,mji,mjk->mik", w, P - cp[:, None], P - cp[:, None]) / n[:, :, None]
+        wide = np.linalg.eigvalsh(C)[:, 1] >= _WIDE_M**2  # (not in a line: the turn about it is free)
+        rows = np.flatnonzero(ok)
+        ok[rows] = good = (rms <= self._tol) & wide
+        x[rows[good]] = np.einsum("mik,mk->mi", R[good], x[rows[good]] - cp[good]) + cq[good]
+        return x, ok

@@ -129,6 +129,11 @@ class TrackerConfig:
             mispredicts alike. When the median prediction error of a track's measured neighbours (itself
             included) exceeds ``gate_floor_m``, its prediction is shifted by it and the frame is associated again.
         neighbour_min: measured neighbours (itself included) needed for that correction.
+        carry_m: where that correction exceeds this, m (a swing the constant-velocity prediction cannot follow),
+            a confirmed track measured in the previous frame is predicted where the rotation and translation of
+            its steady attached neighbours (see ``attached_check``; ``carry_neighbours`` or more, measured in both
+            frames, not in a line, fitted within ``attached_tolerance_m`` RMS) carry it; 0: off.
+        carry_neighbours: see ``carry_m``.
         deblend: a merged blob of two markers, one of them measured by two clean cameras or more, gives the
             other (when it has two clean cameras too) its mirror image about the first, checked against them (see
             ``_deblend``) ...
@@ -192,6 +197,8 @@ class TrackerConfig:
     neighbour_m: float = 0.2
     noisy_point_m: float = 0.0003
     neighbour_min: int = 2
+    carry_m: float = 0.03
+    carry_neighbours: int = 3
     deblend: bool = True
     deblend_px: float = 0.1
     withhold_merged_depth: bool = True
@@ -457,6 +464,8 @@ class Tracker:
         if K and fr.D.shape[1]:
             self._associate(fr, play, t.lock2, meas)
             shift = self._neighbour_shift(meas, play)
+            if self._cfg.attached_check and self._cfg.carry_m > 0:
+                shift = self._carried_shift(meas, play, shift)
             moved = np.linalg.norm(shift, axis=1) > self._cfg.gate_floor_m
             if moved.any():  # the neighbours say the prediction was off: associate again from corrected ones
                 t.x3[moved, :3] += shift[moved]
@@ -788,6 +797,23 @@ class Tracker:
             srt = np.sort(np.where(near[rows, :, None], y[None], np.nan), axis=1)
             r, n = np.arange(rows.size), cnt[rows]
             shift[rows] = 0.5 * (srt[r, (n - 1) // 2] + srt[r, n // 2])
+        return shift
+
+    def _carried_shift(self, meas: _Measurements, play: np.ndarray, shift: np.ndarray) -> np.ndarray:
+        """``shift`` (K, 3) m, the neighbours' correction, where it exceeds ``carry_m`` for a confirmed track
+        measured in the previous frame that moved rigidly with ``carry_neighbours`` or more of its steady attached
+        neighbours measured then and now (:meth:`AttachedDistances.carry`): the place they carry it to minus its
+        prediction. A swinging segment turns: its markers' errors differ by the turn, which their median misses."""
+        t, cfg = self._t, self._cfg
+        here = np.flatnonzero(meas.ok & (t.ident >= 0))
+        rows = np.flatnonzero(play & (t.ident >= 0) & (t.since == 1) & ((shift * shift).sum(axis=1) > cfg.carry_m**2))
+        if here.size < cfg.carry_neighbours or rows.size == 0:  # (most frames: no fast swing)
+            return shift
+        before = np.flatnonzero((t.ident >= 0) & (t.since == 1))
+        placed, ok = self._attached.carry(t.ident[rows], t.last_X[rows], t.ident[before], t.last_X[before],
+                                          t.ident[here], meas.X[here], cfg.carry_neighbours)
+        shift = shift.copy()
+        shift[rows[ok]] = placed[ok] - t.x3[rows[ok], :3]
         return shift
 
     def _search_regions(self, lock: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

@@ -54,6 +54,25 @@ def test_fast_swing_at_50_hz_keeps_identities():
     assert ca.switches >= 20 and ca.idf1 < 0.9
 
 
+def test_a_swing_too_fast_for_its_frame_rate_keeps_identities_carried_by_the_turn():
+    """The bar swung 1.2 rad at 2 Hz filmed at 30 Hz: the outer markers move 250 mm per frame, neighbours 0.1 m
+    apart, and the constant-velocity prediction corrected by the neighbours' median error misses each marker by
+    the turn. Carried by the rotation of its steady neighbours (``carry_m``) each track is predicted on its marker:
+    285 switches without, a few dozen with it (from frame 10, after the cold start)."""
+    take = simulate("swing", ring_rig(seed=2), scripted_motion(swing_positions(90, 30.0, 1.2, 2.0), 30.0),
+                    SynthSettings(seed=2), seed=2)
+
+    def settled(config: TrackerConfig):
+        traj = _run(Tracker(take.rig, 30.0, config), take)[0]
+        return evaluate(dataclasses.replace(traj, positions=traj.positions[10:], residuals=traj.residuals[10:],
+                                            camera_masks=traj.camera_masks[10:], first_frame=traj.first_frame + 10),
+                        take.truth)
+
+    carried, median_only = settled(TrackerConfig()), settled(TrackerConfig(carry_m=0.0))
+    assert carried.idf1 > 0.9 and carried.switches < 60
+    assert median_only.idf1 < 0.5 and median_only.switches > 200
+
+
 def test_a_walk_down_a_walkway_rig_is_tracked_from_end_to_end():
     """A 12 m walk past two rows of cameras, each seeing a stretch of it: pairs come from each pair's own
     common view (a single central volume left the end cameras without pairs: 82 % complete)."""
@@ -107,8 +126,11 @@ def test_motion_blur_streaks_are_not_taken_for_merged_markers():
             dets[c] = Detections(d.xy, area, roundness, d.cov, d.merged | (roundness < 0.7))
     take = dataclasses.replace(take, frames=frames)
     flagged = np.mean([d.merged.mean() for dets in frames for d in dets if len(d)])
-    streaks = evaluate(_run(Tracker(take.rig, 50.0), take)[0], take.truth)
-    merges = evaluate(_run(Tracker(take.rig, 50.0, TrackerConfig(smear_fraction=0.0)), take)[0], take.truth)
+    # (without the carry by the neighbours' turn, which keeps the coasting markers near their predictions: taken
+    # for merges, 0.96 complete with it)
+    streaks = evaluate(_run(Tracker(take.rig, 50.0, TrackerConfig(carry_m=0.0)), take)[0], take.truth)
+    merges = evaluate(_run(Tracker(take.rig, 50.0, TrackerConfig(smear_fraction=0.0, carry_m=0.0)), take)[0],
+                      take.truth)
     print(f"{flagged:.0%} of blobs flagged; completeness: streaks cleared {streaks.completeness:.4f}, "
           f"taken for merges {merges.completeness:.4f}")
     assert flagged > 0.1 and streaks.switches <= merges.switches
