@@ -172,34 +172,37 @@ class AttachedDistances:
         misfit, fits = self.judge(np.tile(ident, L), np.repeat(points, T, axis=0), here_ident, here_X)
         return misfit.reshape(L, T), fits.reshape(L, T)
 
-    def carry(self, ident: np.ndarray, before: np.ndarray, before_ident: np.ndarray, before_X: np.ndarray,
-              here_ident: np.ndarray, here_X: np.ndarray, min_neighbours: int) -> tuple[np.ndarray, np.ndarray]:
-        """Where each identity ``ident`` (n,), last at ``before`` (n, 3) m, lies now if it moved rigidly with its
-        steady neighbours: the rotation and translation (Kabsch) taking those measured at ``before_X`` (b, 3) m
-        (identities ``before_ident``) in the previous frame to ``here_X`` (h, 3) m (``here_ident``) now. Returns the
-        positions (n, 3) m and (n,) bool: ``min_neighbours`` or more seen both times, not in a line (a turn about
-        it would be free: a bar's row of markers), fitted within ``tolerance_m`` (RMS)."""
+    def turns(self, ident: np.ndarray, before_ident: np.ndarray, before_X: np.ndarray, here_ident: np.ndarray,
+              here_X: np.ndarray, min_neighbours: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """How each identity ``ident`` (n,) moved if rigidly with its steady neighbours: the rotation and translation
+        (Kabsch) taking those measured at ``before_X`` (b, 3) m (identities ``before_ident``) in the previous frame
+        to ``here_X`` (h, 3) m (``here_ident``) now; a point p then goes to R (p - a) + b. Returns (n,) bool (
+        ``min_neighbours`` or more seen both times, not in a line: a turn about it would be free, a bar's row of
+        markers; fitted within ``tolerance_m`` RMS) and R (n, 3, 3), a (n, 3) m, b (n, 3) m (the identity where
+        not)."""
+        n = len(ident)
+        R, a, b = np.tile(np.eye(3), (n, 1, 1)), np.zeros((n, 3)), np.zeros((n, 3))
         at, _, usable = self.steady_here(ident, here_ident, here_X)
         was, _, usable_before = self.steady_here(ident, before_ident, before_X)
         w = (usable & usable_before).astype(float)
         ok = w.sum(axis=1) >= min_neighbours
-        x = np.array(before, dtype=float)
         if not ok.any():
-            return x, ok
+            return ok, R, a, b
         P, Q, w = was[ok], at[ok], w[ok]
-        n = w.sum(axis=1)[:, None]
-        cp = (P * w[:, :, None]).sum(axis=1) / n
-        cq = (Q * w[:, :, None]).sum(axis=1) / n
+        m = w.sum(axis=1)[:, None]
+        cp = (P * w[:, :, None]).sum(axis=1) / m
+        cq = (Q * w[:, :, None]).sum(axis=1) / m
         H = np.einsum("mj,mji,mjk->mik", w, P - cp[:, None], Q - cq[:, None])
         U, _, Vt = np.linalg.svd(H)
         d = np.sign(np.linalg.det(np.einsum("mij,mjk->mik", U, Vt)))
         Vt[:, 2] *= d[:, None]
-        R = np.einsum("mij,mjk->mki", U, Vt)  # (R = V U^T, with the reflection removed)
-        fit = np.einsum("mik,mjk->mji", R, P - cp[:, None]) + cq[:, None]
-        rms = np.sqrt((((fit - Q) ** 2).sum(axis=2) * w).sum(axis=1) / n[:, 0])
-        C = np.einsum("mj,mji,mjk->mik", w, P - cp[:, None], P - cp[:, None]) / n[:, :, None]
-        wide = np.linalg.eigvalsh(C)[:, 1] >= _WIDE_M**2  # (not in a line: the turn about it is free)
+        turn = np.einsum("mij,mjk->mki", U, Vt)  # (V U^T, with the reflection removed)
+        fit = np.einsum("mik,mjk->mji", turn, P - cp[:, None]) + cq[:, None]
+        rms = np.sqrt((((fit - Q) ** 2).sum(axis=2) * w).sum(axis=1) / m[:, 0])
+        C = np.einsum("mj,mji,mjk->mik", w, P - cp[:, None], P - cp[:, None]) / m[:, :, None]
+        wide = np.linalg.eigvalsh(C)[:, 1] >= _WIDE_M**2
         rows = np.flatnonzero(ok)
         ok[rows] = good = (rms <= self._tol) & wide
-        x[rows[good]] = np.einsum("mik,mk->mi", R[good], x[rows[good]] - cp[good]) + cq[good]
-        return x, ok
+        rows = rows[good]
+        R[rows], a[rows], b[rows] = turn[good], cp[good], cq[good]
+        return ok, R, a, b

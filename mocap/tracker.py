@@ -132,8 +132,10 @@ class TrackerConfig:
         carry_m: where that correction exceeds this, m (a swing the constant-velocity prediction cannot follow),
             a confirmed track measured in the previous frame is predicted where the rotation and translation of
             its steady attached neighbours (see ``attached_check``; ``carry_neighbours`` or more, measured in both
-            frames, not in a line, fitted within ``attached_tolerance_m`` RMS) carry it; 0: off.
+            frames, not in a line, fitted within ``attached_tolerance_m`` RMS) carry it; 0: off ...
         carry_neighbours: see ``carry_m``.
+        carry_reach_m: a track without such neighbours (its distances broke: tracks stepping between a swinging
+            segment's markers) is carried by the turn of the nearest carried track this close, m.
         deblend: a merged blob of two markers, one of them measured by two clean cameras or more, gives the
             other (when it has two clean cameras too) its mirror image about the first, checked against them (see
             ``_deblend``) ...
@@ -199,6 +201,7 @@ class TrackerConfig:
     neighbour_min: int = 2
     carry_m: float = 0.03
     carry_neighbours: int = 3
+    carry_reach_m: float = 0.15
     deblend: bool = True
     deblend_px: float = 0.1
     withhold_merged_depth: bool = True
@@ -801,19 +804,34 @@ class Tracker:
 
     def _carried_shift(self, meas: _Measurements, play: np.ndarray, shift: np.ndarray) -> np.ndarray:
         """``shift`` (K, 3) m, the neighbours' correction, where it exceeds ``carry_m`` for a confirmed track
-        measured in the previous frame that moved rigidly with ``carry_neighbours`` or more of its steady attached
-        neighbours measured then and now (:meth:`AttachedDistances.carry`): the place they carry it to minus its
-        prediction. A swinging segment turns: its markers' errors differ by the turn, which their median misses."""
+        measured in the previous frame: the place the turn of its steady attached neighbours, measured then and
+        now, carries it to (:meth:`AttachedDistances.turns`, ``carry_neighbours`` or more), minus its prediction; a
+        track without such neighbours (its distances broke: tracks stepping between a segment's markers) takes the
+        turn of the nearest carried track within ``carry_reach_m``. A swinging segment turns: its markers'
+        errors differ by the turn, which their median misses."""
         t, cfg = self._t, self._cfg
         here = np.flatnonzero(meas.ok & (t.ident >= 0))
         rows = np.flatnonzero(play & (t.ident >= 0) & (t.since == 1) & ((shift * shift).sum(axis=1) > cfg.carry_m**2))
         if here.size < cfg.carry_neighbours or rows.size == 0:  # (most frames: no fast swing)
             return shift
         before = np.flatnonzero((t.ident >= 0) & (t.since == 1))
-        placed, ok = self._attached.carry(t.ident[rows], t.last_X[rows], t.ident[before], t.last_X[before],
-                                          t.ident[here], meas.X[here], cfg.carry_neighbours)
+        ok, R, a, b = self._attached.turns(t.ident[rows], t.ident[before], t.last_X[before], t.ident[here],
+                                           meas.X[here], cfg.carry_neighbours)
+        if not ok.any():
+            return shift
+        turned = np.flatnonzero(ok)
+        if not ok.all():  # the nearest carried track's turn, within reach
+            rest = np.flatnonzero(~ok)
+            gap = t.last_X[rows[rest], None] - t.last_X[rows[turned]][None]
+            d2 = (gap * gap).sum(axis=2)
+            near = d2.argmin(axis=1)
+            reach = d2[np.arange(rest.size), near] < cfg.carry_reach_m**2
+            R[rest[reach]], a[rest[reach]], b[rest[reach]] = R[turned[near[reach]]], a[turned[near[reach]]], \
+                b[turned[near[reach]]]
+            turned = np.concatenate([turned, rest[reach]])
+        X = t.last_X[rows[turned]]
         shift = shift.copy()
-        shift[rows[ok]] = placed[ok] - t.x3[rows[ok], :3]
+        shift[rows[turned]] = np.einsum("nij,nj->ni", R[turned], X - a[turned]) + b[turned] - t.x3[rows[turned], :3]
         return shift
 
     def _search_regions(self, lock: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

@@ -84,34 +84,35 @@ def test_slots_go_to_the_nearest_identities_within_reach_and_are_forgotten_when_
     assert 3 not in memory.neighbour[0]
 
 
-def test_carry_moves_an_identity_with_its_turning_neighbours():
-    """The plate turned 0.5 rad and moved 8 cm between two frames: identity 0 is carried from its last place to
-    its new one by the turn its three neighbours made (to 1e-9 m); in a line, or fitting badly, they carry nothing."""
+def test_an_identity_turns_with_its_neighbours():
+    """The plate turned 0.5 rad and moved 8 cm between two frames: the turn its three neighbours made carries
+    identity 0 from its last place to its new one (to 1e-9 m); with too few neighbours, or one fitting badly, there
+    is no turn."""
     memory = _learned(_frames(60))
     turn = 0.5
     R = np.array([[np.cos(turn), 0.0, np.sin(turn)], [0.0, 1.0, 0.0], [-np.sin(turn), 0.0, np.cos(turn)]])
     before = PLATE + [0.0, 0.0, 1.0]
     now = PLATE @ R.T + [0.08, -0.02, 1.03]
     ids = np.array([1, 2, 3])
-    placed, ok = memory.carry(np.array([0]), before[:1], ids, before[ids], ids, now[ids], 3)
+    ok, turned, a, b = memory.turns(np.array([0]), ids, before[ids], ids, now[ids], 3)
     assert ok[0]
-    np.testing.assert_allclose(placed[0], now[0], atol=1e-9)
-    # the median translation of the neighbours, which the tracker uses without a carry, is centimetres off
+    np.testing.assert_allclose(turned[0] @ (before[0] - a[0]) + b[0], now[0], atol=1e-9)
+    # the median translation of the neighbours, which the tracker uses without a turn, is centimetres off
     assert np.linalg.norm(before[0] + np.median(now[ids] - before[ids], axis=0) - now[0]) > 0.01
-    assert not memory.carry(np.array([0]), before[:1], ids, before[ids], ids, now[ids], 4)[1][0]
+    assert not memory.turns(np.array([0]), ids, before[ids], ids, now[ids], 4)[0][0]
     bent = now.copy()
     bent[3] += [0.0, 0.03, 0.0]  # one neighbour 3 cm off the plate: 14 mm RMS, over the 10 mm tolerance
-    assert not memory.carry(np.array([0]), before[:1], ids, before[ids], ids, bent[ids], 3)[1][0]
+    assert not memory.turns(np.array([0]), ids, before[ids], ids, bent[ids], 3)[0][0]
 
 
-def test_neighbours_in_a_line_carry_nothing():
-    """Three neighbours on one line leave the turn about it free: no carry, however well they fit."""
+def test_neighbours_in_a_line_give_no_turn():
+    """Three neighbours on one line leave the turn about it free: no turn, however well they fit."""
     line = np.array([[0.0, 0.0, 0.0], [0.0, 0.1, 0.0], [0.0, 0.05, 0.0], [0.0, 0.15, 0.0], [0.06, 0.02, 0.0]])
     frames = [line + [0.01 * k, 0.0, 1.0] for k in range(30)]
     memory = AttachedDistances(slots=4, reach_m=0.3, tolerance_m=0.01, steady_frames=12, forget_frames=240)
     for X in frames:
         memory.learn(np.arange(5), X)
     ids = np.array([0, 1, 2, 3])
-    placed, ok = memory.carry(np.array([4]), frames[-2][4:], ids, frames[-2][ids], ids, frames[-1][ids], 3)
+    ok, turned, a, b = memory.turns(np.array([4]), ids, frames[-2][ids], ids, frames[-1][ids], 3)
     assert not ok[0]
-    np.testing.assert_array_equal(placed[0], frames[-2][4])
+    np.testing.assert_array_equal(turned[0], np.eye(3))
