@@ -810,9 +810,12 @@ class Tracker:
         turn of the nearest carried track within ``carry_reach_m``. A swinging segment turns: its markers'
         errors differ by the turn, which their median misses."""
         t, cfg = self._t, self._cfg
+        fast = (shift * shift).sum(axis=1) > cfg.carry_m**2
+        if not fast.any():  # (most frames: no fast swing)
+            return shift
+        rows = np.flatnonzero(fast & play & (t.ident >= 0) & (t.since == 1))
         here = np.flatnonzero(meas.ok & (t.ident >= 0))
-        rows = np.flatnonzero(play & (t.ident >= 0) & (t.since == 1) & ((shift * shift).sum(axis=1) > cfg.carry_m**2))
-        if here.size < cfg.carry_neighbours or rows.size == 0:  # (most frames: no fast swing)
+        if here.size < cfg.carry_neighbours or rows.size == 0:
             return shift
         before = np.flatnonzero((t.ident >= 0) & (t.since == 1))
         ok, R, a, b = self._attached.turns(t.ident[rows], t.ident[before], t.last_X[before], t.ident[here],
