@@ -192,15 +192,14 @@ class AttachedDistances:
         m = w.sum(axis=1)[:, None]
         cp = (P * w[:, :, None]).sum(axis=1) / m
         cq = (Q * w[:, :, None]).sum(axis=1) / m
-        H = np.einsum("mj,mji,mjk->mik", w, P - cp[:, None], Q - cq[:, None])
-        U, _, Vt = np.linalg.svd(H)
-        d = np.sign(np.linalg.det(np.einsum("mij,mjk->mik", U, Vt)))
-        Vt[:, 2] *= d[:, None]
+        P0, Q0 = P - cp[:, None], Q - cq[:, None]  # (k, J, 3) about the centroids
+        U, _, Vt = np.linalg.svd(np.einsum("mj,mji,mjk->mik", w, P0, Q0))
+        Vt[:, 2] *= np.sign(np.linalg.det(np.einsum("mij,mjk->mik", U, Vt)))[:, None]
         turn = np.einsum("mij,mjk->mki", U, Vt)  # (V U^T, with the reflection removed)
-        fit = np.einsum("mik,mjk->mji", turn, P - cp[:, None]) + cq[:, None]
-        rms = np.sqrt((((fit - Q) ** 2).sum(axis=2) * w).sum(axis=1) / m[:, 0])
-        C = np.einsum("mj,mji,mjk->mik", w, P - cp[:, None], P - cp[:, None]) / m[:, :, None]
-        wide = np.linalg.eigvalsh(C)[:, 1] >= _WIDE_M**2
+        miss = np.einsum("mik,mjk->mji", turn, P0) - Q0
+        rms = np.sqrt(((miss * miss).sum(axis=2) * w).sum(axis=1) / m[:, 0])
+        spread = np.einsum("mj,mji,mjk->mik", w, P0, P0) / m[:, :, None]
+        wide = np.linalg.eigvalsh(spread)[:, 1] >= _WIDE_M**2
         rows = np.flatnonzero(ok)
         ok[rows] = good = (rms <= self._tol) & wide
         rows = rows[good]
