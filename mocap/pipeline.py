@@ -92,9 +92,10 @@ def _opencv_threads(n: int) -> Iterator[None]:
         cv2.setNumThreads(before)
 
 
-def _full_scan(opts: ReconstructOptions, frame_index: int) -> bool:
-    """Whether ``frame_index`` is searched over the whole image (every frame unless ``opts.roi_scan_every``)."""
-    return opts.roi_scan_every <= 0 or (frame_index - opts.start) % opts.roi_scan_every == 0
+def _scan_every(opts: ReconstructOptions, kind: str) -> int:
+    """Frames from one full-frame scan to the next (1: every frame; only images are searched in windows): frame f is
+    scanned in full where (f - ``opts.start``) is a multiple of it."""
+    return max(opts.roi_scan_every, 1) if kind == "images" else 1
 
 
 def _detection_frames(source: Any, kind: str, tracker: Tracker, opts: ReconstructOptions
@@ -103,8 +104,9 @@ def _detection_frames(source: Any, kind: str, tracker: Tracker, opts: Reconstruc
     if kind == "centroids":
         yield from source.centroids(opts.start, opts.stop)
         return
+    every = _scan_every(opts, kind)
     for frame_index, images in source.images(opts.start, opts.stop):
-        rois = None if _full_scan(opts, frame_index) else tracker.predicted_rois()
+        rois = None if (frame_index - opts.start) % every == 0 else tracker.predicted_rois()
         seeds = tracker.predicted_centres()
         dets = []
         for c, image in enumerate(images):
@@ -188,7 +190,8 @@ def reconstruct(take: str | os.PathLike, options: ReconstructOptions | None = No
     tracker = Tracker(rig, fps, opts.tracker)
     logger = _open_mcap_logger(mcap, rig, fps, path) if mcap is not None else contextlib.nullcontext()
     fit = FitMonitor(rig, FIT_CHECK_FRAMES, spacing=max(1, int(round(FIT_CHECK_SPACING_S * fps))))
-    blind = BlindCameras(rig, every=max(opts.roi_scan_every, 1) if kind == "images" else 1)
+    scan_every = _scan_every(opts, kind)
+    blind = BlindCameras(rig, every=scan_every)
     # OpenCV and BLAS on one thread while streaming: detection's OpenCV calls are small (a dilation, labelling of
     # small images) and a second OpenCV thread mostly waits for a core that the take reader's decoders hold
     # (labelling 0.08 ms per call on one thread, 0.3-3 ms on two on the shared 2-core machine); the tracker's
@@ -204,7 +207,7 @@ def reconstruct(take: str | os.PathLike, options: ReconstructOptions | None = No
             if verdict is not None:
                 _report_calibration_fit(rig, verdict, path)
             result = tracker.step(frame_index, dets)
-            if kind != "images" or _full_scan(opts, frame_index):  # (a window that missed its marker is not blind)
+            if (frame_index - opts.start) % scan_every == 0:  # (a window that missed its marker is not blind)
                 blind.offer(frame_index, [len(d) for d in dets], result.positions)
             if notice is not None:
                 notice.cancel()  # (the first frame is done)
