@@ -41,6 +41,7 @@ from dataclasses import dataclass, field, fields
 from itertools import accumulate
 
 import numpy as np
+from scipy.optimize import linear_sum_assignment
 
 from mocap import kernels
 from mocap.attached import AttachedDistances
@@ -136,6 +137,12 @@ class TrackerConfig:
         carry_neighbours: see ``carry_m``.
         carry_reach_m: a track without such neighbours (its distances broke: tracks stepping between a swinging
             segment's markers) is carried by the turn of the nearest carried track this close, m.
+        settle_hops: where confirmed tracks measured in the previous frame too took points that their own last
+            two points extrapolate to more than the hop acceleration away, and exchanging those points among them
+            brings every track that changes within half of that of its extrapolation (and within half the distance
+            to any other point), the points are exchanged before the update (see ``_settle_hops``) ...
+        hop_acc_m, hop_acc_mps2: ... the hop acceleration: the larger of ``hop_acc_m`` m/frame^2 and
+            ``hop_acc_mps2`` m/s^2 (the identity repair's jump, ``mocap.relabel.RelabelConfig.jump_acc``).
         deblend: a merged blob of two markers, one of them measured by two clean cameras or more, gives the
             other (when it has two clean cameras too) its mirror image about the first, checked against them (see
             ``_deblend``) ...
@@ -202,6 +209,9 @@ class TrackerConfig:
     carry_m: float = 0.03
     carry_neighbours: int = 3
     carry_reach_m: float = 0.15
+    settle_hops: bool = True
+    hop_acc_m: float = 0.06
+    hop_acc_mps2: float = 250.0
     deblend: bool = True
     deblend_px: float = 0.1
     withhold_merged_depth: bool = True
@@ -377,6 +387,10 @@ class _Measurements(_Rows):
         return cls(np.zeros(K, dtype=bool), np.zeros(K, dtype=bool), np.full((K, 3), np.nan),
                    np.full((K, 3, 3), np.nan), np.full(K, np.nan), np.full((K, C), -1, dtype=np.intp))
 
+    def rows(self, rows: np.ndarray) -> _Measurements:
+        """A copy of the rows ``rows``."""
+        return _Measurements(*(getattr(self, f.name)[rows] for f in fields(self)))
+
     def miss(self, rows: np.ndarray, C: int) -> None:
         """The tracks ``rows`` (of C cameras) are not measured this frame."""
         self.put(rows, _Measurements.empty(len(rows), C))
@@ -479,6 +493,8 @@ class Tracker:
                 self._yield_outside_gate(meas, np.where(moved[:, None], shift, 0.0))
             if self._cfg.attached_check:
                 self._refute_by_attached(meas)
+            if self._cfg.settle_hops:
+                self._settle_hops(meas)
             self._update(fr, meas, np.flatnonzero(meas.ok))
             self._follow_residual_level(fr, meas)
         self._new_markers(fr, fr.valid & ~_taken(meas.asg, fr.valid.shape), meas)
@@ -699,6 +715,41 @@ class Tracker:
         yields = bad[self._claimed_by_lost(meas.X[bad], t.ident[kept], meas.X[kept], ~meas.ok)]
         if yields.size:
             meas.miss(yields, self._C)
+
+    def _settle_hops(self, meas: _Measurements) -> None:
+        """Confirmed tracks measured in the previous frame and this one whose points hop (lie over the hop
+        acceleration from the constant-velocity extrapolation of their last two points) exchange points with
+        each other where the exchange (optimal, ``linear_sum_assignment``) is clear: every track that changes then
+        lies within half the hop acceleration of its extrapolation, within half the distance from its new point to
+        any other, and at a quarter of the squared misses or less. After a burst of hops (a take's garbled labels,
+        a fast swing) the filters' velocities and running errors hold the hops: their predictions fall between
+        neighbouring markers, and the widened gates hold both, so the tracks went on hopping between a forearm's
+        markers for 25 frames of slow motion (two-player seed 58, frames 332-356). The raw steps of the markers
+        themselves, a few millimetres, tell which point is whose."""
+        t, cfg = self._t, self._cfg
+        rows = np.flatnonzero(meas.ok & (t.ident >= 0) & (t.since == 1) & np.isfinite(t.last_v[:, 0]))
+        if rows.size < 2:
+            return
+        hop = max(cfg.hop_acc_m, cfg.hop_acc_mps2 * self._dt * self._dt)  # m/frame^2
+        gap = meas.X[rows][None, :, :] - (t.last_X[rows] + t.last_v[rows] * self._dt)[:, None, :]
+        miss = np.sqrt((gap * gap).sum(axis=2))  # (track, point) m
+        hopped = np.diag(miss) > hop
+        if not hopped.any():  # (most frames)
+            return
+        near = np.flatnonzero(hopped | (miss[hopped].min(axis=0) < hop) | (miss[:, hopped].min(axis=1) < hop))
+        sub = miss[np.ix_(near, near)]
+        track, point = linear_sum_assignment(sub * sub)
+        moved = track != point
+        if not moved.any():
+            return
+        track, point = track[moved], point[moved]
+        new, old = sub[track, point], sub[track, track]
+        X = meas.X[rows[near]]
+        apart = np.sqrt(((X[:, None, :] - X[None, :, :]) ** 2).sum(axis=2))
+        np.fill_diagonal(apart, np.inf)
+        if (old.max() > hop and new.max() < 0.5 * hop and (new < 0.5 * apart[point].min(axis=1)).all()
+                and (new * new).sum() < 0.25 * (old * old).sum()):
+            meas.put(rows[near[track]], meas.rows(rows[near[point]]))  # (a copy: rows() gathers)
 
     def _claimed_by_lost(self, points: np.ndarray, here_ident: np.ndarray, here_X: np.ndarray,
                          unmeasured: np.ndarray) -> np.ndarray:
