@@ -26,7 +26,9 @@ Between 4 and 5, where the measured neighbours of a track (markers within ``neig
 mispredicted alike by more than ``gate_floor_m``, their median error shifts the track's prediction
 and steps 2-4 run again from the corrected predictions (fast swings at low frame rates).
 Then a confirmed track's point that its identity's steady distances to the identities around it refute
-(:mod:`mocap.attached`), where a lost identity's distances fit it, is left to that identity.
+(:mod:`mocap.attached`), where a lost identity's distances fit it, is left to that identity, and tracks that took
+each other's markers (their points far off the extrapolation of their own last two points, each other's close by)
+exchange them back (``settle_hops``).
 
 The output position of a marker in a frame is its multi-view triangulation (not the filter state);
 its residual is the RMS reprojection error back-projected to the marker's depth (px * depth / f).
