@@ -733,11 +733,13 @@ class Tracker:
         if rows.size < 2:
             return
         hop = max(cfg.hop_acc_m, cfg.hop_acc_mps2 * self._dt * self._dt)  # m/frame^2
-        gap = meas.X[rows][None, :, :] - (t.last_X[rows] + t.last_v[rows] * self._dt)[:, None, :]
+        ext = t.last_X[rows] + t.last_v[rows] * self._dt
+        own = meas.X[rows] - ext
+        if not ((own * own).sum(axis=1) > hop * hop).any():  # (most frames)
+            return
+        gap = meas.X[rows][None, :, :] - ext[:, None, :]
         miss = np.sqrt((gap * gap).sum(axis=2))  # (track, point) m
         hopped = np.diag(miss) > hop
-        if not hopped.any():  # (most frames)
-            return
         near = np.flatnonzero(hopped | (miss[hopped].min(axis=0) < hop) | (miss[:, hopped].min(axis=1) < hop))
         sub = miss[np.ix_(near, near)]
         track, point = linear_sum_assignment(sub * sub)
