@@ -445,6 +445,8 @@ class Tracker:
         self._running = RunningError(cfg.error_alpha, cfg.gate_scale)
         self._keep_lost = max(1, int(round(cfg.keep_lost_s * self._fps)))
         self._yield_frames = max(1, int(round(cfg.yield_s * self._fps)))
+        self._hop_m = max(cfg.hop_acc_m, cfg.hop_acc_mps2 * dt * dt)  # m/frame^2: a track's point over this off
+        # the extrapolation of its last two points hopped (see _settle_hops)
         self._attached = AttachedDistances(cfg.attached_slots, cfg.attached_reach_m, cfg.attached_tolerance_m,
                                            max(1, int(round(cfg.attached_steady_s * self._fps))),
                                            max(1, int(round(_FORGET_ATTACHED_S * self._fps))))
@@ -728,16 +730,16 @@ class Tracker:
         neighbouring markers, and the widened gates hold both, so the tracks went on hopping between a forearm's
         markers for 25 frames of slow motion (two-player seed 58, frames 332-356). The raw steps of the markers
         themselves, a few millimetres, tell which point is whose."""
-        t, cfg = self._t, self._cfg
+        t, hop = self._t, self._hop_m
         rows = np.flatnonzero(meas.ok & (t.ident >= 0) & (t.since == 1) & np.isfinite(t.last_v[:, 0]))
         if rows.size < 2:
             return
-        hop = max(cfg.hop_acc_m, cfg.hop_acc_mps2 * self._dt * self._dt)  # m/frame^2
+        X = meas.X[rows]
         ext = t.last_X[rows] + t.last_v[rows] * self._dt
-        own = meas.X[rows] - ext
+        own = X - ext
         if not ((own * own).sum(axis=1) > hop * hop).any():  # (most frames)
             return
-        gap = meas.X[rows][None, :, :] - ext[:, None, :]
+        gap = X[None, :, :] - ext[:, None, :]
         miss = np.sqrt((gap * gap).sum(axis=2))  # (track, point) m
         hopped = np.diag(miss) > hop
         near = np.flatnonzero(hopped | (miss[hopped].min(axis=0) < hop) | (miss[:, hopped].min(axis=1) < hop))
@@ -748,8 +750,7 @@ class Tracker:
             return
         track, point = track[moved], point[moved]
         new, old = sub[track, point], sub[track, track]
-        X = meas.X[rows[near]]
-        apart = np.sqrt(((X[:, None, :] - X[None, :, :]) ** 2).sum(axis=2))
+        apart = np.sqrt(((X[near, None, :] - X[None, near, :]) ** 2).sum(axis=2))
         np.fill_diagonal(apart, np.inf)
         if (old.max() > hop and new.max() < 0.5 * hop and (new < 0.5 * apart[point].min(axis=1)).all()
                 and (new * new).sum() < 0.25 * (old * old).sum()):
