@@ -12,7 +12,10 @@ jointly, by every distance of every marker involved at once.
 1. finds the bursts: hops (accelerations above the jump threshold) of different identities at most ``join_s``
    apart in time and ``reach_m`` apart in space (in one frame). A burst's identities are those that hopped, those
    hidden during it within ``reach_m`` of a hop, and the bystanders seen within ``near_m`` of one (only those shaken
-   in the burst, where there are more than ``max_identities`` in all);
+   in the burst, where there are more than ``max_identities`` in all); and, where they fit in, the newcomers: the
+   identities seen neither in the ``window_s`` before the burst nor during it that appear within ``newcomer_s``
+   after it within ``reach_m`` of one of its identities (a marker lost in the burst and found again as a new
+   identity, or as one lost long before, whose tail is a burst identity's);
 2. measures, over the ``window_s`` before the burst, each burst identity's distance to every identity within
    ``reach_m`` (median and robust spread), and over the ``window_s`` from ``gap`` frames after it, the same from
    each burst identity's tail;
@@ -73,6 +76,7 @@ class ScrambleConfig:
         margin_nats: ... and the winner is applied where it beats keeping the tails by this ...
         recheck_s: ... and, against the window before ending this much earlier, is still tied with the best and no
             worse than keeping the tails (a window half in the recording's garbled labels is not the only witness).
+        newcomer_s: identities first seen this long after a burst at most, s, may join it (see step 1).
         max_identities: a burst of more identities is left alone (their permutations are too many to try: 9 give
             362,880, ~1.5 s; 10 would take ~15 s) ...
         calm: ... once the bystanders (identities only seen near it) that accelerated less than this fraction of the
@@ -91,6 +95,7 @@ class ScrambleConfig:
     drift_gap_m: float = 0.05
     margin_nats: float = 5.0
     recheck_s: float = 0.16
+    newcomer_s: float = 0.12
     max_identities: int = 9
     calm: float = 0.4
 
@@ -106,8 +111,10 @@ def unscramble_bursts(traj: Trajectories, jump_acc: float, config: ScrambleConfi
     join = max(1, int(round(cfg.join_s * traj.fps)))  # frames
     recheck = max(1, int(round(cfg.recheck_s * traj.fps)))  # frames
     column = np.arange(P.shape[1])  # where each identity's tail after the bursts put back so far now is
+    after = cfg.gap + max(1, int(round(cfg.newcomer_s * traj.fps)))  # frames after a burst a newcomer may start
     for first, last, found in _bursts(P, _hop_frames(P, jump_acc), join, jump_acc, cfg):
         ids = column[found]
+        ids = np.union1d(ids, _newcomers(P, ids, slice(max(first - window, 0), last + 1), last + 1 + after, cfg))
         start = last + 1 + cfg.gap
         if ids.size > cfg.max_identities or first < window or start + window > len(P):
             continue
@@ -190,6 +197,22 @@ def _bursts(P: np.ndarray, hops: np.ndarray, join: int, jump_acc: float, cfg: Sc
         if ids.size >= 2:
             out.append((first, last, ids))
     return out
+
+
+def _newcomers(P: np.ndarray, ids: np.ndarray, unseen: slice, until: int, cfg: ScrambleConfig) -> np.ndarray:
+    """The identities of ``P`` (F, M, 3) not seen over the frames ``unseen`` (the window before a burst and the
+    burst) that appear after it, before frame ``until``, within ``reach_m`` of one of the burst identities ``ids``
+    in their first frame; none where they would make more than ``max_identities``."""
+    later = P[unseen.stop:until]  # (k, M, 3)
+    seen = np.isfinite(later[..., 0])
+    candidates = np.flatnonzero(~np.isfinite(P[unseen, :, 0]).any(axis=0) & seen.any(axis=0))
+    if candidates.size == 0 or ids.size + 1 > cfg.max_identities:
+        return np.zeros(0, dtype=np.intp)
+    start = seen[:, candidates].argmax(axis=0)  # (c,) each candidate's first frame after the burst
+    with np.errstate(invalid="ignore"):
+        d = np.linalg.norm(later[start][:, ids] - later[start, candidates][:, None], axis=2)  # (c, g)
+    found = candidates[(d < cfg.reach_m).any(axis=1)]
+    return found if ids.size + found.size <= cfg.max_identities else np.zeros(0, dtype=np.intp)
 
 
 def _shaken(P: np.ndarray) -> np.ndarray:

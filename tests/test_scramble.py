@@ -172,3 +172,24 @@ def test_a_distance_that_never_varied_scores_without_warnings():
         warnings.simplefilter("error")
         assert unscramble_bursts(traj, JUMP) == 1
     np.testing.assert_array_equal(traj.positions, P)
+
+
+def test_a_marker_found_again_as_a_new_identity_after_the_burst_is_a_burst_identity():
+    """Two players, seed 74: in the swing the forearm marker's and the wrist bar's second marker's tails exchange,
+    and the bar's first marker is lost for 4 frames and comes back as another identity. Without it the burst's two
+    identities keep one rigid distance between them, the same both ways round, and nothing moves; with the newcomer
+    among the burst's identities (first seen 4 frames after the burst, next to its markers) the bar's distances put
+    all three tails back: the newcomer's onto the lost marker's identity."""
+    P = _arm()
+    seen = np.concatenate([P, np.full((len(P), 1, 3), np.nan)], axis=1)
+    seen[50:, [3, 5]] = P[50:, [5, 3]]
+    seen[50:, 4] = np.nan
+    seen[54:, 6] = P[54:, 4]
+    expected = np.concatenate([P, np.full((len(P), 1, 3), np.nan)], axis=1)
+    expected[50:54, 4] = np.nan
+    traj = _traj(seen)
+    assert unscramble_bursts(traj, JUMP) == 1
+    np.testing.assert_array_equal(traj.positions, expected)
+    alone = _traj(seen)  # (newcomers only up to 1 frame after the burst's gap: this one is not)
+    assert unscramble_bursts(alone, JUMP, ScrambleConfig(newcomer_s=0.0)) == 0
+    np.testing.assert_array_equal(alone.positions, seen)
