@@ -15,7 +15,9 @@ jointly, by every distance of every marker involved at once.
    in the burst, where there are more than ``max_identities`` in all); and, where they fit in, the newcomers: the
    identities seen neither in the ``window_s`` before the burst nor during it that appear within ``newcomer_s``
    after it within ``reach_m`` of one of its identities (a marker lost in the burst and found again as a new
-   identity, or as one lost long before, whose tail is a burst identity's);
+   identity, or as one lost long before, whose tail is a burst identity's), then the leavers: those last seen
+   within ``newcomer_s`` before the burst's last hop, within ``reach_m`` of one of its identities, and not seen
+   again through the window after it (an identity that ended in the burst while another took its marker);
 2. measures, over the ``window_s`` before the burst, each burst identity's distance to every identity within
    ``reach_m`` (median and robust spread), and over the ``window_s`` from ``gap`` frames after it, the same from
    each burst identity's tail;
@@ -76,7 +78,8 @@ class ScrambleConfig:
         margin_nats: ... and the winner is applied where it beats keeping the tails by this ...
         recheck_s: ... and, against the window before ending this much earlier, is still tied with the best and no
             worse than keeping the tails (a window half in the recording's garbled labels is not the only witness).
-        newcomer_s: identities first seen this long after a burst at most, s, may join it (see step 1).
+        newcomer_s: identities first seen this long after a burst at most, or last seen this long before its last hop
+            at most, s, may join it (see step 1).
         max_identities: a burst of more identities is left alone (their permutations are too many to try: 9 give
             362,880, ~1.5 s; 10 would take ~15 s) ...
         calm: ... once the bystanders (identities only seen near it) that accelerated less than this fraction of the
@@ -111,10 +114,11 @@ def unscramble_bursts(traj: Trajectories, jump_acc: float, config: ScrambleConfi
     join = max(1, int(round(cfg.join_s * traj.fps)))  # frames
     recheck = max(1, int(round(cfg.recheck_s * traj.fps)))  # frames
     column = np.arange(P.shape[1])  # where each identity's tail after the bursts put back so far now is
-    after = cfg.gap + max(1, int(round(cfg.newcomer_s * traj.fps)))  # frames after a burst a newcomer may start
+    recent = max(1, int(round(cfg.newcomer_s * traj.fps)))  # frames
     for first, last, found in _bursts(P, _hop_frames(P, jump_acc), join, jump_acc, cfg):
         ids = column[found]
-        ids = np.union1d(ids, _newcomers(P, ids, slice(max(first - window, 0), last + 1), last + 1 + after, cfg))
+        ids = np.union1d(ids, _newcomers(P, ids, slice(max(first - window, 0), first), last,
+                                         last + 1 + cfg.gap + recent, recent, window, cfg))
         start = last + 1 + cfg.gap
         if ids.size > cfg.max_identities or first < window or start + window > len(P):
             continue
@@ -199,20 +203,36 @@ def _bursts(P: np.ndarray, hops: np.ndarray, join: int, jump_acc: float, cfg: Sc
     return out
 
 
-def _newcomers(P: np.ndarray, ids: np.ndarray, unseen: slice, until: int, cfg: ScrambleConfig) -> np.ndarray:
-    """The identities of ``P`` (F, M, 3) not seen over the frames ``unseen`` (the window before a burst and the
-    burst) that appear after it, before frame ``until``, within ``reach_m`` of one of the burst identities ``ids``
-    in their first frame; none where they would make more than ``max_identities``."""
-    later = P[unseen.stop:until]  # (k, M, 3)
-    seen = np.isfinite(later[..., 0])
-    candidates = np.flatnonzero(~np.isfinite(P[unseen, :, 0]).any(axis=0) & seen.any(axis=0))
-    if candidates.size == 0 or ids.size + 1 > cfg.max_identities:
-        return np.zeros(0, dtype=np.intp)
-    start = seen[:, candidates].argmax(axis=0)  # (c,) each candidate's first frame after the burst
-    with np.errstate(invalid="ignore"):
-        d = np.linalg.norm(later[start][:, ids] - later[start, candidates][:, None], axis=2)  # (c, g)
-    found = candidates[(d < cfg.reach_m).any(axis=1)]
-    return found if ids.size + found.size <= cfg.max_identities else np.zeros(0, dtype=np.intp)
+def _newcomers(P: np.ndarray, ids: np.ndarray, before: slice, last: int, until: int, recent: int, window: int,
+               cfg: ScrambleConfig) -> np.ndarray:
+    """The identities of ``P`` (F, M, 3) that may hold a burst identity's head or tail (step 1), each within
+    ``reach_m`` of one of the burst's identities ``ids`` in its first or last frame: those seen neither over
+    ``before`` (the window before the burst) nor in the burst (up to frame ``last``) that appear before frame
+    ``until`` (a marker lost in the burst found again under another identity), then, where they fit in too, those
+    last seen within ``recent`` frames before ``last`` and not seen again before ``until + window`` (a marker whose
+    identity ended in the burst and whose marker another identity took). None where they would make more than
+    ``max_identities``."""
+    out = np.zeros(0, dtype=np.intp)
+    if ids.size + 1 > cfg.max_identities:
+        return out
+    seen_then = np.isfinite(P[before.start:last, :, 0])  # (b, M)
+    seen_later = np.isfinite(P[last + 1:until, :, 0])
+    new = np.flatnonzero(~seen_then.any(axis=0) & ~np.isfinite(P[last, :, 0]) & seen_later.any(axis=0))
+    gone = np.setdiff1d(np.flatnonzero(seen_then.any(axis=0) & ~np.isfinite(P[last:until + window, :, 0]).any(axis=0)),
+                        ids)
+    candidates = []
+    if new.size:
+        candidates.append((new, last + 1 + seen_later[:, new].argmax(axis=0)))  # (first frame seen)
+    if gone.size:
+        ended = before.start + len(seen_then) - 1 - seen_then[::-1, gone].argmax(axis=0)  # (last frame seen)
+        candidates.append((gone[ended >= last - recent], ended[ended >= last - recent]))
+    for found, frames in candidates:
+        with np.errstate(invalid="ignore"):
+            d = np.linalg.norm(P[frames][:, ids] - P[frames, found][:, None], axis=2)  # (n, g)
+        found = found[(d < cfg.reach_m).any(axis=1)]
+        if ids.size + out.size + found.size <= cfg.max_identities:
+            out = np.union1d(out, found)
+    return out
 
 
 def _shaken(P: np.ndarray) -> np.ndarray:

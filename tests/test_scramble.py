@@ -193,3 +193,25 @@ def test_a_marker_found_again_as_a_new_identity_after_the_burst_is_a_burst_ident
     alone = _traj(seen)  # (newcomers only up to 1 frame after the burst's gap: this one is not)
     assert unscramble_bursts(alone, JUMP, ScrambleConfig(newcomer_s=0.0)) == 0
     np.testing.assert_array_equal(alone.positions, seen)
+
+
+def test_an_identity_that_ended_just_before_the_burst_takes_its_marker_back():
+    """The wrist bar's first marker's identity ends 3 frames before a burst (its marker unseen for two frames), and
+    in the burst the forearm marker's identity takes that marker and the bar's second marker's identity the forearm
+    marker (the second marker unseen after it). The ended identity is not a burst identity by its hops or gaps; as a
+    leaver it is, and the tails go back: the bar's first marker to its own identity, the forearm marker to its own;
+    without it nothing moves."""
+    P = _arm()
+    seen = P.copy()
+    seen[48:, 4] = np.nan
+    seen[50:, 3] = P[50:, 4]
+    seen[50:, 5] = P[50:, 3]
+    expected = P.copy()
+    expected[48:50, 4] = np.nan
+    expected[50:, 5] = np.nan
+    traj = _traj(seen)
+    assert unscramble_bursts(traj, JUMP) == 1
+    np.testing.assert_array_equal(traj.positions, expected)
+    alone = _traj(seen)  # (leavers only up to 1 frame before the burst's last hop: this one is not)
+    assert unscramble_bursts(alone, JUMP, ScrambleConfig(newcomer_s=0.0)) == 0
+    np.testing.assert_array_equal(alone.positions, seen)
