@@ -117,13 +117,13 @@ def unscramble_bursts(traj: Trajectories, jump_acc: float, config: ScrambleConfi
     recent = max(1, int(round(cfg.newcomer_s * traj.fps)))  # frames
     for first, last, found in _bursts(P, _hop_frames(P, jump_acc), join, jump_acc, cfg):
         ids = column[found]
-        ids = np.union1d(ids, _newcomers(P, ids, slice(max(first - window, 0), first), last,
-                                         last + 1 + cfg.gap + recent, recent, window, cfg))
         start = last + 1 + cfg.gap
         if ids.size > cfg.max_identities or first < window or start + window > len(P):
             continue
+        before = slice(first - window, first)
+        ids = np.union1d(ids, _newcomers_and_leavers(P, ids, before, last, start + recent, recent, window, cfg))
         now, _, seen = _window_distances(P, slice(start, start + window), ids)
-        scores = _scores(P, ids, slice(first - window, first), now, seen >= enough, enough, cfg)
+        scores = _scores(P, ids, before, now, seen >= enough, enough, cfg)
         k = None if scores is None else _choose(*scores, cfg)
         if k is not None and first - recheck - window >= 0:  # the window before must not be the only witness
             earlier = _scores(P, ids, slice(first - recheck - window, first - recheck), now, seen >= enough, enough,
@@ -203,8 +203,8 @@ def _bursts(P: np.ndarray, hops: np.ndarray, join: int, jump_acc: float, cfg: Sc
     return out
 
 
-def _newcomers(P: np.ndarray, ids: np.ndarray, before: slice, last: int, until: int, recent: int, window: int,
-               cfg: ScrambleConfig) -> np.ndarray:
+def _newcomers_and_leavers(P: np.ndarray, ids: np.ndarray, before: slice, last: int, until: int, recent: int,
+                           window: int, cfg: ScrambleConfig) -> np.ndarray:
     """The identities of ``P`` (F, M, 3) that may hold a burst identity's head or tail (step 1), each within
     ``reach_m`` of one of the burst's identities ``ids`` in its first or last frame: those seen neither over
     ``before`` (the window before the burst) nor in the burst (up to frame ``last``) that appear before frame
@@ -228,7 +228,7 @@ def _newcomers(P: np.ndarray, ids: np.ndarray, before: slice, last: int, until: 
         candidates.append((gone[ended >= last - recent], ended[ended >= last - recent]))
     for found, frames in candidates:
         with np.errstate(invalid="ignore"):
-            d = np.linalg.norm(P[frames][:, ids] - P[frames, found][:, None], axis=2)  # (n, g)
+            d = np.linalg.norm(P[frames[:, None], ids] - P[frames, found][:, None], axis=2)  # (n, g)
         found = found[(d < cfg.reach_m).any(axis=1)]
         if ids.size + out.size + found.size <= cfg.max_identities:
             out = np.union1d(out, found)
