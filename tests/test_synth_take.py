@@ -173,6 +173,20 @@ def test_dropouts_are_temporally_correlated_at_the_stated_rate():
     assert missing.sum() / max(starts, 1) == pytest.approx(5.0, rel=0.2)  # mean run length
 
 
+def test_gaps_hide_a_marker_from_every_camera_at_once_and_leave_the_rest_of_the_take_as_it_was():
+    rig, motion = ring_rig(seed=9), marching_motion(400, n_markers=20, seed=9)
+    plain = simulate(rig, motion, SynthSettings(occlusion=False, seed=9))
+    gappy = simulate(rig, motion, SynthSettings(occlusion=False, seed=9, hidden_rate=0.1, hidden_frames=20.0))
+    np.testing.assert_array_equal(plain.positions, gappy.positions)  # the markers are still there, only unseen
+    gone = ~gappy.visible.any(axis=1) & plain.visible.any(axis=1)  # (F, M): hidden in every view by the gaps alone
+    assert gone.mean() == pytest.approx(0.1, abs=0.03)
+    starts = (np.diff(gone.astype(np.int8), axis=0) == 1).sum()
+    assert gone.sum() / max(starts, 1) == pytest.approx(20.0, rel=0.3)  # mean gap length
+    # Outside the gaps every view is as without them (the dropouts' and ghosts' seeds are unchanged).
+    np.testing.assert_array_equal(gappy.visible | gone[:, None, :], plain.visible | gone[:, None, :])
+    assert gappy.settings["hidden_fraction"] == pytest.approx(0.1, abs=0.03)
+
+
 def test_mkv_is_lossless_and_equals_png(tmp_path):
     motion = marching_motion(6, seed=1)
     truths = [render_take(tmp_path / fmt, ring_rig(seed=1), motion, SynthSettings(seed=1, format=fmt),

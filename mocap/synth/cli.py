@@ -84,9 +84,14 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
                      help=f"fraction of marker samples dropped at random (default {d.dropout_rate:g})")
     img.add_argument("--dropout-frames", type=float,
                      help=f"mean length of a dropout, frames (default {d.dropout_frames:g})")
+    img.add_argument("--hidden-rate", type=float,
+                     help=f"fraction of marker samples hidden from every camera at once (default {d.hidden_rate:g})")
+    img.add_argument("--hidden-frames", type=float,
+                     help=f"mean length of such a gap in every view, frames (default {d.hidden_frames:g})")
     img.add_argument("--no-occlusion", dest="occlusion", action="store_const", const=False,
                      help="do not hide markers behind the body")
-    img.add_argument("--clean", action="store_true", help="no noise, no ghosts, no dropouts (8-bit rounding stays)")
+    img.add_argument("--clean", action="store_true",
+                     help="no noise, no ghosts, no dropouts or gaps (8-bit rounding stays)")
     out = parser.add_argument_group("output")
     out.add_argument("--format", choices=FORMATS, help="mkv: lossless FFV1 video per camera (default); "
                                                        "png: a folder of numbered frames per camera")
@@ -175,5 +180,6 @@ def run(args: argparse.Namespace) -> int:
     print(f"  source: {motion.info.get('source')}; {_rig_summary(rig)}")
     print(f"  marker samples seen by >= 2 cameras: {np.mean(views >= 2):.1%}, mean cameras per marker "
           f"{views.mean():.2f}; occluded {truth.settings['occluded_fraction']:.1%}, dropped "
-          f"{truth.settings['dropped_fraction']:.1%}; {time.perf_counter() - started:.1f} s")
+          f"{truth.settings['dropped_fraction']:.1%} (hidden from every camera "
+          f"{truth.settings['hidden_fraction']:.1%}); {time.perf_counter() - started:.1f} s")
     return 0

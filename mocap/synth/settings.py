@@ -30,6 +30,9 @@ class SynthSettings:
         ghost_blink: fraction of the ghosts that flicker on and off.
         dropout_rate: long-run fraction of (camera, marker, frame) samples dropped at random.
         dropout_frames: mean length of one dropout, frames (dropouts are temporally correlated).
+        hidden_rate: long-run fraction of (marker, frame) samples hidden from every camera at once: gaps in every
+            view, as where a marker is behind the body or a limb for a while (0: none beyond the capsules').
+        hidden_frames: mean length of one such gap, frames (real recordings: a median of a few frames, a long tail).
         occlusion: hide markers behind the body (capsule model).
         seed: seed of every random choice (rig jitter, noise, ghosts, dropouts, body).
         format: "mkv" (lossless FFV1 video per camera) or "png" (a folder of frames per camera).
@@ -45,6 +48,8 @@ class SynthSettings:
     ghost_blink: float = 0.5
     dropout_rate: float = 0.01
     dropout_frames: float = 6.0
+    hidden_rate: float = 0.0
+    hidden_frames: float = 20.0
     occlusion: bool = True
     seed: int = 0
     format: str = "mkv"
@@ -61,6 +66,8 @@ class SynthSettings:
             ("ghost_blink", 0 <= self.ghost_blink <= 1, "a fraction in [0, 1]"),
             ("dropout_rate", 0 <= self.dropout_rate < 1, "a fraction in [0, 1)"),
             ("dropout_frames", self.dropout_frames >= 1, ">= 1 frame"),
+            ("hidden_rate", 0 <= self.hidden_rate < 1, "a fraction in [0, 1)"),
+            ("hidden_frames", self.hidden_frames >= 1, ">= 1 frame"),
             ("seed", self.seed >= 0, ">= 0"),
         )
         for name, ok, what in checks:
@@ -71,8 +78,8 @@ class SynthSettings:
             raise MocapError(f"synth setting format (--format) = {self.format!r} must be one of {FORMATS}")
 
     def clean(self) -> SynthSettings:
-        """The same settings with every artefact off: no noise, ghosts or dropouts (8-bit rounding stays)."""
-        return dataclasses.replace(self, noise=0.0, ghosts=0, dropout_rate=0.0)
+        """The same settings with every artefact off: no noise, ghosts, dropouts or gaps (8-bit rounding stays)."""
+        return dataclasses.replace(self, noise=0.0, ghosts=0, dropout_rate=0.0, hidden_rate=0.0)
 
     def replace(self, **changes: Any) -> SynthSettings:
         """A copy with some fields changed (validated again)."""

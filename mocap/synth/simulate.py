@@ -98,8 +98,8 @@ def plan_take(rig: Rig, motion: Motion | tuple[list[str], float, np.ndarray], se
     motion = as_motion(motion)
     F, M = motion.positions.shape[:2]
     C = len(rig)
-    seeds = np.random.SeedSequence(settings.seed).spawn(3)
-    dropout_rng, ghost_rng = (np.random.default_rng(s) for s in seeds[:2])
+    seeds = np.random.SeedSequence(settings.seed).spawn(4)  # (the first three as before the gaps' fourth)
+    dropout_rng, ghost_rng, hidden_rng = (np.random.default_rng(s) for s in (*seeds[:2], seeds[3]))
     sensor = Sensor(settings.background, settings.noise, settings.blur_px)
     marker_r = settings.marker_mm / 2000.0
     pts = motion.positions.reshape(-1, 3)
@@ -130,6 +130,8 @@ def plan_take(rig: Rig, motion: Motion | tuple[list[str], float, np.ndarray], se
             inside[:, c] = centre_in & ((proj[..., 0] - edge >= -0.5) & (proj[..., 0] + edge <= w - 0.5)
                              & (proj[..., 1] - edge >= -0.5) & (proj[..., 1] + edge <= h - 0.5))
     dropped = _markov_mask(dropout_rng, (C, M), F, settings.dropout_rate, settings.dropout_frames)
+    hidden_everywhere = _markov_mask(hidden_rng, (M,), F, settings.hidden_rate, settings.hidden_frames)  # (F, M)
+    dropped |= hidden_everywhere[:, None, :]
     drawn = drawable & ~dropped
     visible = drawn & inside
 
@@ -158,6 +160,7 @@ def plan_take(rig: Rig, motion: Motion | tuple[list[str], float, np.ndarray], se
         "ghosts_blinking": int(blinking.sum()),
         "occlusion_capsules": body.names if body is not None else [],
         "dropped_fraction": float(dropped.mean()) if dropped.size else 0.0,
+        "hidden_fraction": float(hidden_everywhere.mean()) if hidden_everywhere.size else 0.0,
         "occluded_fraction": float((in_view & ~drawable).sum() / max(1, in_view.sum())),
         "rig": rig.metadata,
         "calibration_toml": rig_to_toml(rig),
