@@ -26,7 +26,7 @@ import numpy as np
 __all__ = ["HAVE_NUMBA", "REASON", "announce", "contiguous", "robust_triangulate", "gauss_newton", "update_position",
            "repick", "predict", "update_tracks", "epipolar_consistency", "gate", "search_regions", "crowded",
            "undistort_points", "near_any", "assign_unambiguous", "frame_record", "frame_detections", "attached_learn",
-           "attached_fill", "pair_distance_statistics"]
+           "attached_fill", "pair_distance_statistics", "measure_views"]
 
 _log = logging.getLogger("mocap")
 
@@ -411,6 +411,67 @@ def repick(used, X, proj, D, free, limit):
             if nearest == k:
                 out[k, c] = n
     return out
+
+
+@_jit
+def measure_views(D, S, merged, valid, asg, crowded, index, F, P, start, tol_px, n_sigma, suspect_scale,
+                  outlier_sigma, outlier_min_px, iterations, repick_px):
+    """The tracker's measurement of its assigned detections in one call (``Tracker._measure``'s numpy steps up to
+    the re-pick): epipolar pruning (:func:`epipolar_consistency`), the robust triangulation (:func:`robust_triangulate`;
+    a view of a crowded track on a blob not flagged merged has its covariance scaled by ``suspect_scale``) and
+    the re-pick of free detections (:func:`repick`).
+
+    ``D`` (C, N, 2), ``S`` (C, N, 2, 2), ``merged`` and ``valid`` (C, N) the frame's detections; ``asg`` (K, C) the
+    tracks' detection per camera (-1: none), views dropped set to -1 in place; ``crowded`` (K, C); ``index`` (P, 2)
+    and ``F`` (P, 3, 3) the camera pairs; ``P`` (C, 3, 4); ``start`` (K, 3) m. Returns the fields of
+    :class:`mocap.fusion.Triangulated` (X, cov, rms_px, used, proj, depth), the re-picked detections (K, C) and the
+    detections' centroid std (C, N) px."""
+    C, N, K = D.shape[0], D.shape[1], asg.shape[0]
+    sigma = np.empty((C, N))
+    for c in range(C):
+        for n in range(N):
+            sigma[c, n] = math.sqrt(0.5 * (S[c, n, 0, 0] + S[c, n, 1, 1]))
+    uv = np.full((K, C, 2), np.nan)
+    sig = np.full((K, C), np.nan)
+    for k in range(K):
+        for c in range(C):
+            a = asg[k, c]
+            if a >= 0:
+                uv[k, c, 0], uv[k, c, 1] = D[c, a, 0], D[c, a, 1]
+                sig[k, c] = sigma[c, a]
+    supported, tested = epipolar_consistency(index, F, uv, tol_px, sig, n_sigma)
+    uvt = np.full((C, K, 2), np.nan)
+    cov = np.zeros((C, K, 2, 2))
+    for k in range(K):
+        for c in range(C):
+            if tested[k, c] and not supported[k, c]:
+                asg[k, c] = -1
+            a = asg[k, c]
+            if a >= 0:
+                uvt[c, k, 0], uvt[c, k, 1] = uv[k, c, 0], uv[k, c, 1]
+                scale = suspect_scale if crowded[k, c] and not merged[c, a] else 1.0
+                for i in range(2):
+                    for j in range(2):
+                        cov[c, k, i, j] = S[c, a, i, j] * scale
+            else:
+                cov[c, k, 0, 0] = cov[c, k, 1, 1] = 1.0
+    X, cov3, rms, used, proj, depth = robust_triangulate(P, uvt, cov, start, outlier_sigma, outlier_min_px, iterations)
+    free = np.empty((C, N), dtype=np.bool_)
+    for c in range(C):
+        for n in range(N):
+            free[c, n] = valid[c, n] and not merged[c, n]
+    for k in range(K):
+        for c in range(C):
+            if not used[k, c]:
+                asg[k, c] = -1
+            elif asg[k, c] >= 0:
+                free[c, asg[k, c]] = False
+    limit = np.empty((C, N))
+    for c in range(C):
+        for n in range(N):
+            limit[c, n] = max(repick_px, n_sigma * sigma[c, n])
+    extra = repick(used, X, proj, D, free, limit)
+    return X, cov3, rms, used, proj, depth, extra, sigma
 
 
 # ---------------------------------------------------------------------------------------------- filters

@@ -435,6 +435,8 @@ class Tracker:
         self._C = C = len(rig)
         self._P = rig.projection_matrices()
         self._pairs = camera_pairs(rig)
+        self._pairs_index = kernels.contiguous(self._pairs.index, np.intp)  # (the kernels' layout)
+        self._pairs_F = kernels.contiguous(self._pairs.F)
         self._focal = np.array([0.5 * (c.matrix[0, 0] + c.matrix[1, 1]) for c in rig.cameras])
         self._focal_xy = np.array([[c.matrix[0, 0], c.matrix[1, 1]] for c in rig.cameras])
         self._centre = np.array([[c.matrix[0, 2], c.matrix[1, 2]] for c in rig.cameras])
@@ -971,18 +973,7 @@ class Tracker:
         """Epipolar pruning, robust fusion and re-pick of the assigned detections ``meas.asg``; fills ``meas``."""
         cfg = self._cfg
         asg = meas.asg
-        uv = _gather(fr.D, asg)
-        sigma = np.sqrt(0.5 * (fr.S[..., 0, 0] + fr.S[..., 1, 1]))  # (C, N)
-        supported, tested = epipolar_consistency(self._pairs, uv, cfg.epipolar_px, _gather(sigma, asg), cfg.n_sigma)
-        asg[tested & ~supported] = -1
-        uv[asg < 0] = np.nan
-        suspect = crowded & ~_gather(fr.merged, asg)  # merged blobs are down-weighted already
-        inflate = np.where(suspect, cfg.merged_variance_scale, 1.0)[..., None, None]
-        tri = robust_triangulate(self._P, uv.swapaxes(0, 1), (_gather(fr.S, asg) * inflate).swapaxes(0, 1),
-                                 self._t.x3[:, :3], cfg.outlier_sigma, self._outlier_px)
-        asg[~tri.used] = -1
-        free = fr.valid & ~fr.merged & ~_taken(asg, fr.valid.shape)
-        extra = repick(tri, fr.D, free, np.maximum(cfg.repick_px, cfg.n_sigma * sigma))
+        tri, extra, sigma = self._triangulate_views(fr, crowded, asg)
         more = np.flatnonzero((extra >= 0).any(axis=1))
         if more.size:
             asg[more] = np.where(extra[more] >= 0, extra[more], asg[more])
@@ -1010,6 +1001,33 @@ class Tracker:
         if cfg.withhold_merged_depth:
             meas.out[self._depth_on_merged_blobs(fr, asg, clean, tri)] = False
         meas.X, meas.cov, meas.rms_px = tri.X, tri.cov, tri.rms_px
+
+    def _triangulate_views(self, fr: _Frame, crowded: np.ndarray, asg: np.ndarray
+                           ) -> tuple[Triangulated, np.ndarray, np.ndarray]:
+        """Epipolar pruning and robust triangulation of the assigned detections ``asg`` (K, C) (views dropped set to -1
+        in place), and the free detections offered to the tracks' unused cameras. Returns the points, the re-picked
+        detections (K, C) (-1: none) and the detections' centroid std (C, N) px. One kernel call with numba
+        (:func:`mocap.kernels.measure_views`)."""
+        cfg = self._cfg
+        if kernels.HAVE_NUMBA:
+            c = kernels.contiguous
+            *fields, extra, sigma = kernels.measure_views(
+                fr.D, fr.S, fr.merged, fr.valid, asg, c(crowded, bool), self._pairs_index, self._pairs_F, self._P,
+                c(self._t.x3[:, :3]), float(cfg.epipolar_px), float(cfg.n_sigma), float(cfg.merged_variance_scale),
+                float(cfg.outlier_sigma), float(self._outlier_px), 3, float(cfg.repick_px))
+            return Triangulated(*fields), extra, sigma
+        uv = _gather(fr.D, asg)
+        sigma = np.sqrt(0.5 * (fr.S[..., 0, 0] + fr.S[..., 1, 1]))  # (C, N)
+        supported, tested = epipolar_consistency(self._pairs, uv, cfg.epipolar_px, _gather(sigma, asg), cfg.n_sigma)
+        asg[tested & ~supported] = -1
+        uv[asg < 0] = np.nan
+        suspect = crowded & ~_gather(fr.merged, asg)  # merged blobs are down-weighted already
+        inflate = np.where(suspect, cfg.merged_variance_scale, 1.0)[..., None, None]
+        tri = robust_triangulate(self._P, uv.swapaxes(0, 1), (_gather(fr.S, asg) * inflate).swapaxes(0, 1),
+                                 self._t.x3[:, :3], cfg.outlier_sigma, self._outlier_px)
+        asg[~tri.used] = -1
+        free = fr.valid & ~fr.merged & ~_taken(asg, fr.valid.shape)
+        return tri, repick(tri, fr.D, free, np.maximum(cfg.repick_px, cfg.n_sigma * sigma)), sigma
 
     def _depth_on_merged_blobs(self, fr: _Frame, asg: np.ndarray, clean: np.ndarray, tri: Triangulated
                                ) -> np.ndarray:

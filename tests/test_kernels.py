@@ -316,6 +316,50 @@ def test_tracker_search_regions_crowding_and_update_are_the_numpy_ones(K, monkey
         assert crowded.any() and np.isnan(pred[~(depth > 0)]).all() and (pred[front] == x2[front][:, :2]).all()
 
 
+@pytest.mark.parametrize("K", [0, 1, 14])
+def test_tracker_measurement_of_its_views_is_the_numpy_one(K, monkeypatch):
+    """Epipolar pruning, robust triangulation and re-pick in one kernel (``kernels.measure_views``): detections
+    at the tracks' projections (with noise), some swapped for another track's or a random point, crowded views,
+    merged blobs, cameras without a view and free detections near the tracks' unused cameras."""
+    rig = ring_rig()
+    C = len(rig)
+    rng = np.random.default_rng(40 + K)
+    tracker = _random_tracker(rig, K, seed=K)
+    X = tracker._t.last_X.copy()
+    if K > 3:  # two tracks 5 mm apart: one takes the other's blob where the other has none (not free for a re-pick)
+        X[K - 3] = X[K - 2] + [0.005, 0.0, 0.0]
+        tracker._t.x3[K - 3, :3] = X[K - 3]
+    uv = _projections(rig.projection_matrices(), X)  # (C, K, 2)
+    N = K + 4
+    D = np.full((C, N, 2), np.nan)
+    D[:, :K] = uv + rng.normal(scale=0.3, size=uv.shape)
+    D[:, K:K + 2] = rng.uniform([0, 0], [1024, 768], size=(C, 2, 2))
+    if K:
+        D[:, K + 2] = uv[:, -1] + rng.normal(scale=0.5, size=(C, 2))  # a free blob by the last track's image
+    A = rng.normal(size=(C, N, 2, 2))
+    S = A @ A.transpose(0, 1, 3, 2) * 0.02 + np.eye(2) * 0.01
+    merged = rng.random((C, N)) < 0.1
+    fr = _Frame(D, S, np.isfinite(D[..., 0]), merged, np.ones((C, N)), [N] * C)
+    asg = np.where(rng.random((K, C)) < 0.8, np.arange(K)[:, None], -1)
+    asg[rng.random((K, C)) < 0.1] = K  # a random blob
+    if K > 1:
+        asg[0, :2] = 1  # another track's blobs
+        asg[-1] = np.where(np.arange(C) < 3, K - 1, -1)  # the last track seen by three cameras only
+    if K > 3:
+        asg[K - 3, 0], asg[K - 2, 0] = K - 2, -1
+    crowded = rng.random((K, C)) < 0.3
+    results = []
+    for on in (False, True):
+        monkeypatch.setattr(kernels, "HAVE_NUMBA", on)
+        a = asg.copy()
+        tri, extra, sigma = tracker._triangulate_views(fr, crowded, a)
+        results.append((tri, extra, sigma, a))
+    _same(*results, rtol=1e-10)
+    tri, extra, _, a = results[0]
+    if K > 1:  # points made, views dropped, a free blob re-picked
+        assert np.isfinite(tri.X).all(axis=1).sum() >= K // 2 and (a < asg).any() and (extra >= 0).any()
+
+
 def test_the_tracker_keeps_the_same_state_on_both_paths(monkeypatch):
     """A marching body with ghosts, a camera black for a while and one broken throughout: after every frame
     the same tracks (identities, counters, locks, filters, running errors) and the same output."""
