@@ -3,7 +3,10 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
+from helpers_engine import body_take
 
+from mocap.evaluate import evaluate
 from mocap.relabel import (
     RelabelConfig,
     drop_duplicates,
@@ -12,6 +15,8 @@ from mocap.relabel import (
     repair_swaps,
 )
 from mocap.rigid import split_tracklets
+from mocap.synth import SynthSettings
+from mocap.tracker import Tracker
 from mocap.trajectories import Trajectories
 
 
@@ -465,3 +470,22 @@ def test_a_hop_at_the_end_of_an_identity_does_not_make_its_neighbours_loose():
         return int(np.flatnonzero(np.all(traj.positions[frame] == forearm[frame, 2], axis=1))[0])
 
     assert owner(30) == owner(100)
+
+
+@pytest.mark.parametrize("seed", [3, 5])
+def test_a_body_whose_markers_vanish_from_every_camera_for_a_while_keeps_one_identity_per_marker(seed):
+    """The marching body with 4-5 % of its samples hidden from all cameras at once (``--hidden-rate 0.05``, gaps of
+    20 frames on average at 120 Hz): the tracker alone gives some returns another identity; after the repair every
+    marker's fragments are one identity again."""
+    take = body_take(frames=480, fps=120.0, markers=40, seed=seed,
+                     settings=SynthSettings(seed=seed, hidden_rate=0.05, hidden_frames=20.0))
+    assert (~take.truth.visible.any(axis=1)).mean() > 0.03
+    tracker = Tracker(take.rig, take.truth.fps)
+    for k, dets in enumerate(take.frames):
+        tracker.step(k, dets)
+    traj = tracker.finish()
+    alone = evaluate(traj, take.truth)
+    repair_identities(traj, unconfirmed=tracker.unconfirmed())
+    repaired = evaluate(traj, take.truth)
+    assert alone.switches >= 2 and alone.idf1 < 0.995
+    assert repaired.switches == 0 and repaired.idf1 > 0.999 and repaired.completeness > 0.999
