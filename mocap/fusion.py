@@ -52,6 +52,9 @@ class Triangulated:
     depth: np.ndarray
 
 
+GAUSS_NEWTON_STEPS = 3  # largest number of Gauss-Newton steps per solve of a robust triangulation
+
+
 def _gauss_newton(P: np.ndarray, uv: np.ndarray, W: np.ndarray, X: np.ndarray, iterations: int,
                   tol_m: float = 1e-6) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Weighted Gauss-Newton refinement of K points from a start ``X`` (K, 3).
@@ -147,7 +150,8 @@ def _consensus(P: np.ndarray, uv: np.ndarray, Winv: np.ndarray, used: np.ndarray
 
 
 def robust_triangulate(P: np.ndarray, uv: np.ndarray, cov: np.ndarray, start: np.ndarray,
-                       outlier_sigma: float, outlier_min_px: float, iterations: int = 3) -> Triangulated:
+                       outlier_sigma: float, outlier_min_px: float, iterations: int = GAUSS_NEWTON_STEPS
+                       ) -> Triangulated:
     """Covariance-weighted triangulation with per-camera outlier rejection.
 
     Starting from ``start`` (the tracks' predictions), Gauss-Newton over the cameras that hold a

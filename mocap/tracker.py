@@ -52,7 +52,16 @@ from mocap.detect import MIN_SHAPE_AREA
 from mocap.detections import MIN_CENTROID_STD_PX, Detections, floored_covariance
 from mocap.ekf import RunningError, ca_process_noise, ca_transition, init_state, predict, update_position
 from mocap.errors import MocapError
-from mocap.fusion import NewPoints, Triangulated, distance_to_lost, new_points, reidentify, repick, robust_triangulate
+from mocap.fusion import (
+    GAUSS_NEWTON_STEPS,
+    NewPoints,
+    Triangulated,
+    distance_to_lost,
+    new_points,
+    reidentify,
+    repick,
+    robust_triangulate,
+)
 from mocap.geometry import project_ideal, reprojection_jacobians
 from mocap.pairs import camera_pairs
 from mocap.quickstats import quick_median
@@ -1014,7 +1023,7 @@ class Tracker:
             *fields, extra, sigma = kernels.measure_views(
                 fr.D, fr.S, fr.merged, fr.valid, asg, c(crowded, bool), self._pairs_index, self._pairs_F, self._P,
                 c(self._t.x3[:, :3]), float(cfg.epipolar_px), float(cfg.n_sigma), float(cfg.merged_variance_scale),
-                float(cfg.outlier_sigma), float(self._outlier_px), 3, float(cfg.repick_px))
+                float(cfg.outlier_sigma), float(self._outlier_px), GAUSS_NEWTON_STEPS, float(cfg.repick_px))
             return Triangulated(*fields), extra, sigma
         uv = _gather(fr.D, asg)
         sigma = np.sqrt(0.5 * (fr.S[..., 0, 0] + fr.S[..., 1, 1]))  # (C, N)
