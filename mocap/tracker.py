@@ -1396,7 +1396,8 @@ class Tracker:
 
 
 def _gather(values: np.ndarray, asg: np.ndarray) -> np.ndarray:
-    """Per-detection ``values`` (C, N, ...) picked by ``asg`` (K, C) -> (K, C, ...); NaN/False/0 where -1."""
+    """Per-detection ``values`` (C, N, ...) picked by ``asg`` (K, C) -> (K, C, ...). Where -1: False for booleans,
+    NaN for (C, N, 2) positions; other arrays get detection 0's value there (the callers mask those views)."""
     C, N = values.shape[:2]
     if N == 0:
         fill = np.nan if values.dtype.kind == "f" else 0
