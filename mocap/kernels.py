@@ -26,7 +26,8 @@ import numpy as np
 __all__ = ["HAVE_NUMBA", "REASON", "announce", "contiguous", "robust_triangulate", "gauss_newton", "update_position",
            "repick", "predict", "update_tracks", "epipolar_consistency", "gate", "search_regions", "crowded",
            "undistort_points", "near_any", "assign_unambiguous", "frame_record", "frame_detections", "attached_learn",
-           "attached_fill", "pair_distance_statistics", "measure_views"]
+           "attached_fill", "pair_distance_statistics", "measure_views", "match_free_pairs",
+           "triangulate_two_views"]
 
 _log = logging.getLogger("mocap")
 
@@ -702,6 +703,18 @@ def assign_unambiguous(q, eligible):
 
 
 @_jit
+def _epipolar_distance(f, u1, v1, u2, v2):
+    """Symmetric epipolar distance, px, of ``(u1, v1)`` in image i and ``(u2, v2)`` in image j under the pair's
+    fundamental matrix ``f`` (3, 3): |l2 . x2| over the shorter of the two lines' normals (NaN for NaN input)."""
+    a2 = f[0, 0] * u1 + f[0, 1] * v1 + f[0, 2]  # line in image j of the point in image i
+    b2 = f[1, 0] * u1 + f[1, 1] * v1 + f[1, 2]
+    c2 = f[2, 0] * u1 + f[2, 1] * v1 + f[2, 2]
+    a1 = f[0, 0] * u2 + f[1, 0] * v2 + f[2, 0]  # line in image i of the point in image j
+    b1 = f[0, 1] * u2 + f[1, 1] * v2 + f[2, 1]
+    return abs(a2 * u2 + b2 * v2 + c2) / min(math.hypot(a2, b2), math.hypot(a1, b1))
+
+
+@_jit
 def epipolar_consistency(index, F, uv, tol_px, sigma, n_sigma):
     """:func:`mocap.stereo.epipolar_consistency` with ``sigma`` (K, C): ``supported`` and ``tested`` (K, C).
     ``index`` (P, 2) the pairs' cameras, ``F`` (P, 3, 3) their fundamental matrices."""
@@ -713,12 +726,7 @@ def epipolar_consistency(index, F, uv, tol_px, sigma, n_sigma):
         f = F[p]
         for k in range(K):
             u1, v1, u2, v2 = uv[k, i, 0], uv[k, i, 1], uv[k, j, 0], uv[k, j, 1]
-            a2 = f[0, 0] * u1 + f[0, 1] * v1 + f[0, 2]  # line in image j of the point in image i
-            b2 = f[1, 0] * u1 + f[1, 1] * v1 + f[1, 2]
-            c2 = f[2, 0] * u1 + f[2, 1] * v1 + f[2, 2]
-            a1 = f[0, 0] * u2 + f[1, 0] * v2 + f[2, 0]  # line in image i of the point in image j
-            b1 = f[0, 1] * u2 + f[1, 1] * v2 + f[2, 1]
-            e = abs(a2 * u2 + b2 * v2 + c2) / min(math.hypot(a2, b2), math.hypot(a1, b1))
+            e = _epipolar_distance(f, u1, v1, u2, v2)
             if not math.isfinite(e):
                 continue
             tested[k, i] = tested[k, j] = True
@@ -726,6 +734,132 @@ def epipolar_consistency(index, F, uv, tol_px, sigma, n_sigma):
             if e < tol:
                 supported[k, i] = supported[k, j] = True
     return supported, tested
+
+
+@_jit
+def match_free_pairs(index, F, D, free, fresh, use_fresh, sigma, tol_px, n_sigma):
+    """:func:`mocap.stereo.match_pairs`: ``pair``, ``n1``, ``n2`` (L,) and ``dist`` (L,) px of every pair of free
+    detections ``free`` (C, N) of ``D`` (C, N, 2) within the pair's epipolar tolerance, in the numpy path's order
+    (pair, then first camera's detection, then second's); with ``use_fresh``, one of the two must be ``fresh``."""
+    counted = 0
+    for second_pass in range(2):
+        if second_pass:
+            pair = np.empty(counted, dtype=np.intp)
+            n1 = np.empty(counted, dtype=np.intp)
+            n2 = np.empty(counted, dtype=np.intp)
+            dist = np.empty(counted)
+        k = 0
+        for p in range(index.shape[0]):
+            i, j = index[p, 0], index[p, 1]
+            for a in range(D.shape[1]):
+                if not free[i, a]:
+                    continue
+                for b in range(D.shape[1]):
+                    if not free[j, b] or (use_fresh and not (fresh[i, a] or fresh[j, b])):
+                        continue
+                    e = _epipolar_distance(F[p], D[i, a, 0], D[i, a, 1], D[j, b, 0], D[j, b, 1])
+                    if e < max(tol_px, n_sigma * math.hypot(sigma[i, a], sigma[j, b])):
+                        if second_pass:
+                            pair[k], n1[k], n2[k], dist[k] = p, a, b, e
+                        k += 1
+        counted = k
+    return pair, n1, n2, dist
+
+
+@_jit
+def _well_conditioned(H):
+    """:func:`mocap.geometry._well_conditioned` of one (3, 3) normal matrix."""
+    for i in range(3):
+        for j in range(3):
+            if not math.isfinite(H[i, j]):
+                return False
+    scale = ((H[0, 0] + H[1, 1] + H[2, 2]) / 3.0) ** 3
+    det = (H[0, 0] * (H[1, 1] * H[2, 2] - H[1, 2] * H[2, 1]) - H[0, 1] * (H[1, 0] * H[2, 2] - H[1, 2] * H[2, 0])
+           + H[0, 2] * (H[1, 0] * H[2, 1] - H[1, 1] * H[2, 0]))
+    return det > 1e-12 * scale and scale > 0
+
+
+@_jit
+def triangulate_two_views(P, D, cov, cam1, n1, cam2, n2, iterations):
+    """:func:`mocap.stereo.triangulate_matches`: match l is detection ``n1[l]`` of camera ``cam1[l]`` and ``n2[l]``
+    of ``cam2[l]`` (``D`` (C, N, 2) px, ``cov`` (C, N, 2, 2) px^2); the DLT, then ``iterations`` Gauss-Newton steps
+    weighted by the inverse covariances, as :func:`mocap.geometry.triangulate_weighted`. ``X`` (L, 3) m, ``cov3``
+    (L, 3, 3) m^2, ``rms`` (L,) px; NaN where the normal matrix is singular."""
+    L = cam1.shape[0]
+    X = np.full((L, 3), np.nan)
+    cov3 = np.full((L, 3, 3), np.nan)
+    rms = np.full(L, np.nan)
+    A = np.empty((4, 4))
+    uv = np.empty((2, 2))
+    W = np.empty((2, 2, 2))
+    J = np.empty((2, 2, 3))
+    r = np.empty((2, 2))
+    H = np.empty((3, 3))
+    g = np.empty(3)
+    step = np.empty(3)
+    Hinv = np.empty((3, 3))
+    for lo in range(L):
+        cams = (cam1[lo], cam2[lo])
+        dets = (n1[lo], n2[lo])
+        for v in range(2):
+            c, n = cams[v], dets[v]
+            uv[v, 0], uv[v, 1] = D[c, n, 0], D[c, n, 1]
+            W[v, 0, 0], W[v, 0, 1], W[v, 1, 0], W[v, 1, 1] = _inv2x2(cov[c, n, 0, 0], cov[c, n, 0, 1],
+                                                                     cov[c, n, 1, 0], cov[c, n, 1, 1])
+            for a in range(2):  # rows u P2 - P0 and v P2 - P1, scaled to unit length
+                norm = 0.0
+                for q in range(4):
+                    A[2 * v + a, q] = uv[v, a] * P[c, 2, q] - P[c, a, q]
+                    norm += A[2 * v + a, q] * A[2 * v + a, q]
+                norm = math.sqrt(norm)
+                if norm > 0:
+                    for q in range(4):
+                        A[2 * v + a, q] /= norm
+        if not np.isfinite(A).all():
+            continue
+        _, _, vt = np.linalg.svd(A)
+        x = np.empty(3)
+        good = True
+        for i in range(3):
+            x[i] = vt[3, i] / vt[3, 3]
+            good &= math.isfinite(x[i])
+        if not good:
+            continue
+        for it in range(iterations + 1):
+            H[:] = 0.0
+            g[:] = 0.0
+            for v in range(2):
+                c = cams[v]
+                w = x[0] * P[c, 2, 0] + x[1] * P[c, 2, 1] + x[2] * P[c, 2, 2] + P[c, 2, 3]
+                for a in range(2):
+                    p = (x[0] * P[c, a, 0] + x[1] * P[c, a, 1] + x[2] * P[c, a, 2] + P[c, a, 3]) / w
+                    r[v, a] = uv[v, a] - p
+                    for i in range(3):
+                        J[v, a, i] = (P[c, a, i] - p * P[c, 2, i]) / w
+                for i in range(3):
+                    wj0 = J[v, 0, i] * W[v, 0, 0] + J[v, 1, i] * W[v, 1, 0]  # (J^T W)[i, :]
+                    wj1 = J[v, 0, i] * W[v, 0, 1] + J[v, 1, i] * W[v, 1, 1]
+                    g[i] += wj0 * r[v, 0] + wj1 * r[v, 1]
+                    for j in range(3):
+                        H[i, j] += wj0 * J[v, 0, j] + wj1 * J[v, 1, j]
+            good = _well_conditioned(H)
+            if not good:
+                break
+            _inv3x3(H, Hinv)
+            if it == iterations:
+                break
+            for i in range(3):
+                step[i] = Hinv[i, 0] * g[0] + Hinv[i, 1] * g[1] + Hinv[i, 2] * g[2]
+            for i in range(3):
+                x[i] += step[i]
+        if not good:
+            continue
+        for i in range(3):
+            X[lo, i] = x[i]
+            for j in range(3):
+                cov3[lo, i, j] = Hinv[i, j]
+        rms[lo] = math.sqrt((r[0, 0] ** 2 + r[0, 1] ** 2 + r[1, 0] ** 2 + r[1, 1] ** 2) / 2.0)
+    return X, cov3, rms
 
 
 # ---------------------------------------------------------------------------------------------- tracker

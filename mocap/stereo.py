@@ -28,6 +28,7 @@ from mocap.pairs import CameraPairs
 __all__ = ["dist2", "gate", "assign", "epipolar_distance", "epipolar_consistency", "match_pairs", "triangulate_matches"]
 
 _FORBIDDEN = 1e6
+_MATCH_STEPS = 3  # Gauss-Newton steps of the two-view triangulation of matches
 
 
 def gate(pred: np.ndarray, radius: np.ndarray, D: np.ndarray) -> np.ndarray:
@@ -184,6 +185,13 @@ def match_pairs(pairs: CameraPairs, D: np.ndarray, free: np.ndarray, tol_px: flo
         ``pair`` (L,) pair index, ``n1`` (L,) detection index in the pair's first camera, ``n2`` (L,)
         in its second, ``dist`` (L,) epipolar distance, pixels.
     """
+    if kernels.HAVE_NUMBA:
+        c = kernels.contiguous
+        free = c(free, bool)
+        return kernels.match_free_pairs(c(pairs.index, np.intp), c(pairs.F), c(D), free,
+                                        free if fresh is None else c(fresh, bool), fresh is not None,
+                                        c(np.zeros(free.shape) if sigma is None else sigma), float(tol_px),
+                                        float(n_sigma))
     empty = np.zeros(0, dtype=np.intp)
     counts = free.sum(axis=1)
     if len(pairs) == 0 or counts.max(initial=0) == 0:
@@ -230,6 +238,11 @@ def triangulate_matches(projections: np.ndarray, pairs: CameraPairs, D: np.ndarr
     Returns:
         ``X`` (L, 3) m, ``cov3`` (L, 3, 3) m^2, ``rms`` (L,) reprojection RMS, pixels.
     """
+    if kernels.HAVE_NUMBA:
+        c = kernels.contiguous
+        return kernels.triangulate_two_views(c(projections), c(D), c(cov), c(pairs.index[pair, 0], np.intp),
+                                             c(n1, np.intp), c(pairs.index[pair, 1], np.intp), c(n2, np.intp),
+                                             _MATCH_STEPS)
     C = len(projections)
     L = len(pair)
     uv = np.full((C, L, 2), np.nan)
@@ -239,4 +252,4 @@ def triangulate_matches(projections: np.ndarray, pairs: CameraPairs, D: np.ndarr
         cams = pairs.index[pair, side]
         uv[cams, rows] = D[cams, n]
         S[cams, rows] = cov[cams, n]
-    return triangulate_weighted(projections, uv, S)
+    return triangulate_weighted(projections, uv, S, _MATCH_STEPS)

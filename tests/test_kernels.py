@@ -33,7 +33,7 @@ from mocap.detections import MIN_CENTROID_STD_PX, Detections
 from mocap.ekf import ca_process_noise, ca_transition, init_state, predict, update_position
 from mocap.fusion import Triangulated, _gauss_newton, repick, robust_triangulate
 from mocap.pairs import CameraPairs, camera_pairs
-from mocap.stereo import assign, dist2, epipolar_consistency, gate
+from mocap.stereo import assign, dist2, epipolar_consistency, gate, match_pairs, triangulate_matches
 from mocap.synth import SynthSettings
 from mocap.synth.render import Sensor
 from mocap.tracker import Tracker, _Frame, _Measurements, _Tracks
@@ -231,6 +231,38 @@ def test_gate_and_epipolar_pruning_are_the_numpy_ones(rig, both):
     assert (q[0] < 1).any() and np.isinf(q[0]).any()
     _same(*both(gate, pred[:0], radius[:0], D))
     _same(*both(gate, pred, radius, D[:, :0]))
+
+
+def test_new_marker_pair_matching_and_triangulation_are_the_numpy_ones(rig, both):
+    """All-pairs epipolar matching of free detections (fresh or not, widened by centroid stds or not) and the
+    two-view triangulation of the matches: the same matches in the same order, the same points, covariances and
+    residuals; a match whose rays meet nowhere (a camera's own centre) gives NaN on both paths."""
+    rng = np.random.default_rng(32)
+    pairs = camera_pairs(rig)
+    P = rig.projection_matrices()
+    C = len(P)
+    X, uv, cov, _ = _scene(rng, P, K=30)
+    D = np.concatenate([uv, np.full((C, 3, 2), np.nan)], axis=1)  # (C, N, 2) with padding
+    S = np.concatenate([cov, np.broadcast_to(np.eye(2), (C, 3, 2, 2))], axis=1)
+    free = np.isfinite(D[..., 0]) & (rng.random(D.shape[:2]) < 0.8)
+    fresh = free & (rng.random(D.shape[:2]) < 0.5)
+    sigma = np.sqrt(0.5 * (S[..., 0, 0] + S[..., 1, 1]))
+    for fr, s in ((None, None), (fresh, None), (fresh, sigma), (None, sigma)):
+        ref, got = both(match_pairs, pairs, D, free, 2.0, fr, s, 4.0)
+        _same(ref, got)
+        assert len(ref[0]) > 20 and (ref[3] > 0.5).any()  # true matches and chance ones
+        tri = both(triangulate_matches, P, pairs, D, S, *ref[:3])
+        _same(*tri, rtol=1e-9)
+        assert np.isfinite(tri[0][0]).all()
+    _same(*both(match_pairs, pairs, D, np.zeros_like(free), 2.0, fresh, sigma, 4.0))  # nothing free
+    _same(*both(match_pairs, pairs, D[:, :0], free[:, :0], 2.0, fresh[:, :0], sigma[:, :0], 4.0))  # no detections
+    pair, n1, n2, _ = match_pairs(pairs, D, free, 2.0)
+    centre = -np.linalg.solve(P[pairs.index[pair[0], 0], :, :3], P[pairs.index[pair[0], 0], :, 3])
+    D[pairs.index[pair[0], 1], n2[0]] = _projections(P, centre[None])[pairs.index[pair[0], 1], 0]  # the epipole
+    with np.errstate(invalid="ignore", divide="ignore"):
+        tri = both(triangulate_matches, P, pairs, D, S, pair, n1, n2)
+    _same(*tri, rtol=1e-9)
+    assert np.isnan(tri[0][0][0]).all() and np.isfinite(tri[0][0][1:]).all()
 
 
 def test_assignment_is_the_numpy_one(both):
