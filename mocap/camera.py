@@ -314,14 +314,22 @@ class Lenses:
         self._distorted = np.array([c._distorted for c in self._cameras], dtype=bool)
         self._standard = not any(c.fisheye for c in self._cameras)
 
+    @property
+    def compiled(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, int, float] | None:
+        """The lens arguments of :func:`mocap.kernels.undistort_points` (matrices (C, 3, 3), coefficients (C, 8),
+        distorted (C,), step count, tolerance px), or None where the kernel does not serve (numba off, a fisheye)."""
+        if not (kernels.HAVE_NUMBA and self._standard):
+            return None
+        return self._matrices, self._coefficients, self._distorted, _UNDISTORT_CRITERIA[1], _UNDISTORT_CRITERIA[2]
+
     def undistort(self, uv: list[np.ndarray]) -> np.ndarray:
         """(sum N_c, 2) ideal px of the (N_c, 2) distorted px ``uv`` of each camera, one after another."""
-        if not (kernels.HAVE_NUMBA and self._standard):
+        lenses = self.compiled
+        if lenses is None:
             return np.concatenate([cam.undistort(p) for cam, p in zip(self._cameras, uv, strict=True)])
         points = np.concatenate([np.asarray(p, dtype=np.float64).reshape(-1, 2) for p in uv])
         camera = np.repeat(np.arange(len(uv)), [len(p) for p in uv])
-        return kernels.undistort_points(points, camera, self._matrices, self._coefficients, self._distorted,
-                                        _UNDISTORT_CRITERIA[1], _UNDISTORT_CRITERIA[2])
+        return kernels.undistort_points(points, camera, *lenses)
 
 
 @dataclass(eq=False)

@@ -27,7 +27,7 @@ __all__ = ["HAVE_NUMBA", "REASON", "announce", "contiguous", "robust_triangulate
            "repick", "predict", "update_tracks", "epipolar_consistency", "gate", "search_regions", "crowded",
            "undistort_points", "near_any", "assign_unambiguous", "frame_record", "frame_detections", "attached_learn",
            "attached_fill", "pair_distance_statistics", "measure_views", "match_free_pairs",
-           "triangulate_two_views"]
+           "triangulate_two_views", "prepare_frame"]
 
 _log = logging.getLogger("mocap")
 
@@ -898,6 +898,64 @@ def frame_detections(D, S, merged, round_, cov, flagged, area, roundness, counts
                 i += 1
             var[c, n] = 0.5 * (S[c, n, 0, 0] + S[c, n, 1, 1])
     return var
+
+
+@_jit
+def prepare_frame(xy, counts, K, dist, distorted, max_steps, eps_px, cov, flagged, area, roundness, min_shape_area,
+                  min_std_px, default_sigma_px, centre, focal_xy, round_merged, vague2, vague_typical2, merged_scale):
+    """The tracker's ``_prepare`` in one call: all cameras' detections one after another (``xy`` (T, 2) distorted
+    px, ``cov`` (T, 2, 2), ``flagged``, ``area``, ``roundness`` (T,), ``counts`` (C,)) undistorted
+    (:func:`undistort_points` with the lenses ``K``, ``dist``, ``distorted``, ``max_steps``, ``eps_px``) into the
+    padded (C, N) slots and prepared by :func:`frame_detections`; slots whose mean variance exceeds ``vague2`` px^2
+    and ``vague_typical2`` x the median of the valid ones are merged too, and merged slots' covariances are
+    multiplied by ``merged_scale``. Returns ``D`` (C, N, 2), ``S`` (C, N, 2, 2), ``valid``, ``merged`` (C, N)
+    bool and ``round_`` (C, N)."""
+    C = counts.shape[0]
+    N = 0
+    for c in range(C):
+        N = max(N, counts[c])
+    camera = np.empty(xy.shape[0], dtype=np.intp)
+    i = 0
+    for c in range(C):
+        for _ in range(counts[c]):
+            camera[i] = c
+            i += 1
+    ideal = undistort_points(xy, camera, K, dist, distorted, max_steps, eps_px)
+    D = np.full((C, N, 2), np.nan)
+    S = np.zeros((C, N, 2, 2))
+    merged = np.zeros((C, N), dtype=np.bool_)
+    round_ = np.ones((C, N))
+    i = 0
+    for c in range(C):
+        for n in range(N):
+            S[c, n, 0, 0] = S[c, n, 1, 1] = 1.0
+            if n < counts[c]:
+                D[c, n, 0], D[c, n, 1] = ideal[i, 0], ideal[i, 1]
+                i += 1
+    var = frame_detections(D, S, merged, round_, cov, flagged, area, roundness, counts, min_shape_area, min_std_px,
+                           default_sigma_px, centre, focal_xy, round_merged)
+    valid = np.empty((C, N), dtype=np.bool_)
+    values = np.empty(C * N)
+    m = 0
+    for c in range(C):
+        for n in range(N):
+            valid[c, n] = math.isfinite(D[c, n, 0]) and math.isfinite(D[c, n, 1])
+            if valid[c, n]:
+                values[m] = var[c, n]
+                m += 1
+    if m:  # quick_median of the valid slots' variances
+        ordered = np.sort(values[:m])
+        limit = max(vague2, vague_typical2 * (0.5 * (ordered[(m - 1) // 2] + ordered[m // 2])))
+        for c in range(C):
+            for n in range(N):
+                merged[c, n] |= var[c, n] > limit
+    for c in range(C):
+        for n in range(N):
+            if merged[c, n]:
+                for a in range(2):
+                    for b in range(2):
+                        S[c, n, a, b] *= merged_scale
+    return D, S, valid, merged, round_
 
 
 @_jit

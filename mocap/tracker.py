@@ -613,6 +613,15 @@ class Tracker:
     def _prepare(self, detections: list[Detections]) -> _Frame:
         counts = [len(d) for d in detections]
         N, C = max(counts, default=0), self._C
+        lenses = self._lenses.compiled
+        if N and lenses is not None:  # (all of the steps below in one call)
+            cfg = self._cfg
+            return _Frame(*kernels.prepare_frame(
+                np.concatenate([det.xy for det in detections]), np.array(counts), *lenses,
+                np.concatenate([det.cov for det in detections]), np.concatenate([det.merged for det in detections]),
+                np.concatenate([det.area for det in detections]), np.concatenate([det.roundness for det in detections]),
+                MIN_SHAPE_AREA, MIN_CENTROID_STD_PX, Detections.DEFAULT_SIGMA_PX, self._centre, self._focal_xy,
+                cfg.round_merged, cfg.vague_px**2, _VAGUE_TYPICAL**2, cfg.merged_variance_scale), counts)
         D = np.full((C, N, 2), np.nan)
         S = np.empty((C, N, 2, 2))
         S[:] = np.eye(2)
