@@ -27,7 +27,7 @@ __all__ = ["HAVE_NUMBA", "REASON", "announce", "contiguous", "robust_triangulate
            "repick", "predict", "update_tracks", "epipolar_consistency", "gate", "search_regions", "crowded",
            "undistort_points", "near_any", "assign_unambiguous", "frame_record", "frame_detections", "attached_learn",
            "attached_fill", "pair_distance_statistics", "measure_views", "match_free_pairs",
-           "triangulate_two_views", "prepare_frame"]
+           "triangulate_two_views", "prepare_frame", "measured_points"]
 
 _log = logging.getLogger("mocap")
 
@@ -956,6 +956,38 @@ def prepare_frame(xy, counts, K, dist, distorted, max_steps, eps_px, cov, flagge
                     for b in range(2):
                         S[c, n, a, b] *= merged_scale
     return D, S, valid, merged, round_
+
+
+@_jit
+def measured_points(X, used, crowded, split, merged, sigma, asg, depth, focal, x3, e3, gate_scale, suspect_lo,
+                    suspect_hi, n_sigma):
+    """The tracker's verdicts on its measured points ``X`` (K, 3) m: ``ok`` (K,) finite; ``clean`` (K, C) its
+    ``used`` views whose blob (``asg`` (K, C) into the (C, N) ``merged`` flags) is not merged and whose track is
+    not ``crowded`` there, or whose blob was ``split``; ``out`` (K,): two clean views, or one that lies within
+    ``gate_scale`` x the running error ``e3[:, 0]`` (clipped to ``suspect_lo`` and the larger of ``suspect_hi`` and
+    ``n_sigma`` x the point's noise, the clean views' mean ``sigma`` (C, N) px x ``depth`` (C, K) m / ``focal``
+    (C,) px) of the prediction ``x3`` (K, >= 3)."""
+    K, C = used.shape
+    ok = np.empty(K, dtype=np.bool_)
+    clean = np.zeros((K, C), dtype=np.bool_)
+    out = np.empty(K, dtype=np.bool_)
+    for k in range(K):
+        ok[k] = math.isfinite(X[k, 0]) and math.isfinite(X[k, 1]) and math.isfinite(X[k, 2])
+        n = 0
+        total = 0.0
+        for c in range(C):
+            j = asg[k, c]
+            clean[k, c] = used[k, c] and ((not crowded[k, c] and not merged[c, max(j, 0)]) or split[k, c])
+            if clean[k, c]:
+                n += 1
+                total += sigma[c, max(j, 0)] * depth[c, k] / focal[c]
+        high = suspect_hi
+        if n:
+            high = max(high, n_sigma * (total / n))
+        d0, d1, d2 = X[k, 0] - x3[k, 0], X[k, 1] - x3[k, 1], X[k, 2] - x3[k, 2]
+        agree = math.sqrt(d0 * d0 + d1 * d1 + d2 * d2) < min(max(gate_scale * e3[k, 0], suspect_lo), high)
+        out[k] = ok[k] and (n >= 2 or (agree and n == 1))
+    return ok, clean, out
 
 
 @_jit

@@ -1003,19 +1003,25 @@ class Tracker:
             tri.X[more], tri.cov[more], tri.rms_px[more], tri.used[more] = t2.X, t2.cov, t2.rms_px, t2.used
             asg[~tri.used] = -1
         split = self._deblend(fr, crowded, asg, tri) if cfg.deblend else np.zeros(asg.shape, dtype=bool)
-        meas.ok = np.isfinite(tri.X).all(axis=1)
-        clean = tri.used & ((~crowded & ~_gather(fr.merged, asg)) | split)
         # A point leaning on a possibly merged blob is output only if it agrees with the prediction, within its
         # noise as its clean views give it: a merged blob's own (large) std must not widen the gate it is judged by.
         # A point from merged blobs alone never is: its filter may have followed those blobs' offset centroids.
         t = self._t
-        with np.errstate(invalid="ignore", divide="ignore"):  # the point's own noise, m (NaN without a clean view)
-            noise = (np.where(clean, _gather(sigma, asg) * tri.depth.T / self._focal, 0.0).sum(axis=1)
-                     / clean.sum(axis=1))
-        high = np.fmax(cfg.suspect_m[1], cfg.n_sigma * noise)
-        agree = np.linalg.norm(tri.X - t.x3[:, :3], axis=1) < np.clip(cfg.gate_scale * t.e3[:, 0], cfg.suspect_m[0],
-                                                                      high)
-        meas.out = meas.ok & ((clean.sum(axis=1) >= 2) | (agree & clean.any(axis=1)))
+        if kernels.HAVE_NUMBA:
+            meas.ok, clean, meas.out = kernels.measured_points(
+                tri.X, tri.used, kernels.contiguous(crowded, bool), split, fr.merged, sigma, asg, tri.depth,
+                self._focal, t.x3, t.e3, float(cfg.gate_scale), float(cfg.suspect_m[0]), float(cfg.suspect_m[1]),
+                float(cfg.n_sigma))
+        else:
+            meas.ok = np.isfinite(tri.X).all(axis=1)
+            clean = tri.used & ((~crowded & ~_gather(fr.merged, asg)) | split)
+            with np.errstate(invalid="ignore", divide="ignore"):  # the point's own noise, m (NaN without a clean view)
+                noise = (np.where(clean, _gather(sigma, asg) * tri.depth.T / self._focal, 0.0).sum(axis=1)
+                         / clean.sum(axis=1))
+            high = np.fmax(cfg.suspect_m[1], cfg.n_sigma * noise)
+            agree = np.linalg.norm(tri.X - t.x3[:, :3], axis=1) < np.clip(cfg.gate_scale * t.e3[:, 0],
+                                                                          cfg.suspect_m[0], high)
+            meas.out = meas.ok & ((clean.sum(axis=1) >= 2) | (agree & clean.any(axis=1)))
         if cfg.withhold_merged_depth:
             meas.out[self._depth_on_merged_blobs(fr, asg, clean, tri)] = False
         meas.X, meas.cov, meas.rms_px = tri.X, tri.cov, tri.rms_px

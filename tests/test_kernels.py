@@ -348,11 +348,10 @@ def test_tracker_search_regions_crowding_and_update_are_the_numpy_ones(K, monkey
         assert crowded.any() and np.isnan(pred[~(depth > 0)]).all() and (pred[front] == x2[front][:, :2]).all()
 
 
-@pytest.mark.parametrize("K", [0, 1, 14])
-def test_tracker_measurement_of_its_views_is_the_numpy_one(K, monkeypatch):
-    """Epipolar pruning, robust triangulation and re-pick in one kernel (``kernels.measure_views``): detections
-    at the tracks' projections (with noise), some swapped for another track's or a random point, crowded views,
-    merged blobs, cameras without a view and free detections near the tracks' unused cameras."""
+def _measurement_scene(K: int):
+    """A tracker of K tracks and a frame for its measurement: detections at the tracks' projections (with noise),
+    some swapped for another track's or a random point, crowded views, merged blobs, cameras without a view and
+    free detections near the tracks' unused cameras. Returns (tracker, frame, asg (K, C), crowded (K, C))."""
     rig = ring_rig()
     C = len(rig)
     rng = np.random.default_rng(40 + K)
@@ -380,6 +379,14 @@ def test_tracker_measurement_of_its_views_is_the_numpy_one(K, monkeypatch):
     if K > 3:
         asg[K - 3, 0], asg[K - 2, 0] = K - 2, -1
     crowded = rng.random((K, C)) < 0.3
+    return tracker, fr, asg, crowded
+
+
+@pytest.mark.parametrize("K", [0, 1, 14])
+def test_tracker_measurement_of_its_views_is_the_numpy_one(K, monkeypatch):
+    """Epipolar pruning, robust triangulation and re-pick in one kernel (``kernels.measure_views``) on
+    :func:`_measurement_scene`."""
+    tracker, fr, asg, crowded = _measurement_scene(K)
     results = []
     for on in (False, True):
         monkeypatch.setattr(kernels, "HAVE_NUMBA", on)
@@ -390,6 +397,28 @@ def test_tracker_measurement_of_its_views_is_the_numpy_one(K, monkeypatch):
     tri, extra, _, a = results[0]
     if K > 1:  # points made, views dropped, a free blob re-picked
         assert np.isfinite(tri.X).all(axis=1).sum() >= K // 2 and (a < asg).any() and (extra >= 0).any()
+
+
+@pytest.mark.parametrize("K", [0, 1, 14])
+def test_tracker_measurement_verdicts_are_the_numpy_ones(K, monkeypatch):
+    """The whole measurement of :func:`_measurement_scene` (``Tracker._measure``): the same points, and the same
+    verdicts on them (``kernels.measured_points``: finite, output or withheld for leaning on merged or crowded
+    views)."""
+    tracker, fr, asg, crowded = _measurement_scene(K)
+    rng = np.random.default_rng(K)
+    tracker._t.x3[:, :3] += rng.normal(scale=0.002, size=(K, 3))  # predictions a few mm off the points ...
+    tracker._t.e3[:, 0] = rng.uniform(0.0, 0.01, K)  # ... gates below the bounds, between and above
+    crowded |= rng.random(crowded.shape) < 0.5  # views left clean: none, one or more
+    results = []
+    for on in (False, True):
+        monkeypatch.setattr(kernels, "HAVE_NUMBA", on)
+        meas = _Measurements.empty(K, len(fr.D))
+        meas.asg[:] = asg
+        tracker._measure(fr, crowded, meas)
+        results.append(meas)
+    _same(*results, rtol=1e-10)
+    if K > 1:  # some points output, some withheld
+        assert results[0].out.any() and (results[0].ok & ~results[0].out).any()
 
 
 def test_the_tracker_keeps_the_same_state_on_both_paths(monkeypatch):
