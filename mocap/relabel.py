@@ -45,7 +45,8 @@ identities permuted in a burst of hops (a serve's swing), by every distance that
 distances between their markers; a sixth, :mod:`mocap.plates`, labels the markers of rigid plates frame by frame by
 the plate's shape; a seventh, :mod:`mocap.anchors`, joins fragments of a marker's track to the identity whose rigid
 neighbours they keep the same distances to; an eighth, :mod:`mocap.fill`, gives the tracker's unconfirmed points to
-the identities whose paths they continue.
+the identities whose paths they continue; the last, :mod:`mocap.bridge`, re-links the pieces of the identities
+across gaps in every view by where their neighbours carry the hidden marker.
 
 All passes only move whole samples between identity columns (positions, residuals and camera
 masks together), and the first deletes the second copy of a point; they never change a position.
@@ -61,6 +62,7 @@ import numpy as np
 from scipy.optimize import linear_sum_assignment
 
 from mocap.anchors import move_refuted_samples, rejoin_by_anchors
+from mocap.bridge import bridge_gaps
 from mocap.exchange import undo_exchanges
 from mocap.fill import fill_from_unconfirmed
 from mocap.plates import label_plates
@@ -184,7 +186,8 @@ class RelabelStats:
     re-linking (``stitches``: fragments joined minus tracks cut at jumps, so negative where the cuts outnumber the
     joins), exchanges undone where two markers passed close, bursts of hops unscrambled, cluster members reunited,
     samples moved to the plate member their shape names, fragments rejoined by their anchors, samples moved to the
-    identity whose anchors they fit, unconfirmed points that joined an identity's path."""
+    identity whose anchors they fit, unconfirmed points that joined an identity's path, links made across gaps by
+    where the neighbours carry a marker."""
 
     duplicates: int = 0
     swaps: int = 0
@@ -196,6 +199,7 @@ class RelabelStats:
     rejoined: int = 0
     anchor_moves: int = 0
     filled: int = 0
+    bridged: int = 0
 
 
 def _smooth_run(P: np.ndarray, f: int, col: int, split_acc: float) -> int:
@@ -684,8 +688,9 @@ def repair_identities(traj: Trajectories, config: RelabelConfig | None = None,
     markers passed close (:mod:`mocap.exchange`), bursts of hops unscrambled (:mod:`mocap.scramble`), the reunion
     of rigid clusters back after a long absence (:mod:`mocap.reunite`), then the labelling of rigid plates by their
     shape (:mod:`mocap.plates`), fragments rejoined by their distances to rigid neighbours and samples moved to the
-    identity whose neighbours they fit (:mod:`mocap.anchors`, in turns: ``ANCHOR_ROUNDS`` at most) and the
-    fill from unconfirmed points (:mod:`mocap.fill`), in place; empty identity columns are dropped.
+    identity whose neighbours they fit (:mod:`mocap.anchors`, in turns: ``ANCHOR_ROUNDS`` at most), the
+    fill from unconfirmed points (:mod:`mocap.fill`) and the bridging of gaps by where the neighbours carry a
+    marker (:mod:`mocap.bridge`), in place; empty identity columns are dropped.
     ``unconfirmed``: the tracker's points without identity (:meth:`mocap.tracker.Tracker.unconfirmed`), which the
     plate labelling and the fill may give one.
 
@@ -711,7 +716,8 @@ def repair_identities(traj: Trajectories, config: RelabelConfig | None = None,
         stats.rejoined += rejoin_by_anchors(traj)
     if unconfirmed is not None:
         stats.filled = fill_from_unconfirmed(traj, unconfirmed)
-    if stats.reunited or stats.rejoined or stats.plate_samples or stats.anchor_moves:
+    stats.bridged = bridge_gaps(traj)
+    if stats.reunited or stats.rejoined or stats.plate_samples or stats.anchor_moves or stats.bridged:
         keep = np.isfinite(traj.positions[..., 0]).any(axis=0)
         traj.positions, traj.residuals, traj.camera_masks = (traj.positions[:, keep], traj.residuals[:, keep],
                                                              traj.camera_masks[:, keep])
