@@ -66,7 +66,7 @@ class BridgeConfig:
     neighbours: int = 8
     reach_m: float = 0.6
     ridge_m2: float = 1e-3
-    miss_m: float = 0.08
+    miss_m: float = 0.16
     keep_m: float = 0.15
     favour: float = 2.0
 
