@@ -88,15 +88,18 @@ def _own_links(pieces: np.ndarray) -> dict[int, int]:
     return dict(zip(same.tolist(), (same + 1).tolist(), strict=True))
 
 
-def carried_miss(P: np.ndarray, end: np.ndarray, start: np.ndarray, cfg: BridgeConfig) -> float:
+def carried_miss(P: np.ndarray, end: np.ndarray, start: np.ndarray, cfg: BridgeConfig,
+                 seen: np.ndarray | None = None) -> float:
     """Distance, m, between the start of piece ``start`` and where the neighbours carry the marker of piece ``end``
     (both (column, first, last) in ``P`` (F, M, 3)); NaN where too few frames or neighbours to tell.
 
     The marker's offsets from its neighbours' mean over the end's last ``fit_frames`` samples are fitted as one
     combination of the neighbours' offsets (ridge least squares), which is then applied to the neighbours at the
-    start's first ``check_frames`` samples: the mean distance to the start's samples there."""
+    start's first ``check_frames`` samples: the mean distance to the start's samples there. ``seen``: (F, M) bool,
+    the samples of ``P`` (computed if not given)."""
     (ma, fa, la), (mb, fb, lb) = end, start
-    seen = np.isfinite(P[..., 0])
+    if seen is None:
+        seen = np.isfinite(P[..., 0])
     before = np.arange(max(fa, la - cfg.fit_frames + 1), la + 1)
     after = np.arange(fb, min(lb, fb + cfg.check_frames - 1) + 1)
     before, after = before[seen[before, ma]], after[seen[after, mb]]
@@ -124,6 +127,7 @@ def carried_miss(P: np.ndarray, end: np.ndarray, start: np.ndarray, cfg: BridgeC
 def _links(P: np.ndarray, pieces: np.ndarray, fps: float, cfg: BridgeConfig) -> dict[int, int]:
     """Piece -> next piece of its marker, by the assignment of the module docstring."""
     F = len(P)
+    seen = np.isfinite(P[..., 0])
     max_gap = int(round(cfg.max_gap_s * fps))
     following = _own_links(pieces)
     ends = np.flatnonzero(pieces[:, 2] < F - 1)
@@ -141,7 +145,7 @@ def _links(P: np.ndarray, pieces: np.ndarray, fps: float, cfg: BridgeConfig) -> 
             candidates.add(following[a])
         for b in candidates:
             own = following.get(a) == b
-            miss = carried_miss(P, pieces[a], pieces[b], cfg) if pieces[b, 1] - la <= max_gap else np.nan
+            miss = carried_miss(P, pieces[a], pieces[b], cfg, seen) if pieces[b, 1] - la <= max_gap else np.nan
             if own:
                 cost = 0.0 if not np.isfinite(miss) else (miss / cfg.favour if miss <= cfg.keep_m else cfg.miss_m)
             elif (np.isfinite(miss) and miss < cfg.miss_m and pieces[a, 2] - pieces[a, 1] + 1 >= cfg.fit_frames
