@@ -37,7 +37,7 @@ from scipy.sparse.csgraph import connected_components
 
 from mocap.trajectories import Trajectories
 
-__all__ = ["BridgeConfig", "bridge_gaps"]
+__all__ = ["BridgeConfig", "bridge_gaps", "carried_miss"]
 
 _EMPTY = {"f": np.nan, "u": 0}  # a missing sample: positions and residuals NaN, camera mask 0
 
@@ -208,19 +208,18 @@ def bridge_gaps(traj: Trajectories, config: BridgeConfig | None = None) -> int:
             chains.append(chain)
     length = pieces[:, 2] - pieces[:, 1] + 1
     chains.sort(key=lambda chain: -int(length[chain].sum()))
-    arrays = [traj.positions, traj.residuals, traj.camera_masks]
-    out = [np.full(a.shape, _EMPTY[a.dtype.kind], dtype=a.dtype) for a in arrays]
-    taken = np.zeros(traj.n_markers, dtype=bool)
-    extra = 0
+    homes, taken, extra = [], set(), 0  # each chain's column: its longest piece's, unless a longer chain has it
     for chain in chains:
         home = int(pieces[chain[int(np.argmax(length[chain]))], 0])
-        if taken[home]:
-            home = traj.n_markers + extra
-            extra += 1
-            out = [np.concatenate([o, np.full((len(o), 1) + o.shape[2:], _EMPTY[o.dtype.kind], dtype=o.dtype)], axis=1)
-                   for o in out]
+        if home in taken:
+            home, extra = traj.n_markers + extra, extra + 1
         else:
-            taken[home] = True
+            taken.add(home)
+        homes.append(home)
+    arrays = [traj.positions, traj.residuals, traj.camera_masks]
+    out = [np.full((a.shape[0], traj.n_markers + extra) + a.shape[2:], _EMPTY[a.dtype.kind], dtype=a.dtype)
+           for a in arrays]
+    for chain, home in zip(chains, homes, strict=True):
         for m, f, last in pieces[chain]:
             for o, a in zip(out, arrays, strict=True):
                 o[f:last + 1, home] = a[f:last + 1, m]
