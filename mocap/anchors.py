@@ -44,11 +44,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from mocap.rigid import pair_statistics, placement_jumps, split_tracklets
-from mocap.trajectories import Trajectories
+from mocap.trajectories import MISSING, Trajectories
 
 __all__ = ["AnchorConfig", "move_refuted_samples", "rejoin_by_anchors"]
-
-_EMPTY = {"f": np.nan, "u": 0}  # a missing sample: positions and residuals NaN, camera mask 0
 
 
 @dataclass(frozen=True)
@@ -172,7 +170,7 @@ def rejoin_by_anchors(traj: Trajectories, config: AnchorConfig | None = None) ->
             mine = ((_misfit(P, both, int(p), q, anchors, median) <= cfg.tolerance_m)
                     & (_misfit(P, both, r, q, anchors, median) > cfg.tolerance_m))
             leave = np.where(mine, r, p)  # the column whose sample moves out, per shared frame
-            out = [np.full((len(P),) + a.shape[2:], _EMPTY[a.dtype.kind], dtype=a.dtype) for a in arrays]
+            out = [np.full((len(P),) + a.shape[2:], MISSING[a.dtype.kind], dtype=a.dtype) for a in arrays]
             for a, o in zip(arrays, out, strict=True):
                 o[both] = a[both, leave]
                 a[both[mine], r] = a[both[mine], p]
@@ -180,7 +178,7 @@ def rejoin_by_anchors(traj: Trajectories, config: AnchorConfig | None = None) ->
         moved = here[~np.isin(here, both)]
         for a in arrays:
             a[moved, r] = a[moved, p]
-            a[here, p] = _EMPTY[a.dtype.kind]
+            a[here, p] = MISSING[a.dtype.kind]
         root[p] = r
         joined += 1
     if spilled:
@@ -320,7 +318,7 @@ def move_refuted_samples(traj: Trajectories, config: AnchorConfig | None = None,
             continue
         for a in (traj.positions, traj.residuals, traj.camera_masks):
             a[rows, tgt] = a[rows, col]
-            a[rows, col] = _EMPTY[a.dtype.kind]
+            a[rows, col] = MISSING[a.dtype.kind]
         seen[rows, tgt], seen[rows, col] = True, False
         moved += rows.size
     return moved

@@ -35,11 +35,9 @@ from scipy.optimize import linear_sum_assignment
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 
-from mocap.trajectories import Trajectories
+from mocap.trajectories import MISSING, Trajectories
 
 __all__ = ["BridgeConfig", "bridge_gaps", "carried_miss"]
-
-_EMPTY = {"f": np.nan, "u": 0}  # a missing sample: positions and residuals NaN, camera mask 0
 
 
 @dataclass(frozen=True)
@@ -217,7 +215,7 @@ def bridge_gaps(traj: Trajectories, config: BridgeConfig | None = None) -> int:
             taken.add(home)
         homes.append(home)
     arrays = [traj.positions, traj.residuals, traj.camera_masks]
-    out = [np.full((a.shape[0], traj.n_markers + extra) + a.shape[2:], _EMPTY[a.dtype.kind], dtype=a.dtype)
+    out = [np.full((a.shape[0], traj.n_markers + extra) + a.shape[2:], MISSING[a.dtype.kind], dtype=a.dtype)
            for a in arrays]
     for chain, home in zip(chains, homes, strict=True):
         for m, f, last in pieces[chain]:

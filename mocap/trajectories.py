@@ -7,7 +7,9 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["Trajectories", "UnconfirmedPoints"]
+__all__ = ["MISSING", "Trajectories", "UnconfirmedPoints"]
+
+MISSING = {"f": np.nan, "u": 0}  # a missing sample by array kind: positions and residuals NaN, camera mask 0
 
 
 @dataclass(eq=False)
