@@ -18,7 +18,9 @@ optimal assignment of ends to starts per group of competing pieces:
 
 * a link the identities already make costs its miss / ``favour`` (a miss over ``keep_m``: as much as no link), or
   nothing where no miss can be measured (too short a piece, too few neighbours): the repair's links stand unless
-  the neighbours refute them;
+  the neighbours refute them. A link over a gap longer than ``max_gap_s`` (the repair's distance rules join pieces
+  seconds apart; the bridge measures such a link but does not search for one) weighs less: refuted, it costs as
+  much as leaving both its pieces unlinked, and unmeasured ``miss_m / 2``;
 * another link costs its miss where it is below ``miss_m`` and its ending piece is ``fit_frames`` long or more;
 * leaving a piece unlinked costs ``miss_m``.
 
@@ -58,7 +60,7 @@ class BridgeConfig:
     """
 
     min_gap: int = 2
-    max_gap_s: float = 2.0
+    max_gap_s: float = 3.0
     fit_frames: int = 10
     check_frames: int = 3
     neighbours: int = 8
@@ -122,6 +124,18 @@ def carried_miss(P: np.ndarray, end: np.ndarray, start: np.ndarray, cfg: BridgeC
     return float(np.linalg.norm(carried - P[after, mb], axis=1).mean())
 
 
+def _own_cost(miss: float, long_gap: bool, cfg: BridgeConfig) -> float:
+    """Cost of keeping a link the identities make, whose ``miss`` (m; NaN: not measurable) is over a gap of at most
+    ``max_gap_s`` or, ``long_gap``, longer (a link the repair's distance rules made, which the bridge does not search
+    for: without evidence it gives way to a link the neighbours carry within ``miss_m / 2``, and refuted it costs as
+    much as leaving both its pieces unlinked)."""
+    if not np.isfinite(miss):
+        return cfg.miss_m / 2 if long_gap else 0.0
+    if miss <= cfg.keep_m:
+        return miss / cfg.favour
+    return 2 * cfg.miss_m if long_gap else cfg.miss_m
+
+
 def _links(P: np.ndarray, pieces: np.ndarray, fps: float, cfg: BridgeConfig) -> dict[int, int]:
     """Piece -> next piece of its marker, by the assignment of the module docstring."""
     F = len(P)
@@ -133,21 +147,24 @@ def _links(P: np.ndarray, pieces: np.ndarray, fps: float, cfg: BridgeConfig) -> 
     starts = starts[np.argsort(pieces[starts, 1], kind="stable")]
     first = pieces[starts, 1]
     column = {int(b): k for k, b in enumerate(starts)}  # a start piece's column in the assignment
+    length = pieces[:, 2] - pieces[:, 1] + 1
     rows, cols, costs = [], [], []
     for i, a in enumerate(ends):
         la = pieces[a, 2]
-        lo = np.searchsorted(first, la + cfg.min_gap + 1, side="left")
-        hi = np.searchsorted(first, la + max_gap, side="right")
-        candidates = set(starts[lo:hi].tolist())
+        candidates = set()
+        if length[a] >= cfg.fit_frames:  # new links: from a piece as long as the fit, to one as long as the check
+            lo = np.searchsorted(first, la + cfg.min_gap + 1, side="left")
+            hi = np.searchsorted(first, la + max_gap, side="right")
+            window = starts[lo:hi]
+            candidates = set(window[length[window] >= cfg.check_frames].tolist())
         if a in following:
             candidates.add(following[a])
         for b in candidates:
             own = following.get(a) == b
-            miss = carried_miss(P, pieces[a], pieces[b], cfg, seen) if pieces[b, 1] - la <= max_gap else np.nan
+            miss = carried_miss(P, pieces[a], pieces[b], cfg, seen)
             if own:
-                cost = 0.0 if not np.isfinite(miss) else (miss / cfg.favour if miss <= cfg.keep_m else cfg.miss_m)
-            elif (np.isfinite(miss) and miss < cfg.miss_m and pieces[a, 2] - pieces[a, 1] + 1 >= cfg.fit_frames
-                  and pieces[b, 2] - pieces[b, 1] + 1 >= cfg.check_frames):
+                cost = _own_cost(miss, pieces[b, 1] - la > max_gap, cfg)
+            elif np.isfinite(miss) and miss < cfg.miss_m:
                 cost = miss
             else:
                 continue

@@ -89,8 +89,24 @@ def test_links_without_evidence_stay_and_a_take_without_gaps_is_untouched():
     original = traj.positions.copy()
     assert bridge_gaps(traj) == 0
     np.testing.assert_array_equal(traj.positions, original)
-    far = _trajectories([[(0, 0, 49)]] + [[(m, 0, 199)] for m in range(1, 10)] + [[(0, 160, 199)]], truth)
-    assert bridge_gaps(far, BridgeConfig(max_gap_s=1.0)) == 0  # 2.2 s apart
-    assert bridge_gaps(far) == 0  # still over the default 2 s
+    far = _trajectories([[(0, 0, 29)]] + [[(m, 0, 199)] for m in range(1, 10)] + [[(0, 190, 199)]], truth)
+    assert bridge_gaps(far, BridgeConfig(max_gap_s=1.0)) == 0  # 3.2 s apart
+    assert bridge_gaps(far) == 0  # still over the default 3 s
     near = _trajectories([[(0, 0, 99)]] + [[(m, 0, 199)] for m in range(1, 10)] + [[(0, 150, 199)]], truth)
     assert bridge_gaps(near) == 1 and len(_columns_of(near, truth)[0]) == 1
+
+
+def test_a_link_over_a_long_gap_gives_way_to_the_link_the_neighbours_carry():
+    """The identity of marker 0 went on, after 3.2 s, with another marker back from a long absence (the repair's
+    distance rules join pieces that far apart); marker 0 came back after 0.4 s as a new identity. The long link is
+    too long to search for but not to measure: the neighbours carry marker 0 to its own return, and the other
+    marker keeps an identity of its own."""
+    truth = _swinging_arm(5, frames=400)
+    other = int(np.argmax(np.linalg.norm(truth[0] - truth[0, 0], axis=1)))  # the farthest marker from marker 0
+    rest = [m for m in range(1, 10) if m != other]
+    columns = [[(0, 0, 99), (other, 260, 399)], [(0, 120, 399)]] + [[(m, 0, 399)] for m in rest]
+    traj = _trajectories(columns, truth)
+    assert _columns_of(traj, truth)[0] == {0, 1}
+    assert bridge_gaps(traj) == 1
+    after = _columns_of(traj, truth)
+    assert len(after[0]) == 1 and len(after[other]) == 1 and after[0] != after[other]
