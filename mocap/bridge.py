@@ -10,11 +10,12 @@ combination is of offsets: a rigid motion of the neighbours moves it the same wa
 bending. On the seven tennis takes with such gaps the right piece after a gap was the best-predicted one 347
 times in 361 (median miss 27 mm against 0.75 m for the others).
 
-:func:`bridge_gaps` cuts every identity into pieces at gaps of more than ``min_gap`` frames and, for every piece
-that ends and every piece that starts within ``max_gap_s`` after it, predicts the ending piece's marker from its
-``neighbours`` nearest identities (within ``reach_m``, seen through the last ``fit_frames`` frames of the ending
-piece and the first ``check_frames`` of the starting one; ridge ``ridge_m2``) and measures the miss. Then one
-optimal assignment of ends to starts per group of competing pieces:
+:func:`bridge_gaps` cuts every identity into pieces at gaps of more than ``min_gap`` frames and where it jumped (the
+repair's jump rule: an identity that took another marker without a gap), and, for every piece that ends and every
+piece that starts within ``max_gap_s`` after it (from the next frame on, in any identity), predicts the ending
+piece's marker from its ``neighbours`` nearest identities (within ``reach_m``, seen through the last ``fit_frames``
+frames of the ending piece and the first ``check_frames`` of the starting one; ridge ``ridge_m2``) and measures the
+miss. Then one optimal assignment of ends to starts per group of competing pieces:
 
 * a link the identities already make costs its miss / ``favour`` (a miss over ``keep_m``: as much as no link), or
   nothing where no miss can be measured (too short a piece, too few neighbours): the repair's links stand unless
@@ -37,6 +38,7 @@ from scipy.optimize import linear_sum_assignment
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 
+from mocap.rigid import jump_starts
 from mocap.trajectories import MISSING, Trajectories
 
 __all__ = ["BridgeConfig", "bridge_gaps", "carried_miss"]
@@ -71,13 +73,19 @@ class BridgeConfig:
     favour: float = 2.0
 
 
-def _pieces(seen: np.ndarray, min_gap: int) -> np.ndarray:
+def _pieces(seen: np.ndarray, min_gap: int, jumped: np.ndarray | None = None) -> np.ndarray:
     """(n, 3) column, first and last frame of every run of samples of ``seen`` (F, M) bool with gaps of at most
-    ``min_gap`` frames inside, column by column in time order."""
+    ``min_gap`` frames inside and no sample of ``jumped`` (F, M) bool but the first, column by column in time
+    order."""
     out = []
     for m in range(seen.shape[1]):
         frames = np.flatnonzero(seen[:, m])
-        for run in np.split(frames, np.flatnonzero(np.diff(frames) > min_gap) + 1) if frames.size else []:
+        if frames.size == 0:
+            continue
+        cut = np.diff(frames) > min_gap
+        if jumped is not None:
+            cut |= jumped[frames[1:], m]
+        for run in np.split(frames, np.flatnonzero(cut) + 1):
             out.append((m, run[0], run[-1]))
     return np.array(out, dtype=np.intp).reshape(-1, 3)
 
@@ -153,7 +161,7 @@ def _links(P: np.ndarray, pieces: np.ndarray, fps: float, cfg: BridgeConfig) -> 
         la = pieces[a, 2]
         candidates = set()
         if length[a] >= cfg.fit_frames:  # new links: from a piece as long as the fit, to one as long as the check
-            lo = np.searchsorted(first, la + cfg.min_gap + 1, side="left")
+            lo = np.searchsorted(first, la + 1, side="left")
             hi = np.searchsorted(first, la + max_gap, side="right")
             window = starts[lo:hi]
             candidates = set(window[length[window] >= cfg.check_frames].tolist())
@@ -196,10 +204,12 @@ def _links(P: np.ndarray, pieces: np.ndarray, fps: float, cfg: BridgeConfig) -> 
     return links
 
 
-def bridge_gaps(traj: Trajectories, config: BridgeConfig | None = None) -> int:
+def bridge_gaps(traj: Trajectories, config: BridgeConfig | None = None, jump_acc: float = np.inf,
+                reversal_acc: float = np.inf) -> int:
     """Re-link the pieces of the identities across gaps by where their neighbours carry them (see the module
-    docstring), in place. Identity columns no chain keeps are left empty (the caller drops them); new ones are
-    appended.
+    docstring), in place. Identities are also cut where they jumped (:func:`mocap.rigid.jump_starts` with
+    ``jump_acc`` and ``reversal_acc``, m/frame^2). Identity columns no chain keeps are left empty (the caller drops
+    them); new ones are appended.
 
     Returns the number of links made that the identities did not make before.
     """
@@ -207,7 +217,7 @@ def bridge_gaps(traj: Trajectories, config: BridgeConfig | None = None) -> int:
     P = traj.positions
     if traj.n_markers < 4 or traj.n_frames < 4:
         return 0
-    pieces = _pieces(np.isfinite(P[..., 0]), cfg.min_gap)
+    pieces = _pieces(np.isfinite(P[..., 0]), cfg.min_gap, jump_starts(P, jump_acc, reversal_acc))
     links = _links(P, pieces, traj.fps, cfg)
     following = _own_links(pieces)
     made = sum(following.get(a) != b for a, b in links.items())

@@ -716,7 +716,7 @@ def repair_identities(traj: Trajectories, config: RelabelConfig | None = None,
         stats.rejoined += rejoin_by_anchors(traj)
     if unconfirmed is not None:
         stats.filled = fill_from_unconfirmed(traj, unconfirmed)
-    stats.bridged = bridge_gaps(traj)
+    stats.bridged = bridge_gaps(traj, jump_acc=jump, reversal_acc=(config or RelabelConfig()).reversal_acc(traj.fps))
     if stats.reunited or stats.rejoined or stats.plate_samples or stats.anchor_moves or stats.bridged:
         keep = np.isfinite(traj.positions[..., 0]).any(axis=0)
         traj.positions, traj.residuals, traj.camera_masks = (traj.positions[:, keep], traj.residuals[:, keep],

@@ -16,7 +16,8 @@ import numpy as np
 
 from mocap import kernels
 
-__all__ = ["PAIRS", "PERMUTATIONS", "pair_statistics", "placement_jumps", "rigid_triangles", "split_tracklets"]
+__all__ = ["PAIRS", "PERMUTATIONS", "pair_statistics", "placement_jumps", "jump_starts", "rigid_triangles",
+           "split_tracklets"]
 
 STATISTICS_FRAMES = 4096  # frames per chunk of the co-seen counts, and most frames the distances are taken over
 
@@ -92,30 +93,34 @@ def placement_jumps(P: np.ndarray, rows: np.ndarray, member: np.ndarray, X: np.n
     return acc > limit
 
 
-def split_tracklets(P: np.ndarray, split_acc: float, reversal_acc: float = np.inf) -> list[np.ndarray]:
-    """Cut every identity column into runs of consecutive samples, also where the acceleration (second
-    difference, m/frame^2) exceeds ``split_acc`` on both samples of a step, or ``reversal_acc`` on both with
-    opposite directions; returns (frames, column) index pairs per run."""
+def jump_starts(P: np.ndarray, split_acc: float, reversal_acc: float = np.inf) -> np.ndarray:
+    """(F, M) bool: samples of ``P`` (F, M, 3) whose identity has a sample in the frame before too but jumped to
+    them: the acceleration (second difference, m/frame^2) exceeds ``split_acc`` on both samples of the step, or
+    ``reversal_acc`` on both with opposite directions."""
     valid = np.isfinite(P[:, :, 0])
     vec = np.full(P.shape, np.nan)
     vec[1:-1] = P[2:] - 2 * P[1:-1] + P[:-2]
-    acc = np.full(valid.shape, np.inf)
-    acc[1:-1] = np.linalg.norm(vec[1:-1], axis=2)
+    acc = np.zeros(valid.shape)  # (0 where it cannot be computed: no jump)
+    acc[1:-1] = np.nan_to_num(np.linalg.norm(vec[1:-1], axis=2))
     with np.errstate(invalid="ignore"):  # (NaN where a sample is missing: no reversal)
-        turned = np.zeros(valid.shape, dtype=bool)  # [k]: the accelerations at k - 1 and k reverse, both large
-        turned[1:] = ((acc[:-1] > reversal_acc) & (acc[1:] > reversal_acc)
-                      & ((vec[:-1] * vec[1:]).sum(axis=2) < -0.5 * acc[:-1] * acc[1:]))
+        turned = ((acc[:-1] > reversal_acc) & (acc[1:] > reversal_acc)
+                  & ((vec[:-1] * vec[1:]).sum(axis=2) < -0.5 * acc[:-1] * acc[1:]))
+    out = np.zeros(valid.shape, dtype=bool)
+    out[1:] = valid[1:] & valid[:-1] & (((acc[:-1] > split_acc) & (acc[1:] > split_acc)) | turned)
+    return out
+
+
+def split_tracklets(P: np.ndarray, split_acc: float, reversal_acc: float = np.inf) -> list[np.ndarray]:
+    """Cut every identity column into runs of consecutive samples, also where it jumped (:func:`jump_starts`);
+    returns (frames, column) index pairs per run."""
+    valid = np.isfinite(P[:, :, 0])
+    jumped = jump_starts(P, split_acc, reversal_acc)
     runs = []
     for col in range(P.shape[1]):
         frames = np.flatnonzero(valid[:, col])
         if frames.size == 0:
             continue
-        # A break before sample k: a gap, or a jump at k-1 -> k (acceleration spike at k-1 or k).
-        jump = np.zeros(frames.size, dtype=bool)
-        jump[1:] = (np.diff(frames) > 1) | (
-            (acc[frames[:-1], col] > split_acc) & np.isfinite(acc[frames[:-1], col])
-            & (acc[frames[1:], col] > split_acc) & np.isfinite(acc[frames[1:], col]))
-        jump[1:] |= turned[frames[1:], col] & (np.diff(frames) == 1)
-        for piece in np.split(frames, np.flatnonzero(jump)):
+        cut = np.flatnonzero((np.diff(frames) > 1) | jumped[frames[1:], col]) + 1
+        for piece in np.split(frames, cut):
             runs.append(np.stack([piece, np.full(piece.size, col)], axis=1))
     return runs

@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from mocap.bridge import BridgeConfig, bridge_gaps, carried_miss
+from mocap.relabel import RelabelConfig
 from mocap.trajectories import Trajectories
 
 FPS = 50.0
@@ -108,5 +109,23 @@ def test_a_link_over_a_long_gap_gives_way_to_the_link_the_neighbours_carry():
     traj = _trajectories(columns, truth)
     assert _columns_of(traj, truth)[0] == {0, 1}
     assert bridge_gaps(traj) == 1
+    after = _columns_of(traj, truth)
+    assert len(after[0]) == 1 and len(after[other]) == 1 and after[0] != after[other]
+
+
+def test_an_identity_that_jumped_onto_another_marker_is_cut_there_and_both_markers_relinked():
+    """Marker 0's identity jumped onto another marker, hidden for 0.2 s, when it came back (a hop, no gap); marker
+    0 came back a frame later as a new identity. Cut at the jump (the repair's jump threshold), the pieces are
+    linked by where the neighbours carry each marker; without the cut the mixed identity stays."""
+    truth = _swinging_arm(6)
+    other = int(np.argmax(np.linalg.norm(truth[0] - truth[0, 0], axis=1)))
+    rest = [m for m in range(1, 10) if m != other]
+    columns = [[(0, 0, 99), (other, 100, 199)], [(other, 0, 89)], [(0, 101, 199)]] + [[(m, 0, 199)] for m in rest]
+    cfg = RelabelConfig()
+    uncut = _trajectories(columns, truth)
+    bridge_gaps(uncut)
+    assert len(_columns_of(uncut, truth)[0]) == 2
+    traj = _trajectories(columns, truth)
+    assert bridge_gaps(traj, jump_acc=cfg.jump_acc(FPS), reversal_acc=cfg.reversal_acc(FPS)) == 2
     after = _columns_of(traj, truth)
     assert len(after[0]) == 1 and len(after[other]) == 1 and after[0] != after[other]
