@@ -703,7 +703,8 @@ def repair_identities(traj: Trajectories, config: RelabelConfig | None = None,
     stats.swaps = repair_swaps(traj, config)
     stats.stitches = relink_tracklets(traj, config)
     stats.exchanges = undo_exchanges(traj)
-    jump = (config or RelabelConfig()).jump_acc(traj.fps)
+    limits = config or RelabelConfig()
+    jump = limits.jump_acc(traj.fps)
     stats.unscrambled = unscramble_bursts(traj, jump)
     stats.reunited = reunite_clusters(traj)
     stats.plate_samples = label_plates(traj, extra=unconfirmed, jump_acc=jump)
@@ -716,7 +717,7 @@ def repair_identities(traj: Trajectories, config: RelabelConfig | None = None,
         stats.rejoined += rejoin_by_anchors(traj)
     if unconfirmed is not None:
         stats.filled = fill_from_unconfirmed(traj, unconfirmed)
-    stats.bridged = bridge_gaps(traj, jump_acc=jump, reversal_acc=(config or RelabelConfig()).reversal_acc(traj.fps))
+    stats.bridged = bridge_gaps(traj, jump_acc=jump, reversal_acc=limits.reversal_acc(traj.fps))
     if stats.reunited or stats.rejoined or stats.plate_samples or stats.anchor_moves or stats.bridged:
         keep = np.isfinite(traj.positions[..., 0]).any(axis=0)
         traj.positions, traj.residuals, traj.camera_masks = (traj.positions[:, keep], traj.residuals[:, keep],
