@@ -22,7 +22,8 @@ miss. Then one optimal assignment of ends to starts per group of competing piece
   the neighbours refute them. A link over a gap longer than ``max_gap_s`` (the repair's distance rules join pieces
   seconds apart; the bridge measures such a link but does not search for one) weighs less: refuted, it costs as
   much as leaving both its pieces unlinked, and unmeasured ``miss_m / 2``;
-* another link costs its miss where it is below ``miss_m`` and its ending piece is ``fit_frames`` long or more;
+* another link costs its miss where it is below ``miss_m`` and its ending piece is ``fit_frames`` long or more
+  (``short_frames`` or more where the miss is clearly the piece's best, ``short_ratio``);
 * leaving a piece unlinked costs ``miss_m``.
 
 The identities are then rebuilt from the chains of linked pieces (each keeps the column of its longest piece where
@@ -59,6 +60,10 @@ class BridgeConfig:
         miss_m: a new link must miss by less than this, m; leaving a piece unlinked costs as much.
         keep_m: an existing link missing by more than this costs as much as no link, m.
         favour: an existing link's miss counts divided by this.
+        short_frames: a piece shorter than ``fit_frames`` but this long at least makes a new link only where its
+            miss is under ``short_ratio`` times every other candidate's, its own link's too (a fit over a few
+            frames tells a marker from its near neighbours less surely: a forearm cluster's flicker).
+        short_ratio: see ``short_frames``.
     """
 
     min_gap: int = 2
@@ -71,6 +76,8 @@ class BridgeConfig:
     miss_m: float = 0.16
     keep_m: float = 0.15
     favour: float = 2.0
+    short_frames: int = 5
+    short_ratio: float = 0.5
 
 
 def _pieces(seen: np.ndarray, min_gap: int, jumped: np.ndarray | None = None) -> np.ndarray:
@@ -144,6 +151,11 @@ def _own_cost(miss: float, long_gap: bool, cfg: BridgeConfig) -> float:
     return 2 * cfg.miss_m if long_gap else cfg.miss_m
 
 
+def _clear(miss: float, misses: dict[int, float], b: int, ratio: float) -> bool:
+    """Whether ``miss`` (m), candidate ``b``'s, is under ``ratio`` times every other measured one of ``misses``."""
+    return all(not np.isfinite(other) or miss < ratio * other for c, other in misses.items() if c != b)
+
+
 def _links(P: np.ndarray, pieces: np.ndarray, fps: float, cfg: BridgeConfig) -> dict[int, int]:
     """Piece -> next piece of its marker, by the assignment of the module docstring."""
     F = len(P)
@@ -160,19 +172,19 @@ def _links(P: np.ndarray, pieces: np.ndarray, fps: float, cfg: BridgeConfig) -> 
     for i, a in enumerate(ends):
         la = pieces[a, 2]
         candidates = set()
-        if length[a] >= cfg.fit_frames:  # new links: from a piece as long as the fit, to one as long as the check
+        if length[a] >= cfg.short_frames:  # new links: from a piece long enough to fit, to one as long as the check
             lo = np.searchsorted(first, la + 1, side="left")
             hi = np.searchsorted(first, la + max_gap, side="right")
             window = starts[lo:hi]
             candidates = set(window[length[window] >= cfg.check_frames].tolist())
         if a in following:
             candidates.add(following[a])
-        for b in candidates:
-            own = following.get(a) == b
-            miss = carried_miss(P, pieces[a], pieces[b], cfg, seen)
-            if own:
+        misses = {b: carried_miss(P, pieces[a], pieces[b], cfg, seen) for b in candidates}
+        for b, miss in misses.items():
+            if following.get(a) == b:
                 cost = _own_cost(miss, pieces[b, 1] - la > max_gap, cfg)
-            elif np.isfinite(miss) and miss < cfg.miss_m:
+            elif np.isfinite(miss) and miss < cfg.miss_m and (length[a] >= cfg.fit_frames
+                                                              or _clear(miss, misses, b, cfg.short_ratio)):
                 cost = miss
             else:
                 continue

@@ -129,3 +129,16 @@ def test_an_identity_that_jumped_onto_another_marker_is_cut_there_and_both_marke
     assert bridge_gaps(traj, jump_acc=cfg.jump_acc(FPS), reversal_acc=cfg.reversal_acc(FPS)) == 2
     after = _columns_of(traj, truth)
     assert len(after[0]) == 1 and len(after[other]) == 1 and after[0] != after[other]
+
+
+def test_a_short_piece_between_two_gaps_links_on_where_its_miss_is_clearly_the_best():
+    """Marker 0 is seen for 6 frames between two gaps, and each of its three pieces holds an identity of its own.
+    The 6-frame piece is too short for the full fit but long enough to link on: nothing else is a candidate."""
+    truth = _swinging_arm(7)
+    columns = [[(0, 0, 99)], [(0, 110, 115)], [(0, 130, 199)]] + [[(m, 0, 199)] for m in range(1, 10)]
+    traj = _trajectories(columns, truth)
+    assert bridge_gaps(traj) == 2
+    assert len(_columns_of(traj, truth)[0]) == 1
+    strict = _trajectories(columns, truth)
+    assert bridge_gaps(strict, BridgeConfig(short_frames=10)) == 1  # only the long piece links on
+    assert len(_columns_of(strict, truth)[0]) == 2
