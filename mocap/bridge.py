@@ -39,7 +39,7 @@ from scipy.optimize import linear_sum_assignment
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 
-from mocap.rigid import jump_starts
+from mocap.rigid import column_runs, jump_starts
 from mocap.trajectories import MISSING, Trajectories
 
 __all__ = ["BridgeConfig", "bridge_gaps", "carried_miss"]
@@ -80,20 +80,11 @@ class BridgeConfig:
     short_ratio: float = 0.5
 
 
-def _pieces(seen: np.ndarray, min_gap: int, jumped: np.ndarray | None = None) -> np.ndarray:
-    """(n, 3) column, first and last frame of every run of samples of ``seen`` (F, M) bool with gaps of at most
-    ``min_gap`` frames inside and no sample of ``jumped`` (F, M) bool but the first, column by column in time
-    order."""
-    out = []
-    for m in range(seen.shape[1]):
-        frames = np.flatnonzero(seen[:, m])
-        if frames.size == 0:
-            continue
-        cut = np.diff(frames) > min_gap
-        if jumped is not None:
-            cut |= jumped[frames[1:], m]
-        for run in np.split(frames, np.flatnonzero(cut) + 1):
-            out.append((m, run[0], run[-1]))
+def _pieces(seen: np.ndarray, min_gap: int, jumped: np.ndarray) -> np.ndarray:
+    """(n, 3) column, first and last frame of every run of samples of ``seen`` (F, M) bool, cut where two samples
+    are more than ``min_gap`` frames apart and before every sample of ``jumped`` (F, M) bool, column by column in
+    time order (:func:`mocap.rigid.column_runs`)."""
+    out = [(col, run[0], run[-1]) for col, run in column_runs(seen, jumped, min_gap)]
     return np.array(out, dtype=np.intp).reshape(-1, 3)
 
 

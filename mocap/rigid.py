@@ -11,13 +11,14 @@ from __future__ import annotations
 
 import itertools
 import warnings
+from collections.abc import Iterator
 
 import numpy as np
 
 from mocap import kernels
 
-__all__ = ["PAIRS", "PERMUTATIONS", "pair_statistics", "placement_jumps", "jump_starts", "rigid_triangles",
-           "split_tracklets"]
+__all__ = ["PAIRS", "PERMUTATIONS", "column_runs", "pair_statistics", "placement_jumps", "jump_starts",
+           "rigid_triangles", "split_tracklets"]
 
 STATISTICS_FRAMES = 4096  # frames per chunk of the co-seen counts, and most frames the distances are taken over
 
@@ -110,17 +111,20 @@ def jump_starts(P: np.ndarray, split_acc: float, reversal_acc: float = np.inf) -
     return out
 
 
+def column_runs(seen: np.ndarray, jumped: np.ndarray, max_step: int = 1) -> Iterator[tuple[int, np.ndarray]]:
+    """(column, frames) of every run of samples of ``seen`` (F, M) bool, column by column in time order: cut where
+    two samples are more than ``max_step`` frames apart, and before every sample of ``jumped`` (F, M) bool."""
+    for col in range(seen.shape[1]):
+        frames = np.flatnonzero(seen[:, col])
+        if frames.size == 0:
+            continue
+        cut = np.flatnonzero((np.diff(frames) > max_step) | jumped[frames[1:], col]) + 1
+        for run in np.split(frames, cut):
+            yield col, run
+
+
 def split_tracklets(P: np.ndarray, split_acc: float, reversal_acc: float = np.inf) -> list[np.ndarray]:
     """Cut every identity column into runs of consecutive samples, also where it jumped (:func:`jump_starts`);
     returns (frames, column) index pairs per run."""
-    valid = np.isfinite(P[:, :, 0])
-    jumped = jump_starts(P, split_acc, reversal_acc)
-    runs = []
-    for col in range(P.shape[1]):
-        frames = np.flatnonzero(valid[:, col])
-        if frames.size == 0:
-            continue
-        cut = np.flatnonzero((np.diff(frames) > 1) | jumped[frames[1:], col]) + 1
-        for piece in np.split(frames, cut):
-            runs.append(np.stack([piece, np.full(piece.size, col)], axis=1))
-    return runs
+    runs = column_runs(np.isfinite(P[:, :, 0]), jump_starts(P, split_acc, reversal_acc))
+    return [np.stack([run, np.full(run.size, col)], axis=1) for col, run in runs]
