@@ -67,7 +67,7 @@ from mocap.exchange import undo_exchanges
 from mocap.fill import fill_from_unconfirmed
 from mocap.plates import label_plates
 from mocap.quickstats import quick_median
-from mocap.reunite import reunite_clusters
+from mocap.reunite import SKIN_CLUSTERS, reunite_clusters
 from mocap.rigid import split_tracklets
 from mocap.scramble import unscramble_bursts
 from mocap.trajectories import Trajectories, UnconfirmedPoints
@@ -688,7 +688,8 @@ def repair_identities(traj: Trajectories, config: RelabelConfig | None = None,
     markers passed close (:mod:`mocap.exchange`), bursts of hops unscrambled (:mod:`mocap.scramble`), the reunion
     of rigid clusters back after a long absence (:mod:`mocap.reunite`), then the labelling of rigid plates by their
     shape (:mod:`mocap.plates`), fragments rejoined by their distances to rigid neighbours and samples moved to the
-    identity whose neighbours they fit (:mod:`mocap.anchors`, in turns: ``ANCHOR_ROUNDS`` at most), the
+    identity whose neighbours they fit (:mod:`mocap.anchors`, in turns: ``ANCHOR_ROUNDS`` at most), skin-mounted
+    clusters reunited where their neighbours tell a symmetric shape's markers apart (:data:`SKIN_CLUSTERS`), the
     fill from unconfirmed points (:mod:`mocap.fill`) and the bridging of gaps by where the neighbours carry a
     marker (:mod:`mocap.bridge`), in place; empty identity columns are dropped.
     ``unconfirmed``: the tracker's points without identity (:meth:`mocap.tracker.Tracker.unconfirmed`), which the
@@ -715,6 +716,7 @@ def repair_identities(traj: Trajectories, config: RelabelConfig | None = None,
             break
         stats.anchor_moves += moved
         stats.rejoined += rejoin_by_anchors(traj)
+    stats.reunited += reunite_clusters(traj, SKIN_CLUSTERS)
     if unconfirmed is not None:
         stats.filled = fill_from_unconfirmed(traj, unconfirmed)
     stats.bridged = bridge_gaps(traj, jump_acc=jump, reversal_acc=limits.reversal_acc(traj.fps))

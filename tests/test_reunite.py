@@ -2,11 +2,14 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 from helpers_rigid import FRAMES, PLATE, SQUARE, TRIANGLE, columns_follow, moving, skin
+from scipy.spatial.transform import Rotation
 
 from mocap.relabel import repair_identities
-from mocap.reunite import reunite_clusters
+from mocap.reunite import SKIN_CLUSTERS, reunite_clusters
 from mocap.trajectories import Trajectories
 
 GONE = slice(200, 400)  # the plates leave the volume for 2 s at 100 Hz
@@ -83,3 +86,45 @@ def test_a_plate_away_four_times_chains_up_into_one_identity_per_marker():
     skin_markers = [int(np.argmin(np.linalg.norm(truth[0] - P[0, k], axis=1))) for k in range(3)]
     assert reunite_clusters(traj) == 21  # 7 markers x 3 joins
     assert sorted(columns_follow(traj, truth)) == sorted(list(range(7)) + skin_markers)
+
+
+
+def _arm(rng: np.random.Generator) -> np.ndarray:
+    """(F, 7, 3) a forearm's skin cluster, an isosceles triangle (76 mm base, 1 mm skin wobble), then an upper
+    arm's plate hinged to it at an elbow 0.12 m behind the cluster's first marker, bending 0.3-1.1 rad."""
+    cluster = np.array([[0.0, 0.0, 0.0], [0.076, 0.0, 0.0], [0.038, 0.034, 0.0]])
+    elbow = np.array([-0.12, 0.017, -0.03])
+    t = np.arange(FRAMES) / 100.0
+    bend = Rotation.from_rotvec(np.c_[np.zeros(FRAMES), np.zeros(FRAMES), 0.7 + 0.4 * np.sin(1.3 * t)])
+    upper = np.stack([elbow + bend[k].apply(PLATE - [0.16, 0.0, 0.0]) for k in range(FRAMES)])  # (F, 4, 3)
+    local = np.concatenate([np.broadcast_to(cluster, (FRAMES, 3, 3)), upper], axis=1)  # in the forearm's frame
+    turn = Rotation.from_rotvec(np.c_[0.8 * np.sin(0.7 * t), 0.5 * np.cos(0.4 * t), 0.6 * t])
+    path = np.c_[0.7 * t, 0.2 * np.sin(t), np.ones(FRAMES)]
+    world = np.einsum("fij,fnj->fni", turn.as_matrix(), local) + path[:, None]
+    world[:, :3] += rng.normal(0, 0.001, (FRAMES, 3, 3))
+    world[:, 3:] += rng.normal(0, 0.0003, (FRAMES, 4, 3))
+    return world
+
+
+def test_a_symmetric_skin_cluster_back_after_a_gap_is_told_apart_by_its_neighbours():
+    """The forearm's isosceles cluster is hidden for 2 s and comes back as new identities: its shape fits its
+    mirror image as well, but the upper arm's markers stand nearer its first marker than its second, before the
+    gap and after it. The repair's skin-cluster pass gives each marker its identity back; the shape alone
+    (the first pass's settings, without the context) leaves them alone."""
+    rng = np.random.default_rng(9)
+    truth = _arm(rng)
+    traj = _split_at_the_gap(truth, np.arange(3))
+    assert reunite_clusters(_split_at_the_gap(truth, np.arange(3)), replace(SKIN_CLUSTERS, context_reach_m=0.0)) == 0
+    assert reunite_clusters(traj, SKIN_CLUSTERS) == 3
+    assert sorted(columns_follow(traj, truth)) == list(range(7))
+
+
+def test_the_repair_reunites_the_skin_cluster_and_nothing_without_neighbours_near():
+    rng = np.random.default_rng(10)
+    truth = _arm(rng)
+    traj = _split_at_the_gap(truth, np.arange(3))
+    stats = repair_identities(traj)
+    assert stats.reunited == 3 and traj.n_markers == 7
+    assert sorted(columns_follow(traj, truth)) == list(range(7))
+    alone = _split_at_the_gap(truth[:, :3], np.arange(3))  # no upper arm: the mirror image cannot be ruled out
+    assert reunite_clusters(alone, SKIN_CLUSTERS) == 0
