@@ -642,16 +642,26 @@ class _Linker:
         if math.perm(len(chains), len(members)) > 20000:
             return
 
+        outside: dict[tuple[int, int], list[tuple[float, float]]] = {}  # (member, chain) -> its comparable pairs
+        held: dict[tuple[int, int], float | None] = {}  # (chain, chain) -> recent distance where steady
+
+        def recent_if_steady(c: int, d: int) -> float | None:
+            if (c, d) not in held:
+                held[c, d] = _recent(memory[c][d], cfg) if _steady(memory[c].get(d), cfg) else None
+            return held[c, d]
+
         def score(choice: tuple[int, ...]) -> float:
             total, relations = 0.0, 0.0
             for k, g in enumerate(members):
                 c = choice[k]
                 if (g, c) in refused:
                     return np.inf
-                pairs = _comparable(memory[c], heads[g], c, cfg)
+                if (g, c) not in outside:  # (the same whatever the other members are given)
+                    outside[g, c] = _comparable(memory[c], heads[g], c, cfg)
+                pairs = list(outside[g, c])
                 relations += len(pairs)
-                inside = [(_recent(memory[c][choice[m]], cfg), within[g, h]) for m, h in enumerate(members)
-                          if m != k and (g, h) in within and _steady(memory[c].get(choice[m]), cfg)]
+                inside = [(recent_if_steady(c, choice[m]), within[g, h]) for m, h in enumerate(members)
+                          if m != k and (g, h) in within and recent_if_steady(c, choice[m]) is not None]
                 relations += 0.5 * len(inside)
                 pairs += inside
                 if not pairs:
