@@ -261,7 +261,9 @@ def _matches(P: np.ndarray, fps: float, cfg: ReuniteConfig) -> list[tuple[int, i
                       or (a in inverse and inverse[a] != b and matcher.rivals(inverse[a], b)) for b, a in m.items())]
         choice = mapping if not (rivals or cfg.require_context) else _by_context(P, seen, [mapping, *rivals], window,
                                                                                     cfg)
-        for m in [mapping, *rivals]:  # an ambiguous shape (symmetric, or two alike): all its candidates are left alone
+        if choice is not None and not (later_free[list(choice)].all() and earlier_free[list(choice.values())].all()):
+            choice = None  # (a rival whose identities an earlier map took)
+        for m in [mapping, *rivals]:  # an ambiguous shape (symmetric, or two alike): no other map takes its candidates
             later_free[list(m)] = False
             earlier_free[list(m.values())] = False
         if choice is not None:
