@@ -660,8 +660,8 @@ class _Linker:
                     outside[g, c] = _comparable(memory[c], heads[g], c, cfg)
                 pairs = list(outside[g, c])
                 relations += len(pairs)
-                inside = [(recent_if_steady(c, choice[m]), within[g, h]) for m, h in enumerate(members)
-                          if m != k and (g, h) in within and recent_if_steady(c, choice[m]) is not None]
+                inside = [(then, within[g, h]) for m, h in enumerate(members)
+                          if m != k and (g, h) in within and (then := recent_if_steady(c, choice[m])) is not None]
                 relations += 0.5 * len(inside)
                 pairs += inside
                 if not pairs:

@@ -68,7 +68,8 @@ class ReuniteConfig:
         gap_cost_m: among maps that fit alike, the one across the shorter time wins: each second between two
             identities counts as this much change, m.
         rounds: most passes; each joins identities once, so a cluster away n times needs log2(n + 1) passes.
-        context_s: the context is measured over the new identities' first and their images' last this long, s.
+        context_s: the context is measured over the new identities' first and their images' last samples, this
+            many seconds' worth of frames (``context_s`` x fps samples), s.
         context_reach_m: other identities within this (median) distance of a member make the context, m.
         context_max_m: a map whose context changed more than this is not taken, m ...
         context_margin_m: ... nor one whose rival's context changed less than this more, m.
@@ -198,8 +199,7 @@ def _context_change(P: np.ndarray, seen: np.ndarray, mapping: dict[int, int], wi
 
     new_p, old_p = profile(news, False), profile(olds, True)
     ok = np.isfinite(new_p).all(axis=0) & np.isfinite(old_p).all(axis=0)
-    ok &= (new_p.min(axis=0, initial=np.inf, where=np.isfinite(new_p)) < reach)
-    ok &= (old_p.min(axis=0, initial=np.inf, where=np.isfinite(old_p)) < reach)
+    ok &= (np.fmin.reduce(new_p, axis=0) < reach) & (np.fmin.reduce(old_p, axis=0) < reach)  # (NaN compares False)
     if not ok.any():
         return np.nan
     new_c = new_p[:, ok] - new_p[:, ok].mean(axis=0)
