@@ -70,6 +70,7 @@ from mocap.quickstats import quick_median
 from mocap.reunite import SKIN_CLUSTERS, reunite_clusters
 from mocap.rigid import split_tracklets
 from mocap.scramble import unscramble_bursts
+from mocap.skin import undo_skin_exchanges
 from mocap.trajectories import Trajectories, UnconfirmedPoints
 
 __all__ = ["RelabelConfig", "RelabelStats", "drop_duplicates", "relink_tracklets", "repair_identities", "repair_swaps"]
@@ -200,6 +201,7 @@ class RelabelStats:
     anchor_moves: int = 0
     filled: int = 0
     bridged: int = 0
+    skin_exchanges: int = 0
 
 
 def _smooth_run(P: np.ndarray, f: int, col: int, split_acc: float) -> int:
@@ -730,6 +732,7 @@ def repair_identities(traj: Trajectories, config: RelabelConfig | None = None,
     if unconfirmed is not None:
         stats.filled = fill_from_unconfirmed(traj, unconfirmed)
     stats.bridged = bridge_gaps(traj, jump_acc=jump, reversal_acc=limits.reversal_acc(traj.fps))
+    stats.skin_exchanges = undo_skin_exchanges(traj, jump_acc=jump, reversal_acc=limits.reversal_acc(traj.fps))
     if stats.reunited or stats.rejoined or stats.plate_samples or stats.anchor_moves or stats.bridged:
         keep = np.isfinite(traj.positions[..., 0]).any(axis=0)
         traj.positions, traj.residuals, traj.camera_masks = (traj.positions[:, keep], traj.residuals[:, keep],

@@ -1,0 +1,178 @@
+"""Exchanges between a skin-mounted cluster's identities undone by the neighbours' distances (offline).
+
+A forearm's markers stuck on skin, seen in turn while the hand pushes a wheel (the sprint's ForearmL Marker3 and
+Marker4, 46 mm apart), are re-acquired after each short absence by whichever identity's gate they fall in: two
+identities then hold each other's markers for tens of frames. The other repair passes leave such an exchange: the
+plates need a shape that holds within 2.5 mm and names every member (the forearm wobbles by 2-6 mm and is near
+isosceles), the anchor moves need neighbours within 3 mm and an identity free to move to, and the bridge links
+pieces across gaps by where the neighbours carry them, not across an exchange inside a run of short pieces.
+
+The neighbours both identities keep within skin tolerance tell the two markers apart where their distances to them
+differ by centimetres: Marker4 is 76 mm from Marker1 and 48 mm from Marker2, Marker3 63 and 65 mm. On finished
+trajectories, :func:`undo_skin_exchanges`, for every pair of identities A, B within ``reach_m`` of each other:
+
+1. takes as references the identities within ``reach_m`` of both whose distances to both spread (1.4826 MAD) less
+   than ``spread_m`` over ``min_frames`` frames seen together, and keeps those whose median distance to A and to
+   B differ by ``separation_m`` and by ``separation_spreads`` times the two spreads or more;
+2. scores every sample of A and of B that sees ``min_references`` references or more: the log-likelihood ratio
+   of its distances to them under the other identity against its own (normal, with each pair's spread, at least
+   ``floor_m``; each squared error clipped at ``clip``, so a point of neither marker scores near 0);
+3. finds the most likely labelling of the frames as kept or exchanged (Viterbi, two states), where a change of
+   state costs ``switch_cost`` nats and is possible only where both identities break off: a gap, a jump (the
+   repair's jump rule), or a sample whose score votes (beyond ``vote_nats``) against the previous one's;
+4. exchanges A's and B's samples over every run of exchanged frames whose moved samples fit their new identity
+   (mean squared error over the references, in spreads, at most ``fit_chi2``).
+
+Rounds repeat (``rounds`` at most) with the distances measured again while exchanges are found. Only whole
+samples move between identity columns; positions are never changed, and no sample is dropped.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from mocap.rigid import jump_starts, pair_statistics
+from mocap.trajectories import Trajectories
+
+__all__ = ["SkinConfig", "undo_skin_exchanges"]
+
+
+@dataclass(frozen=True)
+class SkinConfig:
+    """Settings of the skin-cluster exchange repair.
+
+    Attributes:
+        reach_m: identities farther apart than this (median) are never a pair, nor a reference, m.
+        spread_m: a reference's distance to both identities spreads less than this, m (skin: a few mm).
+        min_frames: frames a reference and an identity must be seen together.
+        separation_m: a reference's median distances to the two identities differ by this at least, m ...
+        separation_spreads: ... and by this many times the sum of the two spreads.
+        floor_m: smallest spread a distance is scored with, m (a clean pair's MAD is below the points' noise).
+        clip: largest squared error, in spreads, one distance adds to a score.
+        min_references: fewest references a sample must see to be scored.
+        switch_cost: log-likelihood a change between kept and exchanged costs, nats.
+        scored_fraction: fewest moved samples, as a fraction, that must be scored.
+        vote_nats: a sample scoring beyond this votes for one identity; consecutive opposite votes break a run.
+        fit_chi2: largest mean squared error, in spreads, of the moved samples against their new identity.
+        rounds: passes over all pairs at most.
+    """
+
+    reach_m: float = 0.15
+    spread_m: float = 0.005
+    min_frames: int = 100
+    separation_m: float = 0.008
+    separation_spreads: float = 1.5
+    floor_m: float = 0.0015
+    clip: float = 16.0
+    min_references: int = 2
+    switch_cost: float = 6.0
+    scored_fraction: float = 0.5
+    vote_nats: float = 4.0
+    fit_chi2: float = 9.0
+    rounds: int = 3
+
+
+def _scores(P: np.ndarray, rows: np.ndarray, col: int, refs: np.ndarray, own: tuple[np.ndarray, np.ndarray],
+            other: tuple[np.ndarray, np.ndarray], cfg: SkinConfig) -> tuple[np.ndarray, np.ndarray]:
+    """(n,) log-likelihood ratio (other identity against own) of identity ``col``'s samples in frames ``rows`` by
+    their distances to the identities ``refs`` (R,), with (median, spread) (R,) m of each identity; 0 where fewer
+    than ``min_references`` are seen; and (n,) their mean squared error in spreads under the other (NaN there)."""
+    d = np.linalg.norm(P[rows[:, None], refs[None, :]] - P[rows, col][:, None], axis=2)  # (n, R), NaN unseen
+    seen = np.isfinite(d)
+    scored = seen.sum(axis=1) >= cfg.min_references
+    with np.errstate(invalid="ignore"):
+        err_own = ((d - own[0]) / own[1]) ** 2
+        err_other = ((d - other[0]) / other[1]) ** 2
+    ratio = 0.5 * np.where(seen, np.minimum(err_own, cfg.clip) - np.minimum(err_other, cfg.clip), 0.0).sum(axis=1)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        fit = np.where(seen, err_other, 0.0).sum(axis=1) / seen.sum(axis=1)
+    return np.where(scored, ratio, 0.0), np.where(scored, fit, np.nan)
+
+
+def _exchanged(score: np.ndarray, breaks: np.ndarray, cost: float) -> np.ndarray:
+    """(F,) bool: the most likely kept (False) / exchanged (True) labelling of the frames, given each frame's log-
+    likelihood ratio ``score`` (F,) of exchanged against kept; the state changes only before frames ``breaks`` (F,)
+    bool, at ``cost`` nats each (Viterbi over the runs between breaks)."""
+    starts = np.flatnonzero(breaks)
+    block = np.add.reduceat(score, starts)  # (K,)
+    kept, swapped = 0.0, -np.inf
+    came = np.zeros((block.size, 2), dtype=bool)  # came[k, s]: the state before block k, when in s, was the other one
+    for k, s in enumerate(block):
+        stay_kept, from_swapped = kept, swapped - cost
+        stay_swapped, from_kept = swapped, kept - cost
+        came[k] = from_swapped > stay_kept, from_kept > stay_swapped
+        kept, swapped = max(stay_kept, from_swapped), max(stay_swapped, from_kept) + s
+    state = np.zeros(block.size, dtype=bool)
+    s = swapped > kept
+    for k in range(block.size - 1, -1, -1):
+        state[k] = s
+        s = s != came[k, int(s)]
+    return np.repeat(state, np.diff(np.append(starts, score.size)))
+
+
+def _pair_exchanges(P: np.ndarray, a: int, b: int, refs: np.ndarray, median: np.ndarray, spread: np.ndarray,
+                    jumped: np.ndarray, cfg: SkinConfig) -> list[np.ndarray]:
+    """Frames (runs, each (n,)) over which identities ``a`` and ``b`` of ``P`` (F, M, 3) hold each other's markers
+    (steps 2-4 of the module docstring); ``jumped`` (F, M) bool: samples their identity jumped to."""
+    F = len(P)
+    seen = np.isfinite(P[:, [a, b], 0])  # (F, 2)
+    stats = [(median[c, refs], np.maximum(spread[c, refs], cfg.floor_m)) for c in (a, b)]
+    score = np.zeros(F)
+    fit = np.full((F, 2), np.nan)
+    for k, col in enumerate((a, b)):
+        rows = np.flatnonzero(seen[:, k])
+        ratio, fit[rows, k] = _scores(P, rows, col, refs, stats[k], stats[1 - k], cfg)
+        score[rows] += ratio
+    whole = seen[1:] & seen[:-1] & ~jumped[1:][:, [a, b]]  # (F - 1, 2): the identity goes on into the frame
+    vote = np.sign(score) * (np.abs(score) > cfg.vote_nats)
+    breaks = np.ones(F, dtype=bool)
+    breaks[1:] = ~whole.any(axis=1) | (vote[1:] * vote[:-1] < 0)
+    state = _exchanged(score, breaks, cfg.switch_cost)
+    on = np.flatnonzero(state)
+    runs = np.split(on, np.flatnonzero(np.diff(on) > 1) + 1) if on.size else []
+    out = []
+    for run in runs:
+        moved = fit[run][seen[run]]
+        if np.isfinite(moved).sum() >= cfg.scored_fraction * moved.size and np.nanmean(moved) <= cfg.fit_chi2:
+            out.append(run)
+    return out
+
+
+def undo_skin_exchanges(traj: Trajectories, config: SkinConfig | None = None, jump_acc: float = np.inf,
+                        reversal_acc: float = np.inf) -> int:
+    """Give back the markers two identities of a skin-mounted cluster hold of each other's (see the module
+    docstring), in place. ``jump_acc`` and ``reversal_acc``: the repair's jump rule (:func:`mocap.rigid.jump_starts`),
+    m/frame^2. Returns the number of exchanges undone."""
+    cfg = config or SkinConfig()
+    undone = 0
+    for _ in range(cfg.rounds):
+        P = traj.positions
+        M = P.shape[1]
+        if M < 3:
+            break
+        median, spread, count = pair_statistics(P, cfg.min_frames)
+        with np.errstate(invalid="ignore"):
+            reference = (median <= cfg.reach_m) & (spread < cfg.spread_m) & (count >= cfg.min_frames)
+        shared = reference.astype(np.int64) @ reference.T.astype(np.int64)  # (M, M) references in common
+        found = 0
+        jumped = jump_starts(P, jump_acc, reversal_acc)
+        for a, b in zip(*np.nonzero(np.triu(shared >= cfg.min_references, 1)), strict=True):
+            refs = np.flatnonzero(reference[a] & reference[b])
+            gap = np.abs(median[a, refs] - median[b, refs])
+            refs = refs[(gap >= cfg.separation_m)
+                        & (gap >= cfg.separation_spreads * (spread[a, refs] + spread[b, refs]))]
+            if refs.size < cfg.min_references:
+                continue
+            runs = _pair_exchanges(P, int(a), int(b), refs, median, spread, jumped, cfg)
+            for rows in runs:
+                for arr in (traj.positions, traj.residuals, traj.camera_masks):
+                    arr[rows, a], arr[rows, b] = arr[rows, b].copy(), arr[rows, a].copy()
+            if runs:
+                found += len(runs)
+                jumped = jump_starts(P, jump_acc, reversal_acc)
+        undone += found
+        if found == 0:
+            break
+    return undone
