@@ -228,10 +228,10 @@ def reconstruct(take: str | os.PathLike, options: ReconstructOptions | None = No
                  "undone where markers passed close; %d bursts of hops unscrambled; %d samples labelled by rigid "
                  "plates' shapes; %d fragments joined by their distances to rigid neighbours, %d samples moved to the "
                  "identity whose neighbours they fit; %d unconfirmed points joined identities' paths; %d gaps "
-                 "bridged by where the neighbours carry a marker",
+                 "bridged by where the neighbours carry a marker; %d exchanges undone in skin-mounted clusters",
                  stats.duplicates, stats.swaps, before, traj.n_markers, stats.reunited, stats.exchanges,
                  stats.unscrambled, stats.plate_samples, stats.rejoined, stats.anchor_moves, stats.filled,
-                 stats.bridged)
+                 stats.bridged, stats.skin_exchanges)
     traj.camera_names = rig.names
     traj.metadata.update({"source": str(path), "software": f"mocap {__version__}", "cameras": len(rig)})
     if traj.n_markers == 0:

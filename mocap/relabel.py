@@ -188,7 +188,7 @@ class RelabelStats:
     joins), exchanges undone where two markers passed close, bursts of hops unscrambled, cluster members reunited,
     samples moved to the plate member their shape names, fragments rejoined by their anchors, samples moved to the
     identity whose anchors they fit, unconfirmed points that joined an identity's path, links made across gaps by
-    where the neighbours carry a marker."""
+    where the neighbours carry a marker, exchanges undone between a skin-mounted cluster's identities."""
 
     duplicates: int = 0
     swaps: int = 0
@@ -702,8 +702,9 @@ def repair_identities(traj: Trajectories, config: RelabelConfig | None = None,
     shape (:mod:`mocap.plates`), fragments rejoined by their distances to rigid neighbours and samples moved to the
     identity whose neighbours they fit (:mod:`mocap.anchors`, in turns: ``ANCHOR_ROUNDS`` at most), skin-mounted
     clusters reunited where their neighbours tell a symmetric shape's markers apart (:data:`SKIN_CLUSTERS`), the
-    fill from unconfirmed points (:mod:`mocap.fill`) and the bridging of gaps by where the neighbours carry a
-    marker (:mod:`mocap.bridge`), in place; empty identity columns are dropped.
+    fill from unconfirmed points (:mod:`mocap.fill`), the bridging of gaps by where the neighbours carry a
+    marker (:mod:`mocap.bridge`) and the exchanges between a skin-mounted cluster's identities undone by the
+    references both keep (:mod:`mocap.skin`), in place; empty identity columns are dropped.
     ``unconfirmed``: the tracker's points without identity (:meth:`mocap.tracker.Tracker.unconfirmed`), which the
     plate labelling and the fill may give one.
 

@@ -94,28 +94,35 @@ def _scores(P: np.ndarray, rows: np.ndarray, col: int, refs: np.ndarray, own: tu
 def _exchanged(score: np.ndarray, breaks: np.ndarray, cost: float) -> np.ndarray:
     """(F,) bool: the most likely kept (False) / exchanged (True) labelling of the frames, given each frame's log-
     likelihood ratio ``score`` (F,) of exchanged against kept; the state changes only before frames ``breaks`` (F,)
-    bool, at ``cost`` nats each (Viterbi over the runs between breaks)."""
+    bool, at ``cost`` nats each (Viterbi). Runs between breaks whose sums have one sign are taken together first (a
+    change between two of them is never better than one before the first: same cost, less of the wrong sign), so
+    the loop runs over the sign changes only. Runs summing to 0 (no sample seeing two references) go with those above
+    0: of equally likely labellings, the one exchanging them next to an exchanged run is found (the tracker's
+    exchange holds in its identities until evidence says otherwise)."""
     starts = np.flatnonzero(breaks)
-    block = np.add.reduceat(score, starts)  # (K,)
+    block = np.add.reduceat(score, starts)  # (K,) sum of each run between breaks
+    sign = block >= 0  # (runs summing to 0 go with those above 0)
+    group = np.concatenate([[0], np.cumsum(sign[1:] != sign[:-1])])  # (K,)
+    total = np.bincount(group, weights=block)
     kept, swapped = 0.0, -np.inf
-    came = np.zeros((block.size, 2), dtype=bool)  # came[k, s]: the state before block k, when in s, was the other one
-    for k, s in enumerate(block):
+    came = np.zeros((total.size, 2), dtype=bool)  # came[g, s]: the state before group g, when in s, was the other
+    for g, s in enumerate(total):
         stay_kept, from_swapped = kept, swapped - cost
         stay_swapped, from_kept = swapped, kept - cost
-        came[k] = from_swapped > stay_kept, from_kept > stay_swapped
+        came[g] = from_swapped > stay_kept, from_kept > stay_swapped
         kept, swapped = max(stay_kept, from_swapped), max(stay_swapped, from_kept) + s
-    state = np.zeros(block.size, dtype=bool)
+    state = np.zeros(total.size, dtype=bool)
     s = swapped > kept
-    for k in range(block.size - 1, -1, -1):
-        state[k] = s
-        s = s != came[k, int(s)]
-    return np.repeat(state, np.diff(np.append(starts, score.size)))
+    for g in range(total.size - 1, -1, -1):
+        state[g] = s
+        s = s != came[g, int(s)]
+    return np.repeat(state[group], np.diff(np.append(starts, score.size)))
 
 
 def _pair_exchanges(P: np.ndarray, a: int, b: int, refs: np.ndarray, median: np.ndarray, spread: np.ndarray,
-                    jumped: np.ndarray, cfg: SkinConfig) -> list[np.ndarray]:
+                    jump: tuple[float, float], cfg: SkinConfig) -> list[np.ndarray]:
     """Frames (runs, each (n,)) over which identities ``a`` and ``b`` of ``P`` (F, M, 3) hold each other's markers
-    (steps 2-4 of the module docstring); ``jumped`` (F, M) bool: samples their identity jumped to."""
+    (steps 2-4 of the module docstring); ``jump``: the repair's jump rule (:func:`mocap.rigid.jump_starts`)."""
     F = len(P)
     seen = np.isfinite(P[:, [a, b], 0])  # (F, 2)
     stats = [(median[c, refs], np.maximum(spread[c, refs], cfg.floor_m)) for c in (a, b)]
@@ -125,7 +132,7 @@ def _pair_exchanges(P: np.ndarray, a: int, b: int, refs: np.ndarray, median: np.
         rows = np.flatnonzero(seen[:, k])
         ratio, fit[rows, k] = _scores(P, rows, col, refs, stats[k], stats[1 - k], cfg)
         score[rows] += ratio
-    whole = seen[1:] & seen[:-1] & ~jumped[1:][:, [a, b]]  # (F - 1, 2): the identity goes on into the frame
+    whole = seen[1:] & seen[:-1] & ~jump_starts(P[:, [a, b]], *jump)[1:]  # (F - 1, 2): the identity goes on
     vote = np.sign(score) * (np.abs(score) > cfg.vote_nats)
     breaks = np.ones(F, dtype=bool)
     breaks[1:] = ~whole.any(axis=1) | (vote[1:] * vote[:-1] < 0)
@@ -157,7 +164,6 @@ def undo_skin_exchanges(traj: Trajectories, config: SkinConfig | None = None, ju
             reference = (median <= cfg.reach_m) & (spread < cfg.spread_m) & (count >= cfg.min_frames)
         shared = reference.astype(np.int64) @ reference.T.astype(np.int64)  # (M, M) references in common
         found = 0
-        jumped = jump_starts(P, jump_acc, reversal_acc)
         for a, b in zip(*np.nonzero(np.triu(shared >= cfg.min_references, 1)), strict=True):
             refs = np.flatnonzero(reference[a] & reference[b])
             gap = np.abs(median[a, refs] - median[b, refs])
@@ -165,13 +171,11 @@ def undo_skin_exchanges(traj: Trajectories, config: SkinConfig | None = None, ju
                         & (gap >= cfg.separation_spreads * (spread[a, refs] + spread[b, refs]))]
             if refs.size < cfg.min_references:
                 continue
-            runs = _pair_exchanges(P, int(a), int(b), refs, median, spread, jumped, cfg)
+            runs = _pair_exchanges(P, int(a), int(b), refs, median, spread, (jump_acc, reversal_acc), cfg)
             for rows in runs:
                 for arr in (traj.positions, traj.residuals, traj.camera_masks):
                     arr[rows, a], arr[rows, b] = arr[rows, b].copy(), arr[rows, a].copy()
-            if runs:
-                found += len(runs)
-                jumped = jump_starts(P, jump_acc, reversal_acc)
+            found += len(runs)
         undone += found
         if found == 0:
             break
