@@ -149,3 +149,8 @@ def test_the_labelling_is_the_most_likely_one(seed):
 
     best = max(total(np.array(s, dtype=bool)) for s in itertools.product([False, True], repeat=12))
     assert total(_exchanged(score, breaks, cost)) == pytest.approx(best)
+
+
+def test_empty_and_markerless_trajectories_are_left_alone():
+    assert undo_skin_exchanges(Trajectories([f"id{k}" for k in range(5)], FPS, np.full((F, 5, 3), np.nan))) == 0
+    assert undo_skin_exchanges(Trajectories([], FPS, np.zeros((F, 0, 3)))) == 0
