@@ -8,20 +8,25 @@ isosceles), the anchor moves need neighbours within 3 mm and an identity free to
 pieces across gaps by where the neighbours carry them, not across an exchange inside a run of short pieces.
 
 The neighbours both identities keep within skin tolerance tell the two markers apart where their distances to them
-differ by centimetres: Marker4 is 76 mm from Marker1 and 48 mm from Marker2, Marker3 63 and 65 mm. On finished
-trajectories, :func:`undo_skin_exchanges`, for every pair of identities A, B within ``reach_m`` of each other:
+differ by centimetres: Marker4 is 76 mm from Marker1 and 48 mm from Marker2, Marker3 63 and 65 mm. Markers of two
+segments (the forearm's Marker3 and the wheelchair's Marker3 under the hand on the rim) are told apart by each
+one's own. On finished trajectories, :func:`undo_skin_exchanges`, for every pair of identities A, B:
 
-1. takes as references the identities within ``reach_m`` of both whose distances to both spread (1.4826 MAD) less
-   than ``spread_m`` over ``min_frames`` frames seen together, and keeps those whose median distance to A and to
-   B differ by ``separation_m`` and by ``separation_spreads`` times the two spreads or more;
-2. scores every sample of A and of B that sees ``min_references`` references or more: the log-likelihood ratio
-   of its distances to them under the other identity against its own (normal, with each pair's spread, at least
-   ``floor_m``; each squared error clipped at ``clip``, so a point of neither marker scores near 0);
+1. takes the references: where A and B share two or more (identities within ``reach_m`` of both whose distances
+   to both spread (1.4826 MAD) less than ``spread_m`` over ``min_frames`` frames seen together), those whose
+   median distances to A and to B differ by ``separation_m`` and by ``separation_spreads`` times the two spreads
+   or more, for both; where they share none and come within ``meet_m`` of each other in some frame, each one's
+   own (identities within ``own_reach_m`` whose distance to it spreads less than ``spread_m``), two at least;
+2. scores every sample of A and of B that sees ``min_references`` references of each side or more: the
+   log-likelihood ratio of its distances to B's references under B against those to A's under A (normal, with
+   each pair's spread, at least ``floor_m``; each squared error clipped at ``clip``, so a point of neither marker,
+   or a reference off for a while, scores near 0; as many distances on each side as the side with fewer seen);
 3. finds the most likely labelling of the frames as kept or exchanged (Viterbi, two states), where a change of
    state costs ``switch_cost`` nats and is possible only where both identities break off: a gap, a jump (the
    repair's jump rule), or a sample whose score votes (beyond ``vote_nats``) against the previous one's;
-4. exchanges A's and B's samples over every run of exchanged frames whose moved samples fit their new identity
-   (mean squared error over the references, in spreads, at most ``fit_chi2``).
+4. exchanges A's and B's samples over every run of exchanged frames of which ``scored_fraction`` of the moved
+   samples or more were scored and fit their new identity (their median squared error over its references, in
+   spreads, at most ``fit_chi2`` on average).
 
 Rounds repeat (``rounds`` at most) with the distances measured again while exchanges are found. Only whole
 samples move between identity columns; positions are never changed, and no sample is dropped.
@@ -29,6 +34,7 @@ samples move between identity columns; positions are never changed, and no sampl
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass
 
 import numpy as np
@@ -44,23 +50,29 @@ class SkinConfig:
     """Settings of the skin-cluster exchange repair.
 
     Attributes:
-        reach_m: identities farther apart than this (median) are never a pair, nor a reference, m.
-        spread_m: a reference's distance to both identities spreads less than this, m (skin: a few mm).
+        reach_m: shared references are within this of both identities (median), m.
+        spread_m: a reference's distance to its identity spreads less than this, m (skin: a few mm).
+        meet_m: identities without shared references are a pair where they come this near in some frame, m ...
+        own_reach_m: ... and each is scored by its own references within this, m (a wheelchair's markers are
+            0.3-0.6 m apart).
         min_frames: frames a reference and an identity must be seen together.
         separation_m: a reference's median distances to the two identities differ by this at least, m ...
         separation_spreads: ... and by this many times the sum of the two spreads.
         floor_m: smallest spread a distance is scored with, m (a clean pair's MAD is below the points' noise).
         clip: largest squared error, in spreads, one distance adds to a score.
-        min_references: fewest references a sample must see to be scored.
+        min_references: fewest references (of each side) a sample must see to be scored.
         switch_cost: log-likelihood a change between kept and exchanged costs, nats.
         scored_fraction: fewest moved samples, as a fraction, that must be scored.
         vote_nats: a sample scoring beyond this votes for one identity; consecutive opposite votes break a run.
-        fit_chi2: largest mean squared error, in spreads, of the moved samples against their new identity.
+        fit_chi2: largest mean over the moved samples of their median squared error, in spreads, against their new
+            identity's references.
         rounds: passes over all pairs at most.
     """
 
     reach_m: float = 0.15
     spread_m: float = 0.005
+    meet_m: float = 0.1
+    own_reach_m: float = 0.6
     min_frames: int = 100
     separation_m: float = 0.008
     separation_spreads: float = 1.5
@@ -74,21 +86,31 @@ class SkinConfig:
     rounds: int = 3
 
 
-def _scores(P: np.ndarray, rows: np.ndarray, col: int, refs: np.ndarray, own: tuple[np.ndarray, np.ndarray],
-            other: tuple[np.ndarray, np.ndarray], cfg: SkinConfig) -> tuple[np.ndarray, np.ndarray]:
-    """(n,) log-likelihood ratio (other identity against own) of identity ``col``'s samples in frames ``rows`` by
-    their distances to the identities ``refs`` (R,), with (median, spread) (R,) m of each identity; 0 where fewer
-    than ``min_references`` are seen; and (n,) their mean squared error in spreads under the other (NaN there)."""
+def _misfit(P: np.ndarray, rows: np.ndarray, col: int, refs: np.ndarray, stats: tuple[np.ndarray, np.ndarray],
+            clip: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(n,) mean clipped and (n,) median squared error, in spreads, of identity ``col``'s samples in frames ``rows``
+    of ``P`` (F, M, 3) against the (median, spread) (R,) m of an identity's distances to ``refs`` (R,); (n,)
+    references seen (NaN errors where none)."""
     d = np.linalg.norm(P[rows[:, None], refs[None, :]] - P[rows, col][:, None], axis=2)  # (n, R), NaN unseen
     seen = np.isfinite(d)
-    scored = seen.sum(axis=1) >= cfg.min_references
-    with np.errstate(invalid="ignore"):
-        err_own = ((d - own[0]) / own[1]) ** 2
-        err_other = ((d - other[0]) / other[1]) ** 2
-    ratio = 0.5 * np.where(seen, np.minimum(err_own, cfg.clip) - np.minimum(err_other, cfg.clip), 0.0).sum(axis=1)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        fit = np.where(seen, err_other, 0.0).sum(axis=1) / seen.sum(axis=1)
-    return np.where(scored, ratio, 0.0), np.where(scored, fit, np.nan)
+    n = seen.sum(axis=1)
+    err = ((d - stats[0]) / stats[1]) ** 2
+    with np.errstate(invalid="ignore", divide="ignore"), warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # (a sample that sees no reference: NaN)
+        return np.where(seen, np.minimum(err, clip), 0.0).sum(axis=1) / n, np.nanmedian(err, axis=1), n
+
+
+def _scores(P: np.ndarray, rows: np.ndarray, col: int, own: tuple, other: tuple, cfg: SkinConfig
+            ) -> tuple[np.ndarray, np.ndarray]:
+    """(n,) log-likelihood ratio (the other identity against its own) of identity ``col``'s samples in frames
+    ``rows``, by their distances to each side's references: ``own`` and ``other`` are (references (R,), median
+    (R,) m, spread (R,) m); 0 where either side sees fewer than ``min_references``; and (n,) their median squared
+    error under the other (NaN there: a reference off for a while does not refute a fit to three or more)."""
+    err_own, _, n_own = _misfit(P, rows, col, own[0], own[1:], cfg.clip)
+    err_other, fit, n_other = _misfit(P, rows, col, other[0], other[1:], cfg.clip)
+    n = np.minimum(n_own, n_other)
+    scored = n >= cfg.min_references
+    return np.where(scored, 0.5 * n * (err_own - err_other), 0.0), np.where(scored, fit, np.nan)
 
 
 def _exchanged(score: np.ndarray, breaks: np.ndarray, cost: float) -> np.ndarray:
@@ -119,18 +141,19 @@ def _exchanged(score: np.ndarray, breaks: np.ndarray, cost: float) -> np.ndarray
     return np.repeat(state[group], np.diff(np.append(starts, score.size)))
 
 
-def _pair_exchanges(P: np.ndarray, a: int, b: int, refs: np.ndarray, median: np.ndarray, spread: np.ndarray,
-                    jump: tuple[float, float], cfg: SkinConfig) -> list[np.ndarray]:
-    """Frames (runs, each (n,)) over which identities ``a`` and ``b`` of ``P`` (F, M, 3) hold each other's markers
-    (steps 2-4 of the module docstring); ``jump``: the repair's jump rule (:func:`mocap.rigid.jump_starts`)."""
+def _pair_exchanges(P: np.ndarray, a: int, b: int, refs: tuple[np.ndarray, np.ndarray], median: np.ndarray,
+                    spread: np.ndarray, jump: tuple[float, float], cfg: SkinConfig) -> list[np.ndarray]:
+    """Frames (runs, each (n,)) over which identities ``a`` and ``b`` of ``P`` (F, M, 3) hold each other's markers,
+    by their references ``refs`` (a's, b's) (steps 2-4 of the module docstring); ``jump``: the repair's jump rule
+    (:func:`mocap.rigid.jump_starts`)."""
     F = len(P)
     seen = np.isfinite(P[:, [a, b], 0])  # (F, 2)
-    stats = [(median[c, refs], np.maximum(spread[c, refs], cfg.floor_m)) for c in (a, b)]
+    sides = [(r, median[c, r], np.maximum(spread[c, r], cfg.floor_m)) for c, r in zip((a, b), refs, strict=True)]
     score = np.zeros(F)
     fit = np.full((F, 2), np.nan)
     for k, col in enumerate((a, b)):
         rows = np.flatnonzero(seen[:, k])
-        ratio, fit[rows, k] = _scores(P, rows, col, refs, stats[k], stats[1 - k], cfg)
+        ratio, fit[rows, k] = _scores(P, rows, col, sides[k], sides[1 - k], cfg)
         score[rows] += ratio
     whole = seen[1:] & seen[:-1] & ~jump_starts(P[:, [a, b]], *jump)[1:]  # (F - 1, 2): the identity goes on
     vote = np.sign(score) * (np.abs(score) > cfg.vote_nats)
@@ -147,31 +170,60 @@ def _pair_exchanges(P: np.ndarray, a: int, b: int, refs: np.ndarray, median: np.
     return out
 
 
+def _meeting(P: np.ndarray, among: np.ndarray, meet_m: float) -> np.ndarray:
+    """(n, n) bool: identities ``among`` (n,) of ``P`` (F, M, 3) that come within ``meet_m`` of each other in some
+    frame (in chunks of frames: the (frames, n, n) distances stay small)."""
+    met = np.zeros((among.size, among.size), dtype=bool)
+    step = max(1, 2_000_000 // max(1, among.size**2))
+    for start in range(0, len(P), step):
+        X = P[start:start + step, among]
+        with np.errstate(invalid="ignore"):
+            met |= (np.linalg.norm(X[:, :, None] - X[:, None], axis=3) < meet_m).any(axis=0)
+    return met
+
+
+def _pairs(P: np.ndarray, median: np.ndarray, spread: np.ndarray, count: np.ndarray, cfg: SkinConfig
+           ) -> list[tuple[int, int, tuple[np.ndarray, np.ndarray]]]:
+    """(a, b, (a's references, b's)) of every pair of identities of ``P`` (F, M, 3) to score (step 1 of the module
+    docstring), from their (M, M) median distances, spreads (m) and counts of frames seen together."""
+    with np.errstate(invalid="ignore"):
+        steady = (spread < cfg.spread_m) & (count >= cfg.min_frames)
+        shared_ok = steady & (median <= cfg.reach_m)
+        own_ok = steady & (median <= cfg.own_reach_m)
+    shared = shared_ok.astype(np.int64) @ shared_ok.T.astype(np.int64)  # (M, M) references in common
+    out = []
+    for a, b in zip(*np.nonzero(np.triu(shared >= cfg.min_references, 1)), strict=True):
+        refs = np.flatnonzero(shared_ok[a] & shared_ok[b])
+        gap = np.abs(median[a, refs] - median[b, refs])
+        refs = refs[(gap >= cfg.separation_m) & (gap >= cfg.separation_spreads * (spread[a, refs] + spread[b, refs]))]
+        if refs.size >= cfg.min_references:
+            out.append((int(a), int(b), (refs, refs)))
+    among = np.flatnonzero(own_ok.sum(axis=1) >= cfg.min_references)
+    met = _meeting(P, among, cfg.meet_m)
+    for i, j in zip(*np.nonzero(np.triu(met, 1)), strict=True):
+        a, b = int(among[i]), int(among[j])
+        refs = tuple(np.setdiff1d(np.flatnonzero(own_ok[c]), [a, b]) for c in (a, b))
+        if shared[a, b] == 0 and not own_ok[a, b] and min(r.size for r in refs) >= cfg.min_references \
+                and np.intersect1d(*refs).size == 0:
+            out.append((a, b, refs))
+    return out
+
+
 def undo_skin_exchanges(traj: Trajectories, config: SkinConfig | None = None, jump_acc: float = np.inf,
                         reversal_acc: float = np.inf) -> int:
-    """Give back the markers two identities of a skin-mounted cluster hold of each other's (see the module
-    docstring), in place. ``jump_acc`` and ``reversal_acc``: the repair's jump rule (:func:`mocap.rigid.jump_starts`),
-    m/frame^2. Returns the number of exchanges undone."""
+    """Give back the markers two identities hold of each other's where their references tell them apart (see the
+    module docstring), in place. ``jump_acc`` and ``reversal_acc``: the repair's jump rule
+    (:func:`mocap.rigid.jump_starts`), m/frame^2. Returns the number of exchanges undone."""
     cfg = config or SkinConfig()
     undone = 0
     for _ in range(cfg.rounds):
         P = traj.positions
-        M = P.shape[1]
-        if M < 3:
+        if P.shape[1] < 3:
             break
         median, spread, count = pair_statistics(P, cfg.min_frames)
-        with np.errstate(invalid="ignore"):
-            reference = (median <= cfg.reach_m) & (spread < cfg.spread_m) & (count >= cfg.min_frames)
-        shared = reference.astype(np.int64) @ reference.T.astype(np.int64)  # (M, M) references in common
         found = 0
-        for a, b in zip(*np.nonzero(np.triu(shared >= cfg.min_references, 1)), strict=True):
-            refs = np.flatnonzero(reference[a] & reference[b])
-            gap = np.abs(median[a, refs] - median[b, refs])
-            refs = refs[(gap >= cfg.separation_m)
-                        & (gap >= cfg.separation_spreads * (spread[a, refs] + spread[b, refs]))]
-            if refs.size < cfg.min_references:
-                continue
-            runs = _pair_exchanges(P, int(a), int(b), refs, median, spread, (jump_acc, reversal_acc), cfg)
+        for a, b, refs in _pairs(P, median, spread, count, cfg):
+            runs = _pair_exchanges(P, a, b, refs, median, spread, (jump_acc, reversal_acc), cfg)
             for rows in runs:
                 for arr in (traj.positions, traj.residuals, traj.camera_masks):
                     arr[rows, a], arr[rows, b] = arr[rows, b].copy(), arr[rows, a].copy()

@@ -154,3 +154,28 @@ def test_the_labelling_is_the_most_likely_one(seed):
 def test_empty_and_markerless_trajectories_are_left_alone():
     assert undo_skin_exchanges(Trajectories([f"id{k}" for k in range(5)], FPS, np.full((F, 5, 3), np.nan))) == 0
     assert undo_skin_exchanges(Trajectories([], FPS, np.zeros((F, 0, 3)))) == 0
+
+
+def test_markers_of_two_segments_are_told_apart_by_their_own_references():
+    """The forearm's X and a marker W of a rigid plate (the wheelchair, its other markers 0.3 m away) pass within
+    40 mm of each other and come back from a shared gap under each other's identities for 60 frames: no reference
+    is shared, each one's own tell them apart, and the exchange is undone."""
+    forearm = _skin(FOREARM, seed=8)
+    t = np.arange(F) / FPS
+    plate = np.array([[0.0, 0.0, 0.0], [0.3, 0.0, 0.05], [0.1, 0.25, 0.0]])  # W, B1, B2
+    turn = Rotation.from_rotvec(np.stack([0.3 * np.sin(1.1 * t), 0.2 * t, 0.5 * np.cos(0.7 * t)], axis=1))
+    away = 0.04 + 0.3 * np.abs(t - t[F // 2])[:, None] * np.array([[1.0, 0.5, 0.2]])  # W 40 mm from X at mid-take
+    w_at = forearm[:, X] + away
+    wheel = np.stack([turn.apply(p) for p in plate], axis=1) - turn.apply(plate[0])[:, None] + w_at[:, None]
+    truth = np.concatenate([forearm, wheel], axis=1)  # markers A1, A2, X, Y, W, B1, B2
+    seen = np.ones(F, dtype=bool)
+    seen[[267, 268, 269, 330, 331, 332]] = False  # X and W hidden together twice
+    x_col, w_col = np.where(seen, X, -1), np.where(seen, 4, -1)
+    exchanged = (np.arange(F) >= 270) & (np.arange(F) < 330)
+    x_col[exchanged], w_col[exchanged] = 4, X
+    columns = [np.full(F, A1), np.full(F, A2), x_col, np.full(F, Y), w_col, np.full(F, 5), np.full(F, 6)]
+    traj = _traj(truth, columns)
+    assert undo_skin_exchanges(traj) == 1
+    assert (_held(traj, truth, 2) == np.where(seen, X, -1)).all()
+    assert (_held(traj, truth, 4) == np.where(seen, 4, -1)).all()
+    assert undo_skin_exchanges(_traj(truth, columns), SkinConfig(meet_m=0.03)) == 0  # never that near: no pair
