@@ -94,9 +94,9 @@ def _misfit(P: np.ndarray, rows: np.ndarray, col: int, refs: np.ndarray, stats: 
     d = np.linalg.norm(P[rows[:, None], refs[None, :]] - P[rows, col][:, None], axis=2)  # (n, R), NaN unseen
     seen = np.isfinite(d)
     n = seen.sum(axis=1)
-    err = ((d - stats[0]) / stats[1]) ** 2
     with np.errstate(invalid="ignore", divide="ignore"), warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)  # (a sample that sees no reference: NaN)
+        err = ((d - stats[0]) / stats[1]) ** 2
         return np.where(seen, np.minimum(err, clip), 0.0).sum(axis=1) / n, np.nanmedian(err, axis=1), n
 
 
