@@ -86,12 +86,16 @@ class SkinConfig:
     rounds: int = 3
 
 
-def _misfit(P: np.ndarray, rows: np.ndarray, col: int, refs: np.ndarray, stats: tuple[np.ndarray, np.ndarray],
-            clip: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(n,) mean clipped and (n,) median squared error, in spreads, of identity ``col``'s samples in frames ``rows``
-    of ``P`` (F, M, 3) against the (median, spread) (R,) m of an identity's distances to ``refs`` (R,); (n,)
-    references seen (NaN errors where none)."""
-    d = np.linalg.norm(P[rows[:, None], refs[None, :]] - P[rows, col][:, None], axis=2)  # (n, R), NaN unseen
+def _distances(P: np.ndarray, rows: np.ndarray, col: int, refs: np.ndarray) -> np.ndarray:
+    """(n, R) distances, m, of identity ``col``'s samples in frames ``rows`` of ``P`` (F, M, 3) to the identities
+    ``refs`` (R,); NaN where a reference is unseen."""
+    return np.linalg.norm(P[rows[:, None], refs[None, :]] - P[rows, col][:, None], axis=2)
+
+
+def _misfit(d: np.ndarray, stats: tuple[np.ndarray, np.ndarray], clip: float
+            ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(n,) mean clipped and (n,) median squared error, in spreads, of the distances ``d`` (n, R) m against an
+    identity's (median, spread) (R,) m to the same references; (n,) references seen (NaN errors where none)."""
     seen = np.isfinite(d)
     n = seen.sum(axis=1)
     with np.errstate(invalid="ignore", divide="ignore"), warnings.catch_warnings():
@@ -105,9 +109,12 @@ def _scores(P: np.ndarray, rows: np.ndarray, col: int, own: tuple, other: tuple,
     """(n,) log-likelihood ratio (the other identity against its own) of identity ``col``'s samples in frames
     ``rows``, by their distances to each side's references: ``own`` and ``other`` are (references (R,), median
     (R,) m, spread (R,) m); 0 where either side sees fewer than ``min_references``; and (n,) their median squared
-    error under the other (NaN there: a reference off for a while does not refute a fit to three or more)."""
-    err_own, _, n_own = _misfit(P, rows, col, own[0], own[1:], cfg.clip)
-    err_other, fit, n_other = _misfit(P, rows, col, other[0], other[1:], cfg.clip)
+    error under the other (NaN there: a reference off for a while does not refute a fit to three or more). Where
+    both sides have the same references (a pair that shares them), the distances are measured once."""
+    d_own = _distances(P, rows, col, own[0])
+    d_other = d_own if own[0] is other[0] else _distances(P, rows, col, other[0])
+    err_own, _, n_own = _misfit(d_own, own[1:], cfg.clip)
+    err_other, fit, n_other = _misfit(d_other, other[1:], cfg.clip)
     n = np.minimum(n_own, n_other)
     scored = n >= cfg.min_references
     return np.where(scored, 0.5 * n * (err_own - err_other), 0.0), np.where(scored, fit, np.nan)
