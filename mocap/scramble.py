@@ -25,7 +25,10 @@ jointly, by every distance of every marker involved at once.
    "no information": a distance is rigid with prior probability ``exp(-spread / rigid_scale_m)`` (a wrist bar's
    two markers, 0.5 mm over the window, almost surely; an elbow's skin marker, 3 mm, hardly), and then stays within
    ``spread + noise_m`` (Gaussian); else it is anywhere within ``reach_m``. A marker with no rigid neighbour costs
-   the same under every permutation, so the steady distances decide;
+   the same under every permutation, so the steady distances decide. The permutations near the best are found by
+   branch and bound (a member's distances to identities outside the burst depend on its own tail, those to other
+   members on both tails; the members left are bounded by an optimal assignment), which gives what scoring all g!
+   gives without trying them all;
 4. among the permutations within ``tie_nats`` of the best (a pair whose one rigid distance reads the same both ways
    round: an upper arm's two markers), takes the one whose distances changed least in all, loose ones too (each
    change capped at ``drift_cap_m``, the cap where unmeasured: the upper arm marker stays 100 mm nearer the shoulder
@@ -40,11 +43,11 @@ Only whole samples move between identity columns; positions are never changed.
 
 from __future__ import annotations
 
-import itertools
 import warnings
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.optimize import linear_sum_assignment
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 
@@ -53,7 +56,8 @@ from mocap.trajectories import Trajectories
 
 __all__ = ["ScrambleConfig", "unscramble_bursts"]
 
-_PERMUTATIONS_PER_BLOCK = 5040  # permutations scored at once (7!: a few MB of distances per block)
+_SEARCH_NODES = 20_000  # partial assignments a burst's search may try (~1 s)
+_SAME_NATS = 1e-9  # costs closer than this are the same (the least cost's permutations)
 _HOPS_PER_BLOCK = 64  # hops a burst's identities are measured against at once (bounds a long burst's memory)
 _TINY = np.finfo(float).tiny  # smallest likelihood ratio scored (log: -708 nats)
 
@@ -123,14 +127,19 @@ def unscramble_bursts(traj: Trajectories, jump_acc: float, config: ScrambleConfi
         before = slice(first - window, first)
         ids = np.union1d(ids, _newcomers_and_leavers(P, ids, before, last, start + recent, recent, window, cfg))
         now, _, seen = _window_distances(P, slice(start, start + window), ids)
-        scores = _scores(P, ids, before, now, seen >= enough, enough, cfg)
+        tables = _tables(P, ids, before, now, seen >= enough, enough, cfg)
+        scores = None if tables is None else _permutation_costs(tables, cfg)
         k = None if scores is None else _choose(*scores, cfg)
         if k is not None and first - recheck - window >= 0:  # the window before must not be the only witness
-            earlier = _scores(P, ids, slice(first - recheck - window, first - recheck), now, seen >= enough, enough,
+            earlier = _tables(P, ids, slice(first - recheck - window, first - recheck), now, seen >= enough, enough,
                               cfg)
-            if earlier is not None:  # (the same permutations, in the same order)
-                cost = earlier[1]
-                if cost[k] - cost.min() >= cfg.tie_nats or cost[k] > cost[0]:
+            best = None if earlier is None else _near_best(earlier, _SAME_NATS)
+            if best is None and earlier is not None:
+                k = None  # (nothing told the tails apart then)
+            elif earlier is not None:
+                least = earlier.cost(best).min()
+                cost = earlier.cost(scores[0][[0, k]])  # keeping the tails, the choice
+                if cost[1] - least >= cfg.tie_nats or cost[1] > cost[0]:
                     k = None
         if k is not None:
             order = scores[0][k]
@@ -242,50 +251,146 @@ def _shaken(P: np.ndarray) -> np.ndarray:
     return np.where(np.isfinite(acc), acc, 0.0).max(axis=0, initial=0.0)
 
 
-def _scores(P: np.ndarray, ids: np.ndarray, before: slice, now: np.ndarray, seen: np.ndarray, enough: int,
-            cfg: ScrambleConfig) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
-    """:func:`_permutation_costs` of the burst identities ``ids`` of ``P`` (F, M, 3) against their distances over
-    the frames ``before`` (measured in ``enough`` of them at least); ``now``, ``seen`` (g, M): their tails' median
-    distances after, m, and whether measured. None where no distance was measured before."""
+def _tables(P: np.ndarray, ids: np.ndarray, before: slice, now: np.ndarray, seen: np.ndarray, enough: int,
+            cfg: ScrambleConfig) -> _Tables | None:
+    """The permutation score tables (:class:`_Tables`) of the burst identities ``ids`` of ``P`` (F, M, 3) against
+    their distances over the frames ``before`` (measured in ``enough`` of them at least); ``now``, ``seen`` (g, M):
+    their tails' median distances after, m, and whether measured. None where no distance was measured before."""
     was, spread, count = _window_distances(P, before, ids)
     near = (count >= enough) & (was < cfg.reach_m)
     near[np.arange(ids.size), ids] = False
     if not near.any():
         return None
-    return _permutation_costs(ids, near, was, spread, now, seen, cfg)
+    return _Tables.build(ids, near, was, spread, now, seen, cfg)
 
 
-def _permutation_costs(ids: np.ndarray, near: np.ndarray, was: np.ndarray, spread: np.ndarray, now: np.ndarray,
-                       seen: np.ndarray, cfg: ScrambleConfig) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Every permutation of the burst identities' tails ((p, g): member k takes the tail of ``ids[perm[k]]``, the
-    first one keeping them), its cost (p,), the negative log-likelihood ratio of its distances (step 3 of the
-    module docstring), and its drift (p,), their summed capped changes, m (step 4). ``near`` (g, M): the distances
-    measured before; ``was``, ``spread`` (g, M): their medians and robust spreads, m; ``now``, ``seen`` (g, M): each
-    tail's median distances after, m, and whether measured."""
-    g = ids.size
-    members, partners = np.nonzero(near)  # (n,) each: a burst member and an identity it was measured to
-    then, s = was[members, partners], spread[members, partners]
-    prior = np.exp(-s / cfg.rigid_scale_m)
-    sigma = s + cfg.noise_m
-    slot = np.full(now.shape[1], -1)
-    slot[ids] = np.arange(g)
-    inside = slot[partners] >= 0  # the partner is a burst member too: its tail moves with the permutation
-    perms = np.array(list(itertools.permutations(range(g))), dtype=np.intp)  # (p, g)
-    cost, drift = np.empty(len(perms)), np.empty(len(perms))
-    for start in range(0, len(perms), _PERMUTATIONS_PER_BLOCK):
-        block = perms[start:start + _PERMUTATIONS_PER_BLOCK]
-        tails = block[:, members]  # (b, n): which member's tail each distance now starts from
-        others = np.where(inside, ids[block[:, np.maximum(slot[partners], 0)]], partners)  # (b, n) identity
-        measured = seen[tails, others]
-        change = now[tails, others] - then
-        z = change / sigma
-        with np.errstate(invalid="ignore"):  # (unmeasured: NaN, scored 0 and the cap below)
-            ratio = prior * np.exp(-0.5 * z * z) * cfg.reach_m / (np.sqrt(2 * np.pi) * sigma) + (1 - prior)
-            # (a floor: a distance that never varied before, prior 1, and now far off gives ratio 0)
-            cost[start:start + len(block)] = -np.where(measured, np.log(np.maximum(ratio, _TINY)), 0.0).sum(axis=1)
-            capped = np.minimum(np.abs(change), cfg.drift_cap_m)
-        drift[start:start + len(block)] = np.where(measured, capped, cfg.drift_cap_m).sum(axis=1)
-    return perms, cost, drift
+def _permutation_costs(tables: _Tables, cfg: ScrambleConfig) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+    """The permutations of a burst's tails worth choosing from ((p, g): member k takes the tail of member
+    ``perm[k]``): keeping them first, then every one within ``tie_nats`` of the best, in lexicographic order; their
+    costs (p,), the negative log-likelihood ratio of their distances (step 3 of the module docstring), and their
+    drifts (p,), their summed capped changes, m (step 4). None where the search gave up (:func:`_near_best`)."""
+    found = _near_best(tables, cfg.tie_nats)
+    if found is None:
+        return None
+    keep = np.arange(found.shape[1])
+    perms = np.vstack([keep, found[(found != keep).any(axis=1)]])
+    return perms, tables.cost(perms), tables.drift(perms)
+
+
+@dataclass(frozen=True)
+class _Tables:
+    """A burst's permutation scores split by the tails each term depends on: a member's distance to an identity
+    outside the burst depends on its own tail, one to a member on both tails. g members.
+
+    Attributes:
+        single: (2, g, g) cost (nats) and drift (m) of member m taking tail t: its distances to identities outside.
+        pairs: (2, g, g, g, g) the same of member m taking tail t and member q tail u: m's distance to q.
+        linked: (n, 2) the pairs of members with a distance between them (m, q).
+    """
+
+    single: np.ndarray
+    pairs: np.ndarray
+    linked: np.ndarray
+
+    @classmethod
+    def build(cls, ids: np.ndarray, near: np.ndarray, was: np.ndarray, spread: np.ndarray, now: np.ndarray,
+              seen: np.ndarray, cfg: ScrambleConfig) -> _Tables:
+        """The tables of the burst identities ``ids`` (g,) (arguments as :func:`_permutation_costs`)."""
+        g = ids.size
+        members, partners = np.nonzero(near)  # (n,) each: a burst member and an identity it was measured to
+        slot = np.full(now.shape[1], -1)
+        slot[ids] = np.arange(g)
+        inside = slot[partners] >= 0  # the partner is a burst member too: its tail moves with the permutation
+        single = np.zeros((2, g, g))
+        out = ~inside  # every tail t (g, n_out): its distance to the partner
+        terms = _terms(seen[:, partners[out]], now[:, partners[out]], was[members[out], partners[out]],
+                       spread[members[out], partners[out]], cfg)  # (2, g, n_out)
+        np.add.at(single, (slice(None), members[out]), terms.transpose(0, 2, 1))
+        pairs = np.zeros((2, g, g, g, g))
+        m, q = members[inside], slot[partners[inside]]
+        others = ids[None, :]  # tail t (g, 1) to the identity holding tail u (1, g)
+        terms = _terms(seen[:, others][:, 0, :, None], now[:, others][:, 0, :, None],
+                       was[m, partners[inside]], spread[m, partners[inside]], cfg)  # (2, g, g, n_in)
+        np.add.at(pairs, (slice(None), m, q), terms.transpose(0, 3, 1, 2))
+        return cls(single, pairs, np.unique(np.c_[m, q], axis=0).reshape(-1, 2))
+
+    def cost(self, perms: np.ndarray) -> np.ndarray:
+        """(p,) the cost of each permutation (p, g), nats."""
+        return self._total(0, perms)
+
+    def drift(self, perms: np.ndarray) -> np.ndarray:
+        """(p,) the drift of each permutation (p, g), m."""
+        return self._total(1, perms)
+
+    def _total(self, which: int, perms: np.ndarray) -> np.ndarray:
+        total = self.single[which, np.arange(perms.shape[1]), perms].sum(axis=1)
+        m, q = self.linked.T
+        return total + self.pairs[which, m, q, perms[:, m], perms[:, q]].sum(axis=1)
+
+
+def _terms(measured: np.ndarray, now: np.ndarray, then: np.ndarray, spread: np.ndarray, cfg: ScrambleConfig
+           ) -> np.ndarray:
+    """(2, ...) the cost (nats: the negative log-likelihood ratio, 0 where unmeasured) and the drift (m: the capped
+    change, the cap where unmeasured) of distances measured now (``now``, ``measured``: any shape ending in n) that
+    were ``then`` with robust spread ``spread`` (n,) before, m."""
+    prior = np.exp(-spread / cfg.rigid_scale_m)
+    sigma = spread + cfg.noise_m
+    change = now - then
+    z = change / sigma
+    with np.errstate(invalid="ignore"):  # (unmeasured: NaN, scored 0 and the cap)
+        ratio = prior * np.exp(-0.5 * z * z) * cfg.reach_m / (np.sqrt(2 * np.pi) * sigma) + (1 - prior)
+        # (a floor: a distance that never varied before, prior 1, and now far off gives ratio 0)
+        cost = -np.where(measured, np.log(np.maximum(ratio, _TINY)), 0.0)
+        drift = np.where(measured, np.minimum(np.abs(change), cfg.drift_cap_m), cfg.drift_cap_m)
+    return np.stack([cost, drift])
+
+
+def _near_best(tables: _Tables, tie: float) -> np.ndarray | None:
+    """(p, g) every permutation costing less than the least cost + ``tie`` nats (keeping the tails among them if
+    it does), in lexicographic order, found by branch and bound: members take tails in turn, and a partial
+    assignment is dropped once its cost plus a lower bound of the rest (an optimal assignment of the members left
+    to the tails left, each scored by its own terms with the members placed and its least with those not) reaches
+    the best complete cost + ``tie``. None where that took over ``_SEARCH_NODES`` partial assignments (too many
+    permutations cost the same: nothing tells the tails apart)."""
+    cost1, cost2 = tables.single[0], tables.pairs[0]
+    g = len(cost1)
+    keep = np.arange(g)
+    best = [float(tables.cost(keep[None])[0])]
+    found: list[tuple[float, np.ndarray]] = []
+    order = np.argsort(-(np.ptp(cost1, axis=1) + np.abs(cost2).sum(axis=(1, 2, 3))), kind="stable")
+    perm = np.full(g, -1)
+    nodes = [0]
+
+    def visit(k: int, partial: float) -> bool:  # False: gave up
+        nodes[0] += 1
+        if nodes[0] > _SEARCH_NODES:
+            return False
+        if k == g:
+            best[0] = min(best[0], partial)
+            found.append((partial, perm.copy()))
+            return True
+        placed, left = order[:k], order[k:]
+        free = np.setdiff1d(keep, perm[placed])
+        i, b, t = left[:, None, None], placed[None, :, None], free[None, None, :]
+        held = perm[placed][None, :, None]
+        bound = cost1[np.ix_(left, free)] + (cost2[i, b, t, held] + cost2[b, i, held, t]).sum(axis=1)  # (l, f)
+        # (member left[i] taking tail free[j]: its own terms and those with the members placed) ...
+        rest = cost2[np.ix_(left, left, free, free)].min(axis=3).sum(axis=1)  # ... and its least with the others
+        rows, cols = linear_sum_assignment(bound + rest)
+        if partial + (bound + rest)[rows, cols].sum() >= best[0] + tie:
+            return True
+        for j in np.argsort(bound[0] + rest[0], kind="stable"):
+            perm[left[0]] = free[j]
+            if not visit(k + 1, partial + bound[0, j]):
+                return False
+            perm[left[0]] = -1
+        return True
+
+    if not visit(0, 0.0):
+        return None
+    costs = np.array([c for c, _ in found])
+    perms = np.array([p for _, p in found])[costs < best[0] + tie]
+    return perms[np.lexsort(perms.T[::-1])]
 
 
 def _choose(perms: np.ndarray, cost: np.ndarray, drift: np.ndarray, cfg: ScrambleConfig) -> int | None:
