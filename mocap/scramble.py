@@ -25,10 +25,7 @@ jointly, by every distance of every marker involved at once.
    "no information": a distance is rigid with prior probability ``exp(-spread / rigid_scale_m)`` (a wrist bar's
    two markers, 0.5 mm over the window, almost surely; an elbow's skin marker, 3 mm, hardly), and then stays within
    ``spread + noise_m`` (Gaussian); else it is anywhere within ``reach_m``. A marker with no rigid neighbour costs
-   the same under every permutation, so the steady distances decide. The permutations near the best are found by
-   branch and bound (a member's distances to identities outside the burst depend on its own tail, those to other
-   members on both tails; the members left are bounded by an optimal assignment), which gives what scoring all g!
-   gives without trying them all;
+   the same under every permutation, so the steady distances decide;
 4. among the permutations within ``tie_nats`` of the best (a pair whose one rigid distance reads the same both ways
    round: an upper arm's two markers), takes the one whose distances changed least in all, loose ones too (each
    change capped at ``drift_cap_m``, the cap where unmeasured: the upper arm marker stays 100 mm nearer the shoulder
@@ -37,6 +34,12 @@ jointly, by every distance of every marker involved at once.
    ``margin_nats`` and, scored against the window before ending ``recheck_s`` earlier, is still tied with the best
    and no worse than keeping the tails (frames right before a burst can hold the recording's own garbled labels): from
    the frame of the burst that gives the tracks the smoothest paths through it.
+
+Steps 3 and 4 choose what scoring all g! permutations would, without trying them all: each choice (the least
+cost; the least drift among those near it, and the next; the fewest moves) is found by branch and bound, since a
+member's distances to identities outside the burst depend on its own tail only and those to other members on two
+tails, and the members not yet placed are bounded by an optimal assignment. Weakly told members (a marker hidden
+before the burst) make many permutations tie, which the searches do not need to list.
 
 Only whole samples move between identity columns; positions are never changed.
 """
@@ -56,8 +59,7 @@ from mocap.trajectories import Trajectories
 
 __all__ = ["ScrambleConfig", "unscramble_bursts"]
 
-_SEARCH_NODES = 20_000  # partial assignments a burst's search may try (~1 s)
-_SAME_NATS = 1e-9  # costs closer than this are the same (the least cost's permutations)
+_SEARCH_NODES = 20_000  # partial assignments one search may try (~1-4 s at 12-20 members)
 _HOPS_PER_BLOCK = 64  # hops a burst's identities are measured against at once (bounds a long burst's memory)
 _TINY = np.finfo(float).tiny  # smallest likelihood ratio scored (log: -708 nats)
 
@@ -84,9 +86,10 @@ class ScrambleConfig:
             worse than keeping the tails (a window half in the recording's garbled labels is not the only witness).
         newcomer_s: identities first seen this long after a burst at most, or last seen this long before its last hop
             at most, s, may join it (see step 1).
-        max_identities: a burst of more identities is left alone (the more weakly told members a burst has, the
-            more permutations tie near the best: the two players' serve with 3 % of the views hidden, seed 3, has
-            16 with its calm bystanders, whose search gives up after ``_SEARCH_NODES``; without them, 10) ...
+        max_identities: a burst of more identities is left alone (with many weakly told members, calm bystanders
+            among them, the choice among the permutations near the best is arbitrary: the two players' serve with 3 %
+            of the views hidden, seed 3, has 16 with its calm bystanders, whose choice the earlier window refutes, and
+            10 without, whose choice stands and puts the arm back) ...
         calm: ... once the bystanders (identities only seen near it) that accelerated less than this fraction of the
             jump threshold through it are left out (an arm's swing next to the head: the head's markers).
     """
@@ -129,21 +132,16 @@ def unscramble_bursts(traj: Trajectories, jump_acc: float, config: ScrambleConfi
         ids = np.union1d(ids, _newcomers_and_leavers(P, ids, before, last, start + recent, recent, window, cfg))
         now, _, seen = _window_distances(P, slice(start, start + window), ids)
         tables = _tables(P, ids, before, now, seen >= enough, enough, cfg)
-        scores = None if tables is None else _permutation_costs(tables, cfg)
-        k = None if scores is None else _choose(*scores, cfg)
-        if k is not None and first - recheck - window >= 0:  # the window before must not be the only witness
+        order = None if tables is None else _choose(tables, cfg)
+        if order is not None and first - recheck - window >= 0:  # the window before must not be the only witness
             earlier = _tables(P, ids, slice(first - recheck - window, first - recheck), now, seen >= enough, enough,
                               cfg)
-            best = None if earlier is None else _near_best(earlier, _SAME_NATS)
-            if best is None and earlier is not None:
-                k = None  # (nothing told the tails apart then)
-            elif earlier is not None:
-                least = earlier.cost(best).min()
-                cost = earlier.cost(scores[0][[0, k]])  # keeping the tails, the choice
-                if cost[1] - least >= cfg.tie_nats or cost[1] > cost[0]:
-                    k = None
-        if k is not None:
-            order = scores[0][k]
+            least = None if earlier is None else _least(earlier.costs, earlier.costs, np.inf, 1)
+            if earlier is not None:
+                cost = earlier.cost(np.stack([np.arange(ids.size), order]))  # keeping the tails, the choice
+                if least is None or cost[1] - least[0][0] >= cfg.tie_nats or cost[1] > cost[0]:
+                    order = None
+        if order is not None:
             traj.permute_tails(smoothest_split(P, first, last, ids, ids[order]), ids[order], ids)
             moved = np.arange(P.shape[1])
             moved[ids[order]] = ids
@@ -265,19 +263,6 @@ def _tables(P: np.ndarray, ids: np.ndarray, before: slice, now: np.ndarray, seen
     return _Tables.build(ids, near, was, spread, now, seen, cfg)
 
 
-def _permutation_costs(tables: _Tables, cfg: ScrambleConfig) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
-    """The permutations of a burst's tails worth choosing from ((p, g): member k takes the tail of member
-    ``perm[k]``): keeping them first, then every one within ``tie_nats`` of the best, in lexicographic order; their
-    costs (p,), the negative log-likelihood ratio of their distances (step 3 of the module docstring), and their
-    drifts (p,), their summed capped changes, m (step 4). None where the search gave up (:func:`_near_best`)."""
-    found = _near_best(tables, cfg.tie_nats)
-    if found is None:
-        return None
-    keep = np.arange(found.shape[1])
-    perms = np.vstack([keep, found[(found != keep).any(axis=1)]])
-    return perms, tables.cost(perms), tables.drift(perms)
-
-
 @dataclass(frozen=True)
 class _Tables:
     """A burst's permutation scores split by the tails each term depends on: a member's distance to an identity
@@ -315,6 +300,16 @@ class _Tables:
         np.add.at(pairs, (slice(None), m, q), terms.transpose(0, 3, 1, 2))
         return cls(single, pairs, np.unique(np.c_[m, q], axis=0).reshape(-1, 2))
 
+    @property
+    def costs(self) -> tuple[np.ndarray, np.ndarray]:
+        """The cost terms, nats: (g, g) and (g, g, g, g)."""
+        return self.single[0], self.pairs[0]
+
+    @property
+    def drifts(self) -> tuple[np.ndarray, np.ndarray]:
+        """The drift terms, m: (g, g) and (g, g, g, g)."""
+        return self.single[1], self.pairs[1]
+
     def cost(self, perms: np.ndarray) -> np.ndarray:
         """(p,) the cost of each permutation (p, g), nats."""
         return self._total(0, perms)
@@ -346,67 +341,87 @@ def _terms(measured: np.ndarray, now: np.ndarray, then: np.ndarray, spread: np.n
     return np.stack([cost, drift])
 
 
-def _near_best(tables: _Tables, tie: float) -> np.ndarray | None:
-    """(p, g) every permutation costing less than the least cost + ``tie`` nats (keeping the tails among them if
-    it does), in lexicographic order, found by branch and bound: members take tails in turn, and a partial
-    assignment is dropped once its cost plus a lower bound of the rest (an optimal assignment of the members left
-    to the tails left, each scored by its own terms with the members placed and its least with those not) reaches
-    the best complete cost + ``tie``. None where that took over ``_SEARCH_NODES`` partial assignments (too many
-    permutations cost the same: nothing tells the tails apart)."""
-    cost1, cost2 = tables.single[0], tables.pairs[0]
-    g = len(cost1)
-    keep = np.arange(g)
-    best = [float(tables.cost(keep[None])[0])]
-    found: list[tuple[float, np.ndarray]] = []
-    order = np.argsort(-(np.ptp(cost1, axis=1) + np.abs(cost2).sum(axis=(1, 2, 3))), kind="stable")
-    perm = np.full(g, -1)
-    nodes = [0]
+def _choose(tables: _Tables, cfg: ScrambleConfig) -> np.ndarray | None:
+    """The permutation to apply ((g,): member k takes the tail of member ``perm[k]``; step 4 of the module
+    docstring), None to keep the tails (or where a search gave up: :func:`_least`). Of the permutations costing
+    under the least cost + ``tie_nats``: the one of least drift where the next drifts ``drift_gap_m`` more, else the
+    one moving the fewest members (then the cheapest); applied where it beats keeping the tails by ``margin_nats``."""
+    best = _least(tables.costs, tables.costs, np.inf, 1)
+    if best is None:
+        return None
+    limit = best[0][0] + cfg.tie_nats
+    steadiest = _least(tables.drifts, tables.costs, limit, 2)
+    if steadiest is None:
+        return None
+    if len(steadiest) == 1 or steadiest[1][0] - steadiest[0][0] >= cfg.drift_gap_m:
+        perm = steadiest[0][1]
+    else:  # (moves weigh more than any cost difference under the limit)
+        g = len(best[0][1])
+        moves = (cfg.tie_nats + 1.0) * (np.arange(g)[None, :] != np.arange(g)[:, None]) + tables.costs[0]
+        fewest = _least((moves, tables.costs[1]), tables.costs, limit, 1)
+        if fewest is None:
+            return None
+        perm = fewest[0][1]
+    keep = np.arange(len(perm))
+    cost = tables.cost(np.stack([keep, perm]))
+    if np.array_equal(perm, keep) or cost[0] - cost[1] < cfg.margin_nats:
+        return None
+    return perm
 
-    def visit(k: int, partial: float) -> bool:  # False: gave up
-        nodes[0] += 1
-        if nodes[0] > _SEARCH_NODES:
+
+def _least(objective: tuple[np.ndarray, np.ndarray], cost: tuple[np.ndarray, np.ndarray], limit: float, count: int
+           ) -> list[tuple[float, np.ndarray]] | None:
+    """The ``count`` permutations (g,) of least ``objective`` among those costing under ``limit`` (nats), with their
+    objectives, least first; both are scored like :class:`_Tables` (a member's (g, g) and a pair of members'
+    (g, g, g, g) terms). Branch and bound: members take tails in turn, most informative first, and a partial
+    assignment is dropped once its cost, or its objective, plus a lower bound of the rest (an optimal assignment of
+    the members left to the tails left, each scored by its own terms with the members placed and its least with
+    the others) reaches ``limit``, or the ``count``-th objective found. None where that took over
+    ``_SEARCH_NODES`` partial assignments."""
+    single, pairs = cost
+    g = len(single)
+    order = np.argsort(-(np.ptp(single, axis=1) + np.abs(pairs).sum(axis=(1, 2, 3))), kind="stable")
+    perm = np.full(g, -1)
+    found: list[tuple[float, np.ndarray]] = []
+    nodes = 0
+
+    def bounds(tables: tuple[np.ndarray, np.ndarray], left: np.ndarray, placed: np.ndarray, free: np.ndarray
+               ) -> tuple[np.ndarray, np.ndarray, float]:
+        """(l, f) each member left taking each free tail: its own terms and those with the members placed; the same
+        plus its least with the others; and the optimal assignment's sum of the latter (the bound)."""
+        one, two = tables
+        i, b, t, held = left[:, None, None], placed[None, :, None], free[None, None, :], perm[placed][None, :, None]
+        own = one[np.ix_(left, free)] + (two[i, b, t, held] + two[b, i, held, t]).sum(axis=1)
+        low = own + two[np.ix_(left, left, free, free)].min(axis=3).sum(axis=1)
+        rows, cols = linear_sum_assignment(low)
+        return own, low, float(low[rows, cols].sum())
+
+    def visit(k: int, objective_so_far: float, cost_so_far: float) -> bool:  # False: gave up
+        nonlocal nodes
+        nodes += 1
+        if nodes > _SEARCH_NODES:
             return False
         if k == g:
-            best[0] = min(best[0], partial)
-            found.append((partial, perm.copy()))
+            found.append((objective_so_far, perm.copy()))
+            found.sort(key=lambda item: item[0])
+            del found[count:]
             return True
         placed, left = order[:k], order[k:]
-        free = np.setdiff1d(keep, perm[placed])
-        i, b, t = left[:, None, None], placed[None, :, None], free[None, None, :]
-        held = perm[placed][None, :, None]
-        bound = cost1[np.ix_(left, free)] + (cost2[i, b, t, held] + cost2[b, i, held, t]).sum(axis=1)  # (l, f)
-        # (member left[i] taking tail free[j]: its own terms and those with the members placed) ...
-        rest = cost2[np.ix_(left, left, free, free)].min(axis=3).sum(axis=1)  # ... and its least with the others
-        rows, cols = linear_sum_assignment(bound + rest)
-        if partial + (bound + rest)[rows, cols].sum() >= best[0] + tie:
+        free = np.setdiff1d(np.arange(g), perm[placed])
+        own_cost, low_cost, bound = bounds(cost, left, placed, free)
+        if cost_so_far + bound >= limit:
             return True
-        for j in np.argsort(bound[0] + rest[0], kind="stable"):
+        own, low, bound = (own_cost, low_cost, bound) if objective is cost else bounds(objective, left, placed, free)
+        if len(found) == count and objective_so_far + bound >= found[-1][0]:
+            return True
+        for j in np.argsort(low[0], kind="stable"):
             perm[left[0]] = free[j]
-            if not visit(k + 1, partial + bound[0, j]):
+            if not visit(k + 1, objective_so_far + own[0, j], cost_so_far + own_cost[0, j]):
                 return False
             perm[left[0]] = -1
         return True
 
-    if not visit(0, 0.0):
-        return None
-    costs = np.array([c for c, _ in found])
-    perms = np.array([p for _, p in found])[costs < best[0] + tie]
-    return perms[np.lexsort(perms.T[::-1])]
-
-
-def _choose(perms: np.ndarray, cost: np.ndarray, drift: np.ndarray, cfg: ScrambleConfig) -> int | None:
-    """The index in ``perms`` (p, g), the identity first, of the permutation to apply (step 4 of the module
-    docstring), None to keep the tails; ``cost`` (p,) nats, ``drift`` (p,) m."""
-    moves = (perms != np.arange(perms.shape[1])).sum(axis=1)
-    tied = np.flatnonzero(cost - cost.min() < cfg.tie_nats)
-    steadiest = tied[np.lexsort((moves[tied], drift[tied]))]
-    if steadiest.size == 1 or drift[steadiest[1]] - drift[steadiest[0]] >= cfg.drift_gap_m:
-        k = steadiest[0]
-    else:
-        k = tied[np.lexsort((cost[tied], moves[tied]))[0]]
-    if moves[k] == 0 or cost[0] - cost[k] < cfg.margin_nats:
-        return None
-    return int(k)
+    return found if visit(0, 0.0, 0.0) else None
 
 
 def _window_distances(P: np.ndarray, frames: slice, ids: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

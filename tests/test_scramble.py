@@ -8,7 +8,7 @@ import warnings
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from mocap.scramble import ScrambleConfig, _near_best, _Tables, unscramble_bursts
+from mocap.scramble import ScrambleConfig, _choose, _Tables, unscramble_bursts
 from tests.test_relabel import _traj
 
 FPS = 50.0  # (the frame rate of tests.test_relabel._traj)
@@ -218,12 +218,14 @@ def test_an_identity_that_ended_just_before_the_burst_takes_its_marker_back():
     np.testing.assert_array_equal(alone.positions, seen)
 
 
-def test_the_search_finds_the_permutations_enumeration_finds():
-    """The branch and bound returns exactly the permutations within ``tie_nats`` of the best that scoring all g!
-    finds, on random bursts of 2-7 members whose tails were permuted at random (seeded)."""
+def test_the_search_chooses_what_enumeration_chooses():
+    """On random bursts of 2-7 members whose tails were permuted at random (seeded), the branch and bound chooses
+    the permutation that scoring all g! and applying step 4 to them chooses: of those within ``tie_nats`` of the
+    best, the least drift where the next is ``drift_gap_m`` more, else the fewest moves, then the least cost."""
     cfg = ScrambleConfig()
     rng = np.random.default_rng(0)
-    for _ in range(30):
+    chosen = 0
+    for _ in range(60):
         g = int(rng.integers(2, 8))
         n = g + int(rng.integers(0, 6))
         ids = np.sort(rng.choice(n, g, replace=False))
@@ -234,5 +236,18 @@ def test_the_search_finds_the_permutations_enumeration_finds():
         now = was[rng.permutation(g)] + rng.normal(0, 0.001, (g, n))
         tables = _Tables.build(ids, near, was, spread, now, rng.random((g, n)) < 0.9, cfg)
         every = np.array(list(itertools.permutations(range(g))))
-        cost = tables.cost(every)
-        np.testing.assert_array_equal(_near_best(tables, cfg.tie_nats), every[cost - cost.min() < cfg.tie_nats])
+        cost, drift = tables.cost(every), tables.drift(every)
+        moves = (every != np.arange(g)).sum(axis=1)
+        tied = np.flatnonzero(cost - cost.min() < cfg.tie_nats)
+        steadiest = tied[np.lexsort((moves[tied], drift[tied]))]
+        if steadiest.size == 1 or drift[steadiest[1]] - drift[steadiest[0]] >= cfg.drift_gap_m:
+            k = steadiest[0]
+        else:
+            k = tied[np.lexsort((cost[tied], moves[tied]))[0]]
+        want = None if moves[k] == 0 or cost[0] - cost[k] < cfg.margin_nats else every[k]
+        got = _choose(tables, cfg)
+        assert (got is None) == (want is None)
+        if want is not None:
+            np.testing.assert_array_equal(got, want)
+            chosen += 1
+    assert chosen >= 10  # (most random bursts are put back)
