@@ -281,7 +281,9 @@ class _Tables:
     @classmethod
     def build(cls, ids: np.ndarray, near: np.ndarray, was: np.ndarray, spread: np.ndarray, now: np.ndarray,
               seen: np.ndarray, cfg: ScrambleConfig) -> _Tables:
-        """The tables of the burst identities ``ids`` (g,) (arguments as :func:`_permutation_costs`)."""
+        """The tables of the burst identities ``ids`` (g,): ``near`` (g, M) the distances measured before; ``was``,
+        ``spread`` (g, M) their medians and robust spreads, m; ``now``, ``seen`` (g, M) each tail's median
+        distances after, m, and whether measured."""
         g = ids.size
         members, partners = np.nonzero(near)  # (n,) each: a burst member and an identity it was measured to
         slot = np.full(now.shape[1], -1)
@@ -294,9 +296,8 @@ class _Tables:
         np.add.at(single, (slice(None), members[out]), terms.transpose(0, 2, 1))
         pairs = np.zeros((2, g, g, g, g))
         m, q = members[inside], slot[partners[inside]]
-        others = ids[None, :]  # tail t (g, 1) to the identity holding tail u (1, g)
-        terms = _terms(seen[:, others][:, 0, :, None], now[:, others][:, 0, :, None],
-                       was[m, partners[inside]], spread[m, partners[inside]], cfg)  # (2, g, g, n_in)
+        terms = _terms(seen[:, ids, None], now[:, ids, None], was[m, partners[inside]], spread[m, partners[inside]],
+                       cfg)  # (2, g, g, n_in): tail t to the identity of tail u
         np.add.at(pairs, (slice(None), m, q), terms.transpose(0, 3, 1, 2))
         return cls(single, pairs, np.unique(np.c_[m, q], axis=0).reshape(-1, 2))
 
