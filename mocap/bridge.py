@@ -1,24 +1,21 @@
 """Gaps in every view bridged by where the neighbours carry the hidden marker (offline, the last repair pass).
 
-A marker hidden from every camera for a few tenths of a second (behind the body in a serve) comes back far from its
-prediction: the tracker gives it a new identity, or a lost identity of another marker that happens to be near, and
-the repair's distance rules need rigid neighbours a skin-marker body swung at 50 Hz does not have. Its neighbours
-do carry it, though, rigid or not: over the frames before the gap the marker is (to millimetres) a fixed
-combination of its neighbours' offsets from their mean, and the same combination of where those neighbours are
-after the gap says where the marker is. The neighbours are the steadiest near it (those whose distance to it held
-best over those frames: its own segment's), not the nearest: a foot hidden as the other foot swings past has that
-foot among its nearest, whose own motion the combination would carry into the prediction. The prediction turns and
-moves with the neighbours (the combination is of offsets: a rigid motion of the neighbours moves it the same way)
-and follows a segment's slow bending. On the seven tennis takes with such gaps the right piece after a gap was the
-best-predicted one 347 times in 361 (median miss 27 mm against 0.75 m for the others).
+A marker hidden from every camera for a few tenths of a second (behind the body in a serve) comes back far from
+its prediction: the tracker gives it a new identity, or a lost identity of another marker that happens to be
+near, and the repair's distance rules need rigid neighbours a skin-marker body swung at 50 Hz does not have. Its
+neighbours do carry it, though, rigid or not: over the frames before the gap the marker is (to millimetres) a
+fixed combination of its nearest neighbours' offsets from their mean, and the same combination of where those
+neighbours are after the gap says where the marker is. The prediction turns and moves with the neighbours (the
+combination is of offsets: a rigid motion of the neighbours moves it the same way) and follows a segment's slow
+bending. On the seven tennis takes with such gaps the right piece after a gap was the best-predicted one 347
+times in 361 (median miss 27 mm against 0.75 m for the others).
 
-:func:`bridge_gaps` cuts every identity into pieces at gaps of more than ``min_gap`` frames and where it jumped
-(the repair's jump rule: an identity that took another marker without a gap), and, for every piece that ends and
-every piece that starts within ``max_gap_s`` after it (from the next frame on, in any identity), predicts the
-ending piece's marker from its ``neighbours`` steadiest identities (within ``reach_m`` at the end, seen through the
-last ``fit_frames`` frames of the ending piece and the first ``check_frames`` of the starting one, ranked by how
-little their distance to the marker spread over those last frames; ridge ``ridge_m2``) and measures the miss. Then
-one optimal assignment of ends to starts per group of competing pieces:
+:func:`bridge_gaps` cuts every identity into pieces at gaps of more than ``min_gap`` frames and where it jumped (the
+repair's jump rule: an identity that took another marker without a gap), and, for every piece that ends and every
+piece that starts within ``max_gap_s`` after it (from the next frame on, in any identity), predicts the ending
+piece's marker from its ``neighbours`` nearest identities (within ``reach_m``, seen through the last ``fit_frames``
+frames of the ending piece and the first ``check_frames`` of the starting one; ridge ``ridge_m2``) and measures the
+miss. Then one optimal assignment of ends to starts per group of competing pieces:
 
 * a link the identities already make costs its miss / ``favour`` (a miss over ``keep_m``: as much as no link), or
   nothing where no miss can be measured (too short a piece, too few neighbours): the repair's links stand unless
@@ -57,7 +54,7 @@ class BridgeConfig:
         max_gap_s: longest gap bridged, s.
         fit_frames: frames of the ending piece the combination is fitted over (at most; 3 at least).
         check_frames: frames of the starting piece it is checked over (at most; 2 at least).
-        neighbours: identities the combination is of, the steadiest within ``reach_m`` (3 at least are needed).
+        neighbours: nearest identities the combination is of (3 at least are needed).
         reach_m: neighbours farther than this from the marker at the end are not used, m.
         ridge_m2: ridge of the combination's least squares, m^2 (a steady pose fits many combinations).
         miss_m: a new link must miss by less than this, m; leaving a piece unlinked costs as much.
@@ -102,11 +99,10 @@ def carried_miss(P: np.ndarray, end: np.ndarray, start: np.ndarray, cfg: BridgeC
     """Distance, m, between the start of piece ``start`` and where the neighbours carry the marker of piece ``end``
     (both (column, first, last) in ``P`` (F, M, 3)); NaN where too few frames or neighbours to tell.
 
-    The marker's neighbours are the ``neighbours`` identities within ``reach_m`` of it at the end's last sample
-    whose distance to it spread least (max - min) over the end's last ``fit_frames`` samples. Its offsets from
-    their mean over those samples are fitted as one combination of the neighbours' offsets (ridge least squares),
-    which is then applied to the neighbours at the start's first ``check_frames`` samples: the mean distance to the
-    start's samples there. ``seen``: (F, M) bool, the samples of ``P`` (computed if not given)."""
+    The marker's offsets from its neighbours' mean over the end's last ``fit_frames`` samples are fitted as one
+    combination of the neighbours' offsets (ridge least squares), which is then applied to the neighbours at the
+    start's first ``check_frames`` samples: the mean distance to the start's samples there. ``seen``: (F, M) bool,
+    the samples of ``P`` (computed if not given)."""
     (ma, fa, la), (mb, fb, lb) = end, start
     if seen is None:
         seen = np.isfinite(P[..., 0])
@@ -118,9 +114,9 @@ def carried_miss(P: np.ndarray, end: np.ndarray, start: np.ndarray, cfg: BridgeC
     both = seen[before].all(axis=0) & seen[after].all(axis=0)
     both[[ma, mb]] = False
     candidates = np.flatnonzero(both)
-    candidates = candidates[np.linalg.norm(P[la, candidates] - P[la, ma], axis=1) < cfg.reach_m]
-    spread = np.ptp(np.linalg.norm(P[before][:, candidates] - P[before, ma][:, None], axis=2), axis=0)
-    near = candidates[np.argsort(spread, kind="stable")[:cfg.neighbours]]
+    d = np.linalg.norm(P[la, candidates] - P[la, ma], axis=1)
+    nearest = np.argsort(d)[:cfg.neighbours]
+    near = candidates[nearest[d[nearest] < cfg.reach_m]]
     if near.size < 3:
         return np.nan
     N = P[before][:, near]  # (T, n, 3)
