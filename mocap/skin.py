@@ -209,9 +209,10 @@ def _pairs(P: np.ndarray, median: np.ndarray, spread: np.ndarray, count: np.ndar
     met = _meeting(P, among, cfg.meet_m)
     for i, j in zip(*np.nonzero(np.triu(met, 1)), strict=True):
         a, b = int(among[i]), int(among[j])
+        if shared[a, b] or own_ok[a, b]:  # (a pair sharing references, or one segment: scored above or not at all)
+            continue
         refs = tuple(np.setdiff1d(np.flatnonzero(own_ok[c]), [a, b]) for c in (a, b))
-        if shared[a, b] == 0 and not own_ok[a, b] and min(r.size for r in refs) >= cfg.min_references \
-                and np.intersect1d(*refs).size == 0:
+        if min(r.size for r in refs) >= cfg.min_references and np.intersect1d(*refs).size == 0:
             out.append((a, b, refs))
     return out
 
