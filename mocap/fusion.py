@@ -256,6 +256,12 @@ class NewPoints:
     det: np.ndarray
     strong: np.ndarray
 
+    @classmethod
+    def none(cls, n_cameras: int) -> NewPoints:
+        """No points (a rig of ``n_cameras``)."""
+        return cls(np.zeros((0, 3)), np.zeros((0, 3, 3)), np.zeros(0), np.zeros((0, n_cameras), dtype=np.intp),
+                   np.zeros(0, dtype=bool))
+
     def subset(self, index: np.ndarray) -> NewPoints:
         return NewPoints(self.X[index], self.cov[index], self.rms_px[index], self.det[index], self.strong[index])
 
@@ -331,8 +337,7 @@ def new_points(P: np.ndarray, pairs: CameraPairs, D: np.ndarray, cov: np.ndarray
         n_sigma: tolerances widen to ``n_sigma`` centroid stds where that is larger.
     """
     C = len(P)
-    empty = NewPoints(np.zeros((0, 3)), np.zeros((0, 3, 3)), np.zeros(0), np.zeros((0, C), dtype=np.intp),
-                      np.zeros(0, dtype=bool))
+    empty = NewPoints.none(C)
     sigma = np.sqrt(0.5 * (cov[..., 0, 0] + cov[..., 1, 1]))  # (C, N)
     pair, n1, n2, dist = match_pairs(pairs, D, free, epipolar_px, fresh, sigma, n_sigma)
     if pair.size == 0:

@@ -116,8 +116,8 @@ class TrackerConfig:
         min_separation_m: a new point closer than this to a measured track is that track's, not new.
         one_marker_m: two tracks' points closer than this (or ``n_sigma`` x their combined std, at most half
             ``marker_mm``) are one marker: only one of them keeps it (see ``Tracker._one_marker_one_track``).
-        clutter_px: a free detection this close to a free one of the recent frames is not new (see
-            ``_known_clutter``).
+        clutter_px: a free detection this close to one of the recent frames' free detections that no new point
+            used is not new (see ``_known_clutter``).
         clutter_frames: free detections are remembered for at most this many frames; then the memory is
             cleared and everything is examined afresh (so a slow marker never stays hidden as clutter).
         marker_mm: marker diameter, mm: two markers predicted closer than their image diameter plus
@@ -1238,19 +1238,8 @@ class Tracker:
 
     def _new_markers(self, fr: _Frame, free: np.ndarray, meas: _Measurements) -> None:
         """Points from the free detections: re-acquire missed tracks, or start tentative tracks."""
-        t, cfg = self._t, self._cfg
-        if len(self._clutter) == self._clutter.maxlen:
-            self._clutter.clear()
-        fresh = free & ~self._known_clutter(fr.D, free)
-        self._clutter.append(np.where(free[..., None], fr.D, np.nan)[:, free.any(axis=0)])
-        if not fresh.any() or free.sum() < 2 or len(self._pairs) == 0:
-            return
-        pts = new_points(self._P, self._pairs, fr.D, fr.S, free, self._sizes, cfg.epipolar_px, cfg.support_px,
-                         cfg.new_min_views, cfg.outlier_sigma, self._outlier_px, fresh, cfg.n_sigma)
-        measured = t.since == 0
-        if len(pts.X) and measured.any():  # duplicates of markers measured this frame
-            d = np.linalg.norm(pts.X[:, None] - t.x3[None, measured, :3], axis=2)
-            pts = pts.subset(d.min(axis=1) > cfg.min_separation_m)
+        t = self._t
+        pts = self._new_points(fr, free)
         if len(pts.X) == 0:
             return
         # 1) Tracks that missed this frame but still search: re-acquire them directly.
@@ -1278,11 +1267,37 @@ class Tracker:
             cand = np.where(match >= 0, t.ident[lost[np.maximum(match, 0)]], -1)
         self._start(fr, pts.subset(rest), cand, meas)
 
+    def _new_points(self, fr: _Frame, free: np.ndarray) -> NewPoints:
+        """New points from the free detections (C, N) bool that pair with a fresh one, apart from the markers
+        measured this frame; the free detections no such point uses join the memory of unexplained ones.
+
+        A detection a point uses is not remembered: if that point dies (a ghost that took a marker's blob in one
+        camera), the marker's blobs pair again in the next frame instead of waiting out the memory.
+        """
+        t, cfg = self._t, self._cfg
+        if len(self._clutter) == self._clutter.maxlen:
+            self._clutter.clear()
+        fresh = free & ~self._known_clutter(fr.D, free)
+        unexplained = free.copy()
+        pts = NewPoints.none(self._C)
+        if fresh.any() and free.sum() >= 2 and len(self._pairs):
+            pts = new_points(self._P, self._pairs, fr.D, fr.S, free, self._sizes, cfg.epipolar_px, cfg.support_px,
+                             cfg.new_min_views, cfg.outlier_sigma, self._outlier_px, fresh, cfg.n_sigma)
+            measured = t.since == 0
+            if len(pts.X) and measured.any():  # duplicates of markers measured this frame
+                d = np.linalg.norm(pts.X[:, None] - t.x3[None, measured, :3], axis=2)
+                pts = pts.subset(d.min(axis=1) > cfg.min_separation_m)
+            k, c = np.nonzero(pts.det >= 0)
+            unexplained[c, pts.det[k, c]] = False
+        self._clutter.append(np.where(unexplained[..., None], fr.D, np.nan)[:, unexplained.any(axis=0)])
+        return pts
+
     def _known_clutter(self, D: np.ndarray, which: np.ndarray) -> np.ndarray:
         """(C, N) bool: the detections ``which`` (C, N) within ``clutter_px`` of a free detection of the recent frames.
 
         Free detections that stay put (fixed or flickering reflections, a marker seen by one camera)
-        were already examined for new markers; they are only paired with fresh detections again.
+        were already examined for new markers and left unexplained; they are only paired with fresh
+        detections again.
         Only the detections asked about are compared (the free ones: a few per frame, not all N).
         """
         out = np.zeros(D.shape[:2], dtype=bool)

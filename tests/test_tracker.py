@@ -761,3 +761,31 @@ def test_two_tracks_that_took_each_others_marker_give_it_back_by_their_own_steps
         assert report.switches == 0 and report.idf1 > 0.99 and report.output_tracks == 3
     else:
         assert report.switches >= 2 and report.idf1 < 0.8
+
+
+def test_a_marker_whose_blob_a_dying_ghost_took_is_found_when_the_ghost_dies(rig):
+    """A slow marker seen by two cameras, one of whose blobs a ghost of three views takes at first sight (two
+    reflections in other cameras on that blob's ray, there for 3 frames). Its blobs move less than the memory of
+    unexplained blobs tolerates (0.12 px a frame): they pair again once the ghost is gone (they waited out the
+    memory, 30 frames, when every free blob was remembered)."""
+    frames, gone = 60, 3
+    A = np.array([0.0, 0.0, 1.0]) + np.arange(frames)[:, None] * [0.0005, 0.0, 0.0]  # 0.5 mm a frame
+    eye = rig.cameras[0].center
+    ghost = eye + (A[0] - eye) * (1.0 - 0.6 / np.linalg.norm(A[0] - eye))  # on camera 0's ray, 0.6 m nearer
+    tracker = Tracker(rig, 100.0)
+    for k in range(frames):
+        dets = []
+        for c, cam in enumerate(rig):
+            if c in (0, 1):
+                xy = cam.project(A[k : k + 1])
+            elif c in (2, 3) and k < gone:
+                xy = cam.project(ghost[None])
+            else:
+                xy = np.zeros((0, 2))
+            dets.append(Detections(xy))
+        tracker.step(k, dets)
+    traj = tracker.finish()
+    assert traj.n_markers == 1  # (the ghost, 3 frames, is never confirmed)
+    seen = np.flatnonzero(np.isfinite(traj.positions[:, 0, 0]))
+    assert seen[0] == gone and seen[-1] == frames - 1
+    assert np.nanmax(np.linalg.norm(traj.positions[:, 0] - A, axis=1)) < 1e-3
