@@ -229,6 +229,46 @@ def test_failed_render_leaves_nothing_behind(tmp_path, monkeypatch):
     assert list(tmp_path.iterdir()) == []
 
 
+_VIDEO_WRITER = cv2.VideoWriter
+
+
+class _DroppingWriter:
+    """A ``cv2.VideoWriter`` that silently stops writing after 3 frames, as OpenCV's does on a full disk."""
+
+    def __init__(self, *args):
+        self._writer, self._written = _VIDEO_WRITER(*args), 0
+
+    def isOpened(self):  # noqa: N802 (OpenCV's name)
+        return self._writer.isOpened()
+
+    def write(self, image):
+        self._written += 1
+        if self._written <= 3:
+            self._writer.write(image)
+
+    def release(self):
+        self._writer.release()
+
+
+def test_a_video_written_incompletely_fails_the_render_and_leaves_nothing_behind(tmp_path, monkeypatch):
+    import mocap.synth.writer as writer
+
+    monkeypatch.setattr(writer.cv2, "VideoWriter", _DroppingWriter)
+    with pytest.raises(MocapError, match=r"cam1\.mkv: the video was written incompletely \(3 of 6 frames"):
+        render_take(tmp_path / "take", ring_rig(), marching_motion(6), SynthSettings(format="mkv"), progress=False)
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_a_full_disk_stops_the_render_with_a_clear_error(tmp_path, monkeypatch):
+    import mocap.synth.writer as writer
+
+    real = writer.shutil.disk_usage
+    monkeypatch.setattr(writer.shutil, "disk_usage", lambda path: real(path)._replace(free=2**20))
+    with pytest.raises(MocapError, match="the disk is full \\(1 MiB left after 0 of 5 frames\\)"):
+        render_take(tmp_path / "take", ring_rig(), marching_motion(5), SynthSettings(format="png"), progress=False)
+    assert list(tmp_path.iterdir()) == []
+
+
 def test_real_motion_take_keeps_gaps(tmp_path):
     motion = motion_from_file(require_shared_data("c3d") / "walkingOptiTrack.c3d")
     gappy = int(np.argmax((~np.isfinite(motion.positions[..., 0])).sum(axis=1) > 0))

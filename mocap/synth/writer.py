@@ -30,6 +30,9 @@ from mocap.truth import Truth, save_truth
 
 __all__ = ["render_take", "write_take", "default_truth_path", "staged_directory"]
 
+_SPACE_CHECK_FRAMES = 50  # frames between checks of the free disk space while rendering
+_MIN_FREE_BYTES = 64 * 2**20  # rendering stops below this much free space
+
 
 def default_truth_path(out_dir: str | os.PathLike) -> Path:
     """``<take>.truth.npz`` beside the take folder."""
@@ -92,6 +95,8 @@ def write_take(folder: Path, plan: TakePlan, fmt: str = "mkv", progress: bool = 
     try:
         with tqdm(total=truth.n_frames, desc="rendering", unit="frame", disable=None if progress else True) as bar:
             for f in range(truth.n_frames):
+                if f % _SPACE_CHECK_FRAMES == 0:
+                    _check_free_space(folder, f, truth.n_frames)
                 for c, cam in enumerate(rig):
                     image = render_frame(plan, f, c, streams[c])
                     if writers:
@@ -102,6 +107,29 @@ def write_take(folder: Path, plan: TakePlan, fmt: str = "mkv", progress: bool = 
     finally:
         for writer in writers:
             writer.release()
+    for cam in rig if writers else []:  # (the video writer does not report a failed write)
+        _check_video_frames(folder / f"{cam.name}.mkv", truth.n_frames)
+
+
+def _check_free_space(folder: Path, frame: int, n_frames: int) -> None:
+    """Stop rendering, with a clear error, when the disk holding ``folder`` is all but full."""
+    free = shutil.disk_usage(folder).free
+    if free < _MIN_FREE_BYTES:
+        raise MocapError(f"{folder}: the disk is full ({free / 2**20:.0f} MiB left after {frame} of {n_frames} "
+                         "frames); free some space or render the take elsewhere")
+
+
+def _check_video_frames(path: Path, n_frames: int) -> None:
+    """Raise if the video at ``path`` does not hold ``n_frames`` frames (a write failed: disk full, I/O error)."""
+    cap = cv2.VideoCapture(str(path))
+    try:
+        count = cap.get(cv2.CAP_PROP_FRAME_COUNT) if cap.isOpened() else 0.0
+    finally:
+        cap.release()
+    if count != n_frames:
+        held = f"{count:.0f} of {n_frames}" if 0 <= count < n_frames else f"not the {n_frames}"
+        raise MocapError(f"{path}: the video was written incompletely ({held} frames; disk full?); free some "
+                         "space and render the take again")
 
 
 def render_take(out_dir: str | os.PathLike, rig: Rig, motion: Motion | tuple[list[str], float, np.ndarray],
