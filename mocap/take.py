@@ -294,6 +294,9 @@ def open_take(path: str | os.PathLike, fps: float | None = None) -> Take:
         raise MocapError(f"{folder}: some cameras have images and some centroid files; a take holds one kind")
     kind = kinds.pop()
 
+    declared = info.get("frames")
+    if declared is not None and (isinstance(declared, bool) or not isinstance(declared, int) or declared < 0):
+        raise MocapError(f"{folder / 'take.toml'}: 'frames' must be a whole number >= 0, got {declared!r}")
     sources: list[Any]
     if kind == "images":
         sources = [_Recording(p) for p in per_camera]
@@ -304,10 +307,7 @@ def open_take(path: str | os.PathLike, fps: float | None = None) -> Take:
                                  "calibration made for these cameras at this resolution")
     else:
         sources = [open_centroids(p) for p in per_camera]
-        declared = info.get("frames")
         if declared is not None:
-            if isinstance(declared, bool) or not isinstance(declared, int) or declared < 0:
-                raise MocapError(f"{folder / 'take.toml'}: 'frames' must be a whole number >= 0, got {declared!r}")
             for f in sources:  # files whose rows stop early end in blob-less frames
                 f.n_frames = max(f.n_frames, declared)
 
@@ -317,6 +317,9 @@ def open_take(path: str | os.PathLike, fps: float | None = None) -> Take:
         log.warning("%s: cameras have different frame counts (%s); only the first %d frames (common to all) are "
                     "used", folder, ", ".join(f"{s.path.name}: {c}" for s, c in zip(sources, counts, strict=True)),
                     n_frames)
+    if declared is not None and n_frames < declared:
+        log.warning("%s: take.toml says %d frames, the recordings hold %d; only those are used (was a copy or an "
+                    "export cut short? re-copy the recordings if frames are missing)", folder, declared, n_frames)
     if n_frames == 0:
         raise MocapError(f"{folder}: the take is empty (0 frames in {', '.join(s.path.name for s in sources)})")
 

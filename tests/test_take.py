@@ -180,6 +180,18 @@ def test_folder_problems(tmp_path):
         open_take(folder)
 
 
+def test_recordings_shorter_than_take_toml_says_are_read_with_a_warning(tmp_path, caplog):
+    folder = make_take(tmp_path, "png", fps=100.0)
+    (folder / "take.toml").write_text(tomli_w.dumps({"fps": 100.0, "frames": 8}))
+    with caplog.at_level(logging.WARNING):
+        take = open_take(folder)
+    assert take.n_frames == 5 and len(list(take.images())) == 5
+    assert "take.toml says 8 frames, the recordings hold 5" in caplog.text
+    (folder / "take.toml").write_text(tomli_w.dumps({"fps": 100.0, "frames": "many"}))
+    with pytest.raises(MocapError, match="take.toml: 'frames' must be a whole number"):
+        open_take(folder)
+
+
 def test_bad_take_toml(tmp_path):
     folder = make_take(tmp_path, "mkv")
     (folder / "take.toml").write_text("fps = 'fast'\n")
