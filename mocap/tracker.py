@@ -1293,7 +1293,7 @@ class Tracker:
         return pts
 
     def _known_clutter(self, D: np.ndarray, which: np.ndarray) -> np.ndarray:
-        """(C, N) bool: the detections ``which`` (C, N) within ``clutter_px`` of a free detection of the recent frames.
+        """(C, N) bool: the detections ``which`` (C, N) within ``clutter_px`` of a remembered one (see ``_new_points``).
 
         Free detections that stay put (fixed or flickering reflections, a marker seen by one camera)
         were already examined for new markers and left unexplained; they are only paired with fresh

@@ -107,8 +107,9 @@ def write_take(folder: Path, plan: TakePlan, fmt: str = "mkv", progress: bool = 
     finally:
         for writer in writers:
             writer.release()
-    for cam in rig if writers else []:  # (the video writer does not report a failed write)
-        _check_video_frames(folder / f"{cam.name}.mkv", truth.n_frames)
+    if writers:  # (the video writer does not report a failed write)
+        for cam in rig:
+            _check_video_frames(folder / f"{cam.name}.mkv", truth.n_frames)
 
 
 def _check_free_space(folder: Path, frame: int, n_frames: int) -> None:
