@@ -35,8 +35,7 @@ the same blobs, pixels and order as the numpy path here, which stays the referen
 5. **Merged markers**: a blob with two or more local maxima separated by a clear saddle is split and
    fitted as that many discs jointly; a blob that is elongated (roundness below 0.7) or much larger than
    its neighbours is flagged ``merged`` but kept whole. The parts of a split blob are not flagged (each is a
-   fitted disc), unless its fitted disc, or its blob's discs on average, hold more light than the markers nearby
-   (three markers found as two).
+   fitted disc), unless a part holds more light than 1.25x the markers nearby (three markers found as two).
    Limits: two markers closer than about their radius (no saddle) stay one blob; two saturated markers joined
    by a saturated bridge are flagged, not split. A tracker that knows where its markers will be passes them as
    ``seeds``: a flagged blob holding two or more of them is fitted as that many discs started there (kept only
@@ -73,8 +72,7 @@ MIN_SHAPE_AREA = 9  # px: smaller blobs are too pixelated and noisy for a shape 
 ROUND_SPLIT = 0.85  # roundness below this: searched for two or more peaks (one round disc is ~1)
 AREA_MERGED = 2.5  # area above this many times the neighbours' median: flagged as merged
 MAX_DISCS = 8  # a blob is split into at most this many markers
-SPLIT_DISC_LIGHT = 1.6  # a split blob's disc holding more light than this times its neighbours' median: merged
-SPLIT_PART_FLUX = 1.25  # its blob's discs holding this times more on average: those off by this factor merged
+SPLIT_PART_FLUX = 1.25  # a split blob's disc holding more light than this times its neighbours' median: merged
 FIT_MAX_AREA = 1000  # px: larger blobs (with a raised max_area) get the weighted centroid, not a fit
 FIT_ITERATIONS = 2  # Gauss-Newton steps for a single disc (from the weighted centroid)
 SPLIT_ITERATIONS = 6  # ... for two or more discs fitted jointly (from the peaks)
@@ -788,20 +786,15 @@ def detect(image: np.ndarray, *, threshold: float | None = None, min_area: int =
         light.append(disc_light.ravel())
     part = np.concatenate(part)
     xy = np.concatenate(xy)
-    # Each part of a split blob is fitted as a disc of its own: measured, not merged; unless it may hold two markers
-    # (three markers fitted as two discs: one disc covers two of them, or both lie between them, one bright, one
-    # faint). Judged by the light of the fitted discs, not the blob's above the threshold (where halos join a cluster
-    # of markers into one blob, the halos' light between them is above the threshold too), against the median of the
-    # 5 nearest detections (``ratio``): a disc with more than SPLIT_DISC_LIGHT times that is flagged. A blob whose
-    # discs' ratios exceed SPLIT_PART_FLUX on average holds a marker too many: its discs whose ratio is off by more
-    # than that factor (either way) are flagged, or all of them where none is.
+    # Each part of a split blob is fitted as a disc of its own: measured, not merged; unless its disc, or its blob's
+    # discs on average, hold more light than the markers nearby (three markers fitted as two discs: one disc covers
+    # two of them, or both lie between them). The fitted discs' light, not the blob's above the threshold: where
+    # halos join a cluster of markers into one blob, the light of the halos between them is above the threshold too.
     light = np.concatenate(light)
     light = np.where(np.isfinite(light), light, stats.flux[ids][part] / n_discs[part])  # (failed fits: a share)
-    ratio = light / _neighbour_medians(xy, light[:, None])[:, 0]
-    odd = (ratio > SPLIT_PART_FLUX) | (ratio < 1 / SPLIT_PART_FLUX)
-    excess = np.bincount(part, ratio, len(ids))[part] / n_discs[part] > SPLIT_PART_FLUX
-    odd_in_blob = np.bincount(part, odd, len(ids))[part] > 0
-    split = (n_discs[part] > 1) & (ratio <= SPLIT_DISC_LIGHT) & ~(excess & (odd | ~odd_in_blob))
+    blob_light = np.bincount(part, light, len(ids))[part] / n_discs[part]
     area = stats.area[ids][part] / n_discs[part]
+    typical_light = _neighbour_medians(xy, light[:, None])[:, 0]
+    split = (n_discs[part] > 1) & (np.maximum(light, blob_light) <= SPLIT_PART_FLUX * typical_light)
     return Detections(xy, area, np.where(split, 1.0, roundness[part]), floored_covariance(np.concatenate(cov)),
                       (flagged[part] | (n_discs[part] > 1)) & ~split)

@@ -212,8 +212,8 @@ def test_three_touching_markers_split_in_two_stay_flagged():
     """Triangles of three touching markers among isolated ones: where the split finds fewer discs than markers,
     a part holds more than one marker and its centroid lies between them. Such parts (more light than the single
     markers nearby) stay flagged merged: of the detections more than 0.2 px from every marker, most are flagged
-    (without the check 158 of 180 were not; by area instead of light, 62; now 144 of 182 are), and almost no
-    detection on a marker is."""
+    (without the check 158 of 180 were not; by area instead of light, 62), and almost no detection on a marker
+    is."""
     sensor = Sensor()
     rng = np.random.default_rng(21)
     off = off_flagged = on = on_flagged = 0
@@ -251,7 +251,7 @@ def test_parts_of_a_cluster_joined_by_halos_are_not_flagged():
     """Five bright markers 6 px apart, their halos joined into one blob above the threshold: the blob holds the
     halos' light too, 1.3-1.6x a lone marker's per part, which flagged every part as a marker too many (116 of the
     136 cluster markers found to 0.2 px; the markers.trc take drawn with lens halos lost CLAV_ant, seen by two
-    cameras, both in such clusters). The fitted discs' light is a marker's: parts are measured, not flagged (4)."""
+    cameras, both in such clusters). The fitted discs' light is a marker's: parts are measured, not flagged."""
     sensor = HaloSensor()
     rng = np.random.default_rng(5)
     found = flagged = 0
