@@ -72,7 +72,7 @@ MIN_SHAPE_AREA = 9  # px: smaller blobs are too pixelated and noisy for a shape 
 ROUND_SPLIT = 0.85  # roundness below this: searched for two or more peaks (one round disc is ~1)
 AREA_MERGED = 2.5  # area above this many times the neighbours' median: flagged as merged
 MAX_DISCS = 8  # a blob is split into at most this many markers
-SPLIT_PART_FLUX = 1.25  # a split blob's disc holding more light than this times its neighbours' median: merged
+SPLIT_PART_FLUX = 1.25  # a split blob's parts brighter (summed) than this times their neighbours' median: merged
 FIT_MAX_AREA = 1000  # px: larger blobs (with a raised max_area) get the weighted centroid, not a fit
 FIT_ITERATIONS = 2  # Gauss-Newton steps for a single disc (from the weighted centroid)
 SPLIT_ITERATIONS = 6  # ... for two or more discs fitted jointly (from the peaks)
@@ -642,15 +642,14 @@ def _disc_starts(blobs: np.ndarray, k: int, origin: np.ndarray, peaks: tuple[np.
 
 def _measure(image: np.ndarray, owners: _Owners, blobs: np.ndarray, k: int, radius: np.ndarray,
              peaks: tuple[np.ndarray, np.ndarray, np.ndarray], stats: _Blobs, level: float, sigma: float, t: int
-             ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+             ) -> tuple[np.ndarray, np.ndarray]:
     """Fit ``k`` discs to each blob in ``blobs`` (N,) on the pixels within ``radius`` (N,) px of its
     centroid.
 
     Returns:
-        centres (N, k, 2) px, their covariances (N, k, 2, 2) px^2, (N,) whether a disc's fit failed and each disc's
-        light (N, k), grey levels x px^2 (height x area of the fitted disc; NaN where the blob's fit failed). A fit
-        that fails (no usable pixel, not finite, or a centre that wandered more than max(1.5 px, its radius) from
-        its start) falls back to the start: the weighted centroid (k = 1) or the peaks (k > 1), with the centroid's
+        centres (N, k, 2) px, their covariances (N, k, 2, 2) px^2 and (N,) whether a disc's fit failed. A fit that
+        fails (no usable pixel, not finite, or a centre that wandered more than max(1.5 px, its radius) from its
+        start) falls back to the start: the weighted centroid (k = 1) or the peaks (k > 1), with the centroid's
         noise covariance.
     """
     n = len(blobs)
@@ -662,10 +661,7 @@ def _measure(image: np.ndarray, owners: _Owners, blobs: np.ndarray, k: int, radi
     params[fitted], pcov[fitted] = _fit_discs(values, ox, oy, (np.cumsum(fitted) - 1).take(seg),
                                               np.cumsum(count) - count, start[fitted],
                                               FIT_ITERATIONS if k == 1 else SPLIT_ITERATIONS)
-    centres, covs, failed = _fit_results(params, pcov, start, origin, stats.centroid_cov[blobs], float(sigma), k)
-    disc = params[:, 1:].reshape(n, k, 5)
-    light = np.where(failed[:, None], np.nan, np.pi * disc[:, :, 2] * disc[:, :, 3] ** 2)
-    return centres, covs, failed, light
+    return _fit_results(params, pcov, start, origin, stats.centroid_cov[blobs], float(sigma), k)
 
 
 def _fit_results(params: np.ndarray, pcov: np.ndarray, start: np.ndarray, origin: np.ndarray,
@@ -748,7 +744,8 @@ def detect(image: np.ndarray, *, threshold: float | None = None, min_area: int =
     sxx, sxy, syy = stats.second[ids].reshape(-1, 4)[:, [0, 1, 3]].T  # eigenvalues of the 2x2 moments:
     spread = np.sqrt(0.25 * (sxx - syy) ** 2 + sxy * sxy)
     roundness = np.sqrt(np.maximum(0.5 * (sxx + syy) - spread, 0.0) / np.maximum(0.5 * (sxx + syy) + spread, 1e-12))
-    typical_area = _neighbour_medians(stats.centroid[ids], stats.area[ids, None])[:, 0]
+    typical_area, typical_flux = _neighbour_medians(stats.centroid[ids],
+                                                    np.stack([stats.area[ids], stats.flux[ids]], axis=1)).T
     too_big = stats.area[ids] > AREA_MERGED * typical_area
     elongated = roundness < ROUND_SPLIT
     flagged = too_big | ((roundness < ROUND_MERGED) & (stats.area[ids] >= MIN_SHAPE_AREA))
@@ -756,7 +753,6 @@ def detect(image: np.ndarray, *, threshold: float | None = None, min_area: int =
         raise ValueError(f"refine must be 'fit' or 'centroid', got {refine!r}")
     fit = stats.area[ids] <= FIT_MAX_AREA if refine == "fit" else np.zeros(len(ids), bool)
     xy, cov, part = [stats.centroid[ids[~fit]]], [stats.centroid_cov[ids[~fit]] * sigma**2], [np.flatnonzero(~fit)]
-    light = [stats.flux[ids[~fit]]]
 
     # two markers side by side make an elongated (or oversized) blob: look for their peaks there
     peaks = _peaks(image, pixels, starts, ids[fit & (elongated | too_big)], level, sigma)
@@ -766,35 +762,27 @@ def detect(image: np.ndarray, *, threshold: float | None = None, min_area: int =
         peaks, n_discs, seeded = _seeded_peaks(np.asarray(seeds, dtype=np.float64).reshape(-1, 2), ids,
                                                fit & flagged & (n_discs == 1), owners, stats, peaks, n_discs)
     radius = stats.reach[ids] + SKIRT
-    groups = []  # (blobs (N,) of ids, centres (N, k, 2), covariances (N, k, 2, 2), light (N, k)) per disc count
+    groups = []  # (blobs (N,) of ids, centres (N, k, 2), covariances (N, k, 2, 2)) per fitted disc count
     for k in np.unique(n_discs[fit]):
         group = np.flatnonzero(fit & (n_discs == k))
-        centres, covs, failed, disc_light = _measure(image, owners, ids[group], int(k), radius[group], peaks, stats,
-                                                     level, sigma, t)
+        centres, covs, failed = _measure(image, owners, ids[group], int(k), radius[group], peaks, stats, level,
+                                         sigma, t)
         whole = failed & seeded[group]  # a seeded split that failed: measured whole below
         n_discs[group[whole]] = 1
-        groups.append((group[~whole], centres[~whole], covs[~whole], disc_light[~whole]))
+        groups.append((group[~whole], centres[~whole], covs[~whole]))
     again = np.flatnonzero(seeded & (n_discs == 1))
     if again.size:
-        centres, covs, _, disc_light = _measure(image, owners, ids[again], 1, radius[again], peaks, stats, level,
-                                                sigma, t)
-        groups.append((again, centres, covs, disc_light))
-    for group, centres, covs, disc_light in groups:  # (N, k, ...) per group
+        groups.append((again, *_measure(image, owners, ids[again], 1, radius[again], peaks, stats, level, sigma,
+                                        t)[:2]))
+    for group, centres, covs in groups:  # (N, k, ...) per group
         xy.append(centres.reshape(-1, 2))
         cov.append(covs.reshape(-1, 2, 2))
         part.append(np.repeat(group, centres.shape[1]))
-        light.append(disc_light.ravel())
     part = np.concatenate(part)
-    xy = np.concatenate(xy)
-    # Each part of a split blob is fitted as a disc of its own: measured, not merged; unless its disc, or its blob's
-    # discs on average, hold more light than the markers nearby (three markers fitted as two discs: one disc covers
-    # two of them, or both lie between them). The fitted discs' light, not the blob's above the threshold: where
-    # halos join a cluster of markers into one blob, the light of the halos between them is above the threshold too.
-    light = np.concatenate(light)
-    light = np.where(np.isfinite(light), light, stats.flux[ids][part] / n_discs[part])  # (failed fits: a share)
-    blob_light = np.bincount(part, light, len(ids))[part] / n_discs[part]
+    # Each part of a split blob is fitted as a disc of its own: measured, not merged; unless the parts hold more light
+    # than single markers nearby (three markers fitted as two discs: a centroid between two of them). (Light, not
+    # area: where halos join, the area between two markers rises above the threshold, their light hardly.)
     area = stats.area[ids][part] / n_discs[part]
-    typical_light = _neighbour_medians(xy, light[:, None])[:, 0]
-    split = (n_discs[part] > 1) & (np.maximum(light, blob_light) <= SPLIT_PART_FLUX * typical_light)
-    return Detections(xy, area, np.where(split, 1.0, roundness[part]), floored_covariance(np.concatenate(cov)),
-                      (flagged[part] | (n_discs[part] > 1)) & ~split)
+    split = (n_discs[part] > 1) & (stats.flux[ids][part] / n_discs[part] <= SPLIT_PART_FLUX * typical_flux[part])
+    return Detections(np.concatenate(xy), area, np.where(split, 1.0, roundness[part]),
+                      floored_covariance(np.concatenate(cov)), (flagged[part] | (n_discs[part] > 1)) & ~split)
