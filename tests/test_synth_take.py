@@ -20,6 +20,7 @@ from mocap.synth import (
     rig_for_motion,
     ring_rig,
     simulate,
+    writer,
 )
 from mocap.synth.simulate import plan_take, render_frame
 from mocap.synth.wand import centroid_frames
@@ -212,8 +213,6 @@ def test_same_seed_same_take_other_seed_other_take(tmp_path):
 
 
 def test_failed_render_leaves_nothing_behind(tmp_path, monkeypatch):
-    import mocap.synth.writer as writer
-
     calls = {"n": 0}
     real = writer.render_frame
 
@@ -251,8 +250,6 @@ class _DroppingWriter:
 
 
 def test_a_video_written_incompletely_fails_the_render_and_leaves_nothing_behind(tmp_path, monkeypatch):
-    import mocap.synth.writer as writer
-
     monkeypatch.setattr(writer.cv2, "VideoWriter", _DroppingWriter)
     with pytest.raises(MocapError, match=r"cam1\.mkv: the video was written incompletely \(3 of 6 frames"):
         render_take(tmp_path / "take", ring_rig(), marching_motion(6), SynthSettings(format="mkv"), progress=False)
@@ -260,8 +257,6 @@ def test_a_video_written_incompletely_fails_the_render_and_leaves_nothing_behind
 
 
 def test_a_full_disk_stops_the_render_with_a_clear_error(tmp_path, monkeypatch):
-    import mocap.synth.writer as writer
-
     real = writer.shutil.disk_usage
     monkeypatch.setattr(writer.shutil, "disk_usage", lambda path: real(path)._replace(free=2**20))
     with pytest.raises(MocapError, match="the disk is full \\(1 MiB left after 0 of 5 frames\\)"):
