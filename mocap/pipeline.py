@@ -219,6 +219,10 @@ def reconstruct(take: str | os.PathLike, options: ReconstructOptions | None = No
             _report_calibration_fit(rig, verdict, path)
     _report_blind_cameras(blind, path)
     traj = tracker.finish()
+    confirm = (opts.tracker or TrackerConfig()).confirm_frames
+    if traj.n_frames < confirm:
+        log.info("%s: %d frames, fewer than the %d a new marker needs for an identity: the markers seen in every "
+                 "frame get identities (two-view points that stand still do not)", path, traj.n_frames, confirm)
     if opts.relabel:
         before = traj.n_markers
         log.info("identity repair: %d identities over %d frames ...", before, traj.n_frames)

@@ -20,7 +20,8 @@ Per frame, for all tracks at once (numpy arrays, no per-marker Python objects):
    multi-view support. A point near a track that missed this frame re-acquires it; a point inside
    the (widening) search radius of a lost identity starts a tentative track that inherits that
    identity when confirmed; any other starts a tentative track that gets a new identity after
-   ``confirm_frames`` consecutive frames. Lost identities are kept ``keep_lost_s`` seconds.
+   ``confirm_frames`` consecutive frames. Lost identities are kept ``keep_lost_s`` seconds. A take
+   shorter than that gives identities, when it ends, to the tentative tracks measured in all its frames.
 
 Between 4 and 5, where the measured neighbours of a track (markers within ``neighbour_m``) were
 mispredicted alike by more than ``gate_floor_m``, their median error shifts the track's prediction
@@ -570,6 +571,7 @@ class Tracker:
             return self._result
         first = self._first if self._first is not None else 0
         F = max(self._last - first + 1, 0)
+        self._confirm_whole_take(F)
         seen = np.zeros(self._n_ident, dtype=bool)  # identities withdrawn as reflections have no sample: no column
         for uid, p in self._records.peek("uid", "pos"):
             ident = self._uid_ident[uid]
@@ -608,6 +610,17 @@ class Tracker:
         self._result = Trajectories(labels, self._fps, pos, res, mask, self._rig.names,
                                     first, {"tracker": "mocap.tracker", "identities": S})
         return self._result
+
+    def _confirm_whole_take(self, frames: int) -> None:
+        """A take of fewer than ``confirm_frames`` frames: tentative tracks measured in every one of them get
+        identities, as no track could have been confirmed (weak ones, which must have moved, still do not)."""
+        t = self._t
+        if frames >= self._cfg.confirm_frames or not len(t):
+            return
+        whole = np.flatnonzero((t.ident < 0) & (t.since == 0) & (t.hits >= frames) & ~t.weak)
+        t.ident[whole] = self._n_ident + np.arange(len(whole))
+        self._n_ident += len(whole)
+        self._uid_ident[t.uid[whole]] = t.ident[whole]
 
     # ------------------------------------------------------------------ stages
     def _prepare(self, detections: list[Detections]) -> _Frame:

@@ -51,6 +51,19 @@ def test_rendered_take_is_reconstructed_accurately(png_take):
     assert traj.camera_names == load_rig(take / "calibration.toml").names
 
 
+@pytest.mark.parametrize("stop", [1, 3])
+def test_a_window_shorter_than_the_confirmation_keeps_the_markers_seen_throughout(png_take, stop, caplog):
+    """A new marker needs 4 frames for an identity; a 1- or 3-frame window gives identities to the markers seen in
+    every one of its frames instead of nothing, and says so."""
+    take, truth_path = png_take
+    with caplog.at_level(logging.INFO, logger="mocap.pipeline"):
+        traj = reconstruct(take, ReconstructOptions(progress=False, stop=stop))
+    report = evaluate(traj, load_truth(truth_path))
+    assert traj.n_frames == stop
+    assert report.completeness > 0.85 and report.ghost_rate == 0.0 and report.rmse_mm < 0.5
+    assert any(f"{stop} frames, fewer than the 4" in r.getMessage() for r in caplog.records)
+
+
 def test_mcap_replay_reproduces_the_trajectories(png_take, tmp_path):
     take, _ = png_take
     first = reconstruct(take, ReconstructOptions(progress=False), mcap=tmp_path / "run.mcap")
