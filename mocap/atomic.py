@@ -20,6 +20,13 @@ def check_output_path(path: str | os.PathLike) -> Path:
         raise MocapError(f"{path}: output folder {path.parent} does not exist; create it first")
     if not os.access(path.parent, os.W_OK):
         raise MocapError(f"{path}: output folder {path.parent} is not writable")
+    try:  # (access() says yes to root everywhere, and knows nothing of read-only or special file systems)
+        fd, probe = tempfile.mkstemp(dir=path.parent, prefix=f".{path.stem}.", suffix=".probe")
+    except OSError as err:
+        raise MocapError(f"{path}: cannot create files in {path.parent} ({err.strerror}); choose another "
+                         "output folder") from None
+    os.close(fd)
+    os.unlink(probe)
     return path
 
 
@@ -37,6 +44,9 @@ def atomic_output(path: str | os.PathLike) -> Iterator[Path]:
     try:
         yield tmp_path
         os.replace(tmp_path, path)
+    except OSError as err:  # (disk full, file system gone read-only, a read-only file in the way)
+        raise MocapError(f"{path}: could not be written ({err.strerror or err}); free some space or choose "
+                         "another output path (the file, if it existed, is unchanged)") from err
     finally:
         tmp_path.unlink(missing_ok=True)
 

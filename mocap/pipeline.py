@@ -68,6 +68,11 @@ class ReconstructOptions:
     tracker: TrackerConfig | None = None
     relabel: bool = True
 
+    def __post_init__(self) -> None:
+        if self.roi_scan_every < 0:
+            raise MocapError(f"--roi-scan-every {self.roi_scan_every}: give 0 (scan every full frame) or a positive "
+                             "number of frames between full-frame scans")
+
 
 def _open_source(path: Path, fps: float | None) -> tuple[Any, str]:
     """Open a take folder or an MCAP log; returns the source and its kind ("images"/"centroids")."""

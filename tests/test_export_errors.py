@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import tempfile
 from pathlib import Path
 
 import pytest
@@ -97,7 +98,7 @@ def test_a_failure_while_writing_text_leaves_the_existing_file_untouched(traj, t
         raise OSError("disk full")
 
     monkeypatch.setattr(Path, "write_bytes", half_write)
-    with pytest.raises(OSError, match="disk full"):
+    with pytest.raises(MocapError, match=rf"out\{suffix}: could not be written \(disk full\)"):
         write_trajectories(synthetic_trajectories(n_frames=90, n_markers=4, seed=9), out)
     assert out.read_bytes() == before
     assert list(tmp_path.iterdir()) == [out]  # no temporary file left behind
@@ -118,3 +119,16 @@ def test_a_failure_inside_the_c3d_writer_leaves_the_existing_file_untouched(traj
         write_c3d(synthetic_trajectories(n_frames=90, n_markers=4, seed=9), out)
     assert out.read_bytes() == before
     assert list(tmp_path.iterdir()) == [out]  # no temporary file left behind
+
+
+@pytest.mark.parametrize("suffix", sorted(WRITERS))
+def test_a_folder_that_refuses_new_files_is_reported_before_writing(traj, tmp_path, suffix, monkeypatch):
+    """access() tells root every folder is writable; creating a file there is the real test (a read-only mount,
+    /proc)."""
+    def refuse(*args, **kwargs):
+        raise PermissionError(13, "Permission denied")
+
+    monkeypatch.setattr(tempfile, "mkstemp", refuse)
+    with pytest.raises(MocapError, match=rf"out\{suffix}: cannot create files in .* \(Permission denied\)"):
+        write_trajectories(traj, tmp_path / f"out{suffix}")
+    assert list(tmp_path.iterdir()) == []

@@ -161,13 +161,14 @@ def test_calibration_that_does_not_fit_is_warned_about(png_take, tmp_path, caplo
     assert "cam2" in caplog.text and "cam5" in caplog.text
 
 
-@pytest.mark.parametrize("case", ["missing_take", "missing_output_folder", "empty_range"])
+@pytest.mark.parametrize("case", ["missing_take", "missing_output_folder", "empty_range", "negative_scan"])
 def test_cli_errors_are_one_clear_line(png_take, tmp_path, capsys, case):
     take = png_take[0]
     args = {
         "missing_take": ["reconstruct", str(tmp_path / "nope"), "--c3d", str(tmp_path / "o.c3d")],
         "missing_output_folder": ["reconstruct", str(take), "--c3d", str(tmp_path / "no" / "o.c3d")],
         "empty_range": ["reconstruct", str(take), "--c3d", str(tmp_path / "o.c3d"), "--start", "500"],
+        "negative_scan": ["reconstruct", str(take), "--c3d", str(tmp_path / "o.c3d"), "--roi-scan-every", "-1"],
     }[case]
     assert main(args + ["--no-progress"]) == 2
     err = capsys.readouterr().err
