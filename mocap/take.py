@@ -14,6 +14,7 @@ that cannot be decoded is returned as ``None`` (warning names the file and frame
 from __future__ import annotations
 
 import logging
+import math
 import os
 import re
 import tomllib
@@ -46,6 +47,24 @@ def _natural_key(path: Path) -> list[Any]:
     return [int(t) if t.isdigit() else t.lower() for t in re.split(r"(\d+)", path.name)]
 
 
+def _numbered_frames(files: list[Path]) -> list[Path | None]:
+    """``files`` (sorted) placed by the number in their names (its last digits): a number missing from the run
+    leaves a None in its place, so the frames after it are not moved up a frame; numbered in steps (every other
+    frame exported), each step is one frame. Names without a number, or with one twice, keep their order."""
+    numbers = []
+    for f in files:
+        digits = re.findall(r"\d+", f.stem)
+        numbers.append(int(digits[-1]) if digits else None)
+    if len(files) < 2 or None in numbers or len(set(numbers)) < len(numbers):
+        return list(files)
+    first = min(numbers)
+    step = math.gcd(*(n - first for n in numbers))
+    slots: list[Path | None] = [None] * ((max(numbers) - first) // step + 1)
+    for f, n in zip(files, numbers, strict=True):
+        slots[(n - first) // step] = f
+    return slots
+
+
 def _to_grey(frame: np.ndarray) -> np.ndarray:
     """(H, W) or (H, W, 3|4) uint8 -> (H, W) uint8 grey (equal channels stay exact)."""
     if frame.ndim == 2:
@@ -72,9 +91,14 @@ class _Recording:
         self._warned = 0
         self._shift: int | None = None  # bits dropped from 16-bit PNGs (None: none seen yet)
         if path.is_dir():
-            self._files = sorted((p for p in path.iterdir() if p.suffix.lower() == ".png" and p.is_file()),
-                                 key=_natural_key)
+            self._files = _numbered_frames(sorted(
+                (p for p in path.iterdir() if p.suffix.lower() == ".png" and p.is_file()), key=_natural_key))
             self.n_frames = len(self._files)
+            missing = [i for i, f in enumerate(self._files) if f is None]
+            if missing:
+                log.warning("%s: %d frame(s) missing from the files' numbering (first: frame %d); the camera is "
+                            "treated as blind there and the other frames keep their place", path, len(missing),
+                            missing[0])
             first = self._read_png(0) if self._files else None
             if self._files and first is None:
                 raise MocapError(f"{self._files[0]}: cannot be read as an 8- or 16-bit PNG image; re-export the frames")
@@ -100,6 +124,8 @@ class _Recording:
         self.size = None if first is None else (first.shape[1], first.shape[0])  # (w, h)
 
     def _read_png(self, index: int) -> np.ndarray | None:
+        if self._files[index] is None:
+            return None
         image = cv2.imread(str(self._files[index]), cv2.IMREAD_UNCHANGED)
         if image is not None and image.dtype == np.uint16:
             image = self._to_8_bits(image)
@@ -129,7 +155,9 @@ class _Recording:
         if self._files:
             for index in range(start, stop):
                 image = self._read_png(index)
-                if image is None:
+                if self._files[index] is None:
+                    self._bad_frame(index, "is missing from the numbered PNG files")
+                elif image is None:
                     self._bad_frame(index, f"({self._files[index].name}) cannot be read as an 8- or 16-bit PNG")
                 elif (image.shape[1], image.shape[0]) != size:
                     raise MocapError(f"{self._files[index]}: image size {image.shape[1]}x{image.shape[0]} differs "

@@ -161,6 +161,37 @@ def test_corrupt_png_frame_is_none(tmp_path, caplog):
     assert "000003.png" in caplog.text and "frame 3" in caplog.text
 
 
+def test_a_png_missing_from_the_numbering_is_a_blind_frame_and_the_rest_keep_their_place(tmp_path, caplog):
+    """cam2 lacks 000002.png: its frame 2 is None, its frames 3-4 are still frames 3-4 (not moved up one, out of
+    step with cam1), and the take keeps its 5 frames."""
+    folder = make_take(tmp_path, "png", fps=25.0)
+    (folder / "cam2" / "000002.png").unlink()
+    with caplog.at_level(logging.WARNING):
+        take = open_take(folder)
+        frames = [images for _, images in take.images()]
+    assert take.n_frames == 5 and frames[2][1] is None and frames[2][0] is not None
+    for k in (0, 1, 3, 4):
+        np.testing.assert_array_equal(frames[k][1], frames_for(1, 5)[k])
+    assert "1 frame(s) missing from the files' numbering (first: frame 2)" in caplog.text
+
+
+@pytest.mark.parametrize("pattern, numbers", [("img_{:04d}.png", [10, 12, 14, 16]), ("{}.png", [1, 2, 3, 4])])
+def test_pngs_numbered_in_steps_or_from_one_are_consecutive_frames(tmp_path, pattern, numbers, caplog):
+    """Every other frame exported (10, 12, 14 ...) or numbered from 1: each file is the next frame, none blind."""
+    take = tmp_path / "take"
+    take.mkdir()
+    save_rig(ring_rig(1, size=SIZE), take / "calibration.toml")
+    frames = frames_for(0, len(numbers))
+    (take / "cam1").mkdir()
+    for n, f in zip(numbers, frames, strict=True):
+        assert cv2.imwrite(str(take / "cam1" / pattern.format(n)), f)
+    with caplog.at_level(logging.WARNING):
+        got = [im[0] for _, im in open_take(take, fps=10).images()]
+    assert len(got) == len(frames) and "missing" not in caplog.text
+    for a, b in zip(got, frames, strict=True):
+        np.testing.assert_array_equal(a, b)
+
+
 def test_not_a_video(tmp_path):
     folder = make_take(tmp_path, "mkv")
     (folder / "cam1.mkv").write_bytes(b"definitely not a video")
