@@ -207,7 +207,9 @@ def reconstruct(take: str | os.PathLike, options: ReconstructOptions | None = No
         frames = _detection_frames(source, kind, tracker, replace(opts, stop=stop))
         bar = tqdm(frames, total=stop - opts.start, unit="frame", desc="reconstruct",
                    disable=None if opts.progress else True, leave=False)
+        blobs = 0  # detections over the whole run, all cameras
         for frame_index, dets in bar:
+            blobs += sum(len(d) for d in dets)
             verdict = fit.offer(frame_index, dets)
             if verdict is not None:
                 _report_calibration_fit(rig, verdict, path)
@@ -243,9 +245,16 @@ def reconstruct(take: str | os.PathLike, options: ReconstructOptions | None = No
                  stats.bridged, stats.skin_exchanges)
     traj.camera_names = rig.names
     traj.metadata.update({"source": str(path), "software": f"mocap {__version__}", "cameras": len(rig)})
-    if traj.n_markers == 0:
-        log.warning("%s: no markers were reconstructed; check that markers are visible to at least two "
-                    "cameras and that the images are not too dark", path)
+    if traj.n_markers == 0 and blobs == 0:
+        log.warning("%s: no markers were reconstructed: no camera saw a blob in %d frames. Check that the markers "
+                    "show as small bright spots on a darker background (exposure, lighting, strobes; a blank or "
+                    "saturated image has none)", path, traj.n_frames)
+    elif traj.n_markers == 0:
+        log.warning("%s: no markers were reconstructed from %.1f blobs per camera and frame: no blob was matched "
+                    "in two cameras or more long enough to confirm a marker (%d frames running). Check that the "
+                    "markers are seen by two cameras at least, that calibration.toml belongs to this take, and that "
+                    "the blobs are markers, not noise or reflections", path,
+                    blobs / (len(rig) * max(traj.n_frames, 1)), confirm)
     return traj
 
 

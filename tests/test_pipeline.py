@@ -143,9 +143,22 @@ def test_marker_free_take_gives_empty_output_and_a_warning(tmp_path, caplog):
     with caplog.at_level(logging.WARNING):
         code = main(["reconstruct", str(take), "--c3d", str(tmp_path / "out.c3d"), "--no-progress"])
     assert code == 0
-    assert "no markers were reconstructed" in caplog.text
+    assert "no markers were reconstructed: no camera saw a blob in 8 frames" in caplog.text
     traj = read_c3d(tmp_path / "out.c3d")
     assert traj.n_markers == 0 and traj.n_frames == 8
+
+
+def test_markers_seen_by_one_camera_only_are_named_as_the_cause_of_an_empty_output(png_take, tmp_path, caplog):
+    """Every camera but cam1 is black: cam1's blobs match nothing, and the warning says blobs were seen."""
+    take = _copy(png_take[0], tmp_path / "take")
+    for folder in sorted(take.iterdir()):
+        if folder.is_dir() and folder.name != "cam1":
+            for png in folder.glob("*.png"):
+                cv2.imwrite(str(png), np.zeros_like(cv2.imread(str(png), cv2.IMREAD_GRAYSCALE)))
+    with caplog.at_level(logging.WARNING):
+        traj = reconstruct(take, ReconstructOptions(progress=False, stop=10))
+    assert traj.n_markers == 0
+    assert "no markers were reconstructed from" in caplog.text and "seen by two cameras at least" in caplog.text
 
 
 def test_calibration_that_does_not_fit_is_warned_about(png_take, tmp_path, caplog):
