@@ -50,7 +50,8 @@ def _natural_key(path: Path) -> list[Any]:
 def _numbered_frames(files: list[Path]) -> list[Path | None]:
     """``files`` (sorted) placed by the number in their names (its last digits): a number missing from the run
     leaves a None in its place, so the frames after it are not moved up a frame; numbered in steps (every other
-    frame exported), each step is one frame. Names without a number, or with one twice, keep their order."""
+    frame exported), each step is one frame. Names without a number, with one twice, or whose numbers leave
+    more than half the run empty (timestamps), keep their order."""
     numbers = []
     for f in files:
         digits = re.findall(r"\d+", f.stem)
@@ -59,6 +60,8 @@ def _numbered_frames(files: list[Path]) -> list[Path | None]:
         return list(files)
     first = min(numbers)
     step = math.gcd(*(n - first for n in numbers))
+    if (max(numbers) - first) // step + 1 > 2 * len(files):  # half the run missing: timestamps, not frame numbers
+        return list(files)
     slots: list[Path | None] = [None] * ((max(numbers) - first) // step + 1)
     for f, n in zip(files, numbers, strict=True):
         slots[(n - first) // step] = f

@@ -175,9 +175,11 @@ def test_a_png_missing_from_the_numbering_is_a_blind_frame_and_the_rest_keep_the
     assert "1 frame(s) missing from the files' numbering (first: frame 2)" in caplog.text
 
 
-@pytest.mark.parametrize("pattern, numbers", [("img_{:04d}.png", [10, 12, 14, 16]), ("{}.png", [1, 2, 3, 4])])
+@pytest.mark.parametrize("pattern, numbers", [("img_{:04d}.png", [10, 12, 14, 16]), ("{}.png", [1, 2, 3, 4]),
+                                              ("t{}.png", [1700000000123, 1700000008456, 1700000016790])])
 def test_pngs_numbered_in_steps_or_from_one_are_consecutive_frames(tmp_path, pattern, numbers, caplog):
-    """Every other frame exported (10, 12, 14 ...) or numbered from 1: each file is the next frame, none blind."""
+    """Every other frame exported (10, 12, 14 ...), numbered from 1, or named by timestamps (irregular steps): each
+    file is the next frame, none blind."""
     take = tmp_path / "take"
     take.mkdir()
     save_rig(ring_rig(1, size=SIZE), take / "calibration.toml")
