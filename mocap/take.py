@@ -39,6 +39,7 @@ log = logging.getLogger(__name__)
 VIDEO_SUFFIXES = (".avi", ".mp4", ".mkv")
 DECODE_THREADS = 2  # cameras decoded at once, one frame ahead of the caller (0 or 1: in the caller's thread)
 _GREY_FOURCC = cv2.VideoWriter_fourcc(*"Y800")  # FFmpeg's tag for 8-bit grey video (e.g. FFV1 gray)
+MAX_LEAD_FRAMES = 10  # PNG numberings this close are one counter with files missing at the start
 _MAX_FRAME_WARNINGS = 5  # per camera; later undecodable frames are counted, not each logged
 
 
@@ -47,25 +48,47 @@ def _natural_key(path: Path) -> list[Any]:
     return [int(t) if t.isdigit() else t.lower() for t in re.split(r"(\d+)", path.name)]
 
 
-def _numbered_frames(files: list[Path]) -> list[Path | None]:
+def _numbered_frames(files: list[Path]) -> tuple[list[Path | None], tuple[int, int] | None]:
     """``files`` (sorted) placed by the number in their names (its last digits): a number missing from the run
     leaves a None in its place, so the frames after it are not moved up a frame; numbered in steps (every other
     frame exported), each step is one frame. Names without a number, with one twice, or whose numbers leave
-    more than half the run empty (timestamps), keep their order."""
+    more than half the run empty (timestamps), keep their order. Also returns the first number and the step
+    (None where the names are not frame numbers)."""
     numbers = []
     for f in files:
         digits = re.findall(r"\d+", f.stem)
         numbers.append(int(digits[-1]) if digits else None)
     if len(files) < 2 or None in numbers or len(set(numbers)) < len(numbers):
-        return list(files)
+        return list(files), None
     first = min(numbers)
     step = math.gcd(*(n - first for n in numbers))
     if (max(numbers) - first) // step + 1 > 2 * len(files):  # half the run missing: timestamps, not frame numbers
-        return list(files)
+        return list(files), None
     slots: list[Path | None] = [None] * ((max(numbers) - first) // step + 1)
     for f, n in zip(files, numbers, strict=True):
         slots[(n - first) // step] = f
-    return slots
+    return slots, (first, step)
+
+
+def _align_numbering(recordings: list[_Recording]) -> None:
+    """PNG folders numbered alike whose first numbers differ by a few frames (``MAX_LEAD_FRAMES``): the first
+    files of the later ones are missing, and their frames start blind instead of one camera running ahead of the
+    others. Numbers further apart are independent counters: frames are matched by position."""
+    numbering = [rec.numbering for rec in recordings]
+    if not numbering or any(n is None for n in numbering) or len({step for _, step in numbering}) > 1:
+        return
+    step = numbering[0][1]
+    origin = min(first for first, _ in numbering)
+    if any((first - origin) % step for first, _ in numbering):
+        return
+    leads = [(first - origin) // step for first, _ in numbering]
+    if not 0 < max(leads) <= MAX_LEAD_FRAMES:
+        return
+    for rec, lead in zip(recordings, leads, strict=True):
+        if lead:
+            rec.pad_front(lead)
+            log.warning("%s: its PNG numbering starts %d frame(s) after the other cameras'; the camera is treated "
+                        "as blind in frame(s) 0-%d", rec.path, lead, lead - 1)
 
 
 def _to_grey(frame: np.ndarray) -> np.ndarray:
@@ -94,7 +117,7 @@ class _Recording:
         self._warned = 0
         self._shift: int | None = None  # bits dropped from 16-bit PNGs (None: none seen yet)
         if path.is_dir():
-            self._files = _numbered_frames(sorted(
+            self._files, self.numbering = _numbered_frames(sorted(
                 (p for p in path.iterdir() if p.suffix.lower() == ".png" and p.is_file()), key=_natural_key))
             self.n_frames = len(self._files)
             missing = [i for i, f in enumerate(self._files) if f is None]
@@ -106,7 +129,7 @@ class _Recording:
             if self._files and first is None:
                 raise MocapError(f"{self._files[0]}: cannot be read as an 8- or 16-bit PNG image; re-export the frames")
         else:
-            self._files = []
+            self._files, self.numbering = [], None
             cap = _open_video(path)
             try:
                 if not cap.isOpened():
@@ -125,6 +148,11 @@ class _Recording:
             finally:
                 cap.release()
         self.size = None if first is None else (first.shape[1], first.shape[0])  # (w, h)
+
+    def pad_front(self, frames: int) -> None:
+        """Put ``frames`` missing (blind) frames before a PNG folder's first file."""
+        self._files = [None] * frames + self._files
+        self.n_frames += frames
 
     def _read_png(self, index: int) -> np.ndarray | None:
         if self._files[index] is None:
@@ -331,6 +359,7 @@ def open_take(path: str | os.PathLike, fps: float | None = None) -> Take:
     sources: list[Any]
     if kind == "images":
         sources = [_Recording(p) for p in per_camera]
+        _align_numbering(sources)
         for rec, cam in zip(sources, rig, strict=True):
             if rec.size is not None and rec.size != cam.size:
                 raise MocapError(f"{rec.path}: image size {rec.size[0]}x{rec.size[1]} differs from the size "

@@ -175,6 +175,32 @@ def test_a_png_missing_from_the_numbering_is_a_blind_frame_and_the_rest_keep_the
     assert "1 frame(s) missing from the files' numbering (first: frame 2)" in caplog.text
 
 
+@pytest.mark.parametrize("gone, blind", [(["000000.png"], [0]), (["000000.png", "000001.png"], [0, 1])])
+def test_a_camera_whose_first_pngs_are_missing_starts_blind_in_step_with_the_others(tmp_path, caplog, gone, blind):
+    folder = make_take(tmp_path, "png", fps=25.0)
+    for name in gone:
+        (folder / "cam2" / name).unlink()
+    with caplog.at_level(logging.WARNING):
+        take = open_take(folder)
+        frames = [images for _, images in take.images()]
+    assert take.n_frames == 5 and [k for k in range(5) if frames[k][1] is None] == blind
+    for k in range(len(gone), 5):
+        np.testing.assert_array_equal(frames[k][1], frames_for(1, 5)[k])
+    assert f"numbering starts {len(gone)} frame(s) after the other cameras'" in caplog.text
+
+
+def test_cameras_numbered_by_independent_counters_are_matched_by_position(tmp_path, caplog):
+    """cam1's files are numbered from 0, cam2's from 5000: no padding, frame k of each is its k-th file."""
+    folder = make_take(tmp_path, "png", fps=25.0)
+    for png in sorted((folder / "cam2").glob("*.png")):
+        png.rename(png.with_name(f"{int(png.stem) + 5000:06d}.png"))
+    with caplog.at_level(logging.WARNING):
+        frames = [images for _, images in open_take(folder).images()]
+    assert len(frames) == 5 and "numbering starts" not in caplog.text
+    for k in range(5):
+        np.testing.assert_array_equal(frames[k][1], frames_for(1, 5)[k])
+
+
 @pytest.mark.parametrize("pattern, numbers", [("img_{:04d}.png", [10, 12, 14, 16]), ("{}.png", [1, 2, 3, 4]),
                                               ("t{}.png", [1700000000123, 1700000008456, 1700000016790])])
 def test_pngs_numbered_in_steps_or_from_one_are_consecutive_frames(tmp_path, pattern, numbers, caplog):
