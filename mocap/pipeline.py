@@ -31,7 +31,7 @@ from mocap.detect import detect
 from mocap.detections import Detections
 from mocap.errors import MocapError
 from mocap.fitcheck import FitMonitor, FitReport
-from mocap.relabel import repair_identities
+from mocap.relabel import RelabelConfig, repair_identities
 from mocap.tracker import Tracker, TrackerConfig
 from mocap.trajectories import Trajectories
 
@@ -239,10 +239,11 @@ def reconstruct(take: str | os.PathLike, options: ReconstructOptions | None = No
                  "undone where markers passed close; %d bursts of hops unscrambled; %d samples labelled by rigid "
                  "plates' shapes; %d fragments joined by their distances to rigid neighbours, %d samples moved to the "
                  "identity whose neighbours they fit; %d unconfirmed points joined identities' paths; %d gaps "
-                 "bridged by where the neighbours carry a marker; %d exchanges undone in skin-mounted clusters",
+                 "bridged by where the neighbours carry a marker; %d exchanges undone in skin-mounted clusters; %d "
+                 "scattered identities (no %d frames running) withdrawn",
                  stats.duplicates, stats.swaps, before, traj.n_markers, stats.reunited, stats.exchanges,
                  stats.unscrambled, stats.plate_samples, stats.rejoined, stats.anchor_moves, stats.filled,
-                 stats.bridged, stats.skin_exchanges)
+                 stats.bridged, stats.skin_exchanges, stats.withdrawn, RelabelConfig().confirm_frames)
     traj.camera_names = rig.names
     traj.metadata.update({"source": str(path), "software": f"mocap {__version__}", "cameras": len(rig)})
     if traj.n_markers == 0 and blobs == 0:

@@ -73,7 +73,8 @@ from mocap.scramble import unscramble_bursts
 from mocap.skin import undo_skin_exchanges
 from mocap.trajectories import Trajectories, UnconfirmedPoints
 
-__all__ = ["RelabelConfig", "RelabelStats", "drop_duplicates", "relink_tracklets", "repair_identities", "repair_swaps"]
+__all__ = ["RelabelConfig", "RelabelStats", "drop_duplicates", "relink_tracklets", "repair_identities", "repair_swaps",
+           "withdraw_scattered"]
 
 ANCHOR_ROUNDS = 4  # turns of moves by anchors and rejoins (the whole sprint settles after two or three)
 
@@ -139,6 +140,9 @@ class RelabelConfig:
         end_velocity_frames: an identity ending on a tracklet of one sample (no velocity of its own: its
             extrapolation gate was a standing marker's) takes its velocity from its sample before, when at most this
             many frames before.
+        confirm_frames: an identity the passes leave without a run of this many consecutive samples, and with
+            fewer than twice as many in all, is withdrawn (:func:`withdraw_scattered`): the tracker's confirmation,
+            which the repair's pieces must meet too.
     """
 
     swap_ratio: float = 0.25
@@ -169,6 +173,7 @@ class RelabelConfig:
     unlinked_cost_m: float = 1.0
     loose_refuse: int = 2
     end_velocity_frames: int = 3
+    confirm_frames: int = 4
 
     def jump_acc(self, fps: float) -> float:
         """The acceleration, m/frame^2, above which a track jumped at ``fps`` Hz (``split_acc_m`` and
@@ -188,7 +193,8 @@ class RelabelStats:
     joins), exchanges undone where two markers passed close, bursts of hops unscrambled, cluster members reunited,
     samples moved to the plate member their shape names, fragments rejoined by their anchors, samples moved to the
     identity whose anchors they fit, unconfirmed points that joined an identity's path, links made across gaps by
-    where the neighbours carry a marker, exchanges undone between a skin-mounted cluster's identities."""
+    where the neighbours carry a marker, exchanges undone between a skin-mounted cluster's identities, scattered
+    identities withdrawn."""
 
     duplicates: int = 0
     swaps: int = 0
@@ -202,6 +208,7 @@ class RelabelStats:
     filled: int = 0
     bridged: int = 0
     skin_exchanges: int = 0
+    withdrawn: int = 0
 
 
 def _smooth_run(P: np.ndarray, f: int, col: int, split_acc: float) -> int:
@@ -694,6 +701,25 @@ class _Linker:
             assigned[g] = c
 
 
+def withdraw_scattered(traj: Trajectories, config: RelabelConfig | None = None) -> int:
+    """Empty, in place, the identity columns left without a run of ``confirm_frames`` consecutive samples and with
+    fewer than twice that many samples in all: single samples the passes cut off from other markers' tracks (a hop
+    inside a cluster) and gathered under an identity of their own, where each costs two identity switches. A
+    marker seen only every other frame keeps its identity (it has many samples). Returns the columns emptied."""
+    cfg = config or RelabelConfig()
+    seen = np.isfinite(traj.positions[..., 0])
+    edges = np.diff(seen.astype(np.int8), axis=0, prepend=0, append=0)  # (F + 1, M): +1 run starts, -1 run ends
+    withdrawn = 0
+    for col in np.flatnonzero(seen.any(axis=0) & (seen.sum(axis=0) < 2 * cfg.confirm_frames)):
+        starts, ends = np.flatnonzero(edges[:, col] == 1), np.flatnonzero(edges[:, col] == -1)
+        if (ends - starts).max() < cfg.confirm_frames:
+            traj.positions[:, col] = np.nan
+            traj.residuals[:, col] = np.nan
+            traj.camera_masks[:, col] = 0
+            withdrawn += 1
+    return withdrawn
+
+
 def repair_identities(traj: Trajectories, config: RelabelConfig | None = None,
                       unconfirmed: UnconfirmedPoints | None = None) -> RelabelStats:
     """Duplicates dropped (:func:`drop_duplicates`), swap repair, fragment stitching, exchanges undone where two
@@ -734,7 +760,9 @@ def repair_identities(traj: Trajectories, config: RelabelConfig | None = None,
         stats.filled = fill_from_unconfirmed(traj, unconfirmed)
     stats.bridged = bridge_gaps(traj, jump_acc=jump, reversal_acc=limits.reversal_acc(traj.fps))
     stats.skin_exchanges = undo_skin_exchanges(traj, jump_acc=jump, reversal_acc=limits.reversal_acc(traj.fps))
-    if stats.reunited or stats.rejoined or stats.plate_samples or stats.anchor_moves or stats.bridged:
+    stats.withdrawn = withdraw_scattered(traj, limits)
+    if (stats.reunited or stats.rejoined or stats.plate_samples or stats.anchor_moves or stats.bridged
+            or stats.withdrawn):
         keep = np.isfinite(traj.positions[..., 0]).any(axis=0)
         traj.positions, traj.residuals, traj.camera_masks = (traj.positions[:, keep], traj.residuals[:, keep],
                                                              traj.camera_masks[:, keep])

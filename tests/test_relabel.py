@@ -13,6 +13,7 @@ from mocap.relabel import (
     relink_tracklets,
     repair_identities,
     repair_swaps,
+    withdraw_scattered,
 )
 from mocap.rigid import split_tracklets
 from mocap.synth import SynthSettings
@@ -489,3 +490,22 @@ def test_a_body_whose_markers_vanish_from_every_camera_for_a_while_keeps_one_ide
     repaired = evaluate(traj, take.truth)
     assert alone.switches >= 2 and alone.idf1 < 0.995
     assert repaired.switches == 0 and repaired.idf1 > 0.999 and repaired.completeness > 0.999
+
+
+def test_scattered_identities_are_withdrawn_and_a_marker_seen_every_other_frame_is_not():
+    """Column 1 holds three lone samples (a hop each, cut off other tracks), column 2 two runs of three: no run of 4
+    and fewer than 8 samples, both emptied; column 3, a marker seen every other frame (60 samples, runs of 1), and
+    column 0, a whole track, stay."""
+    P = _scene(n_frames=120, n_markers=4)
+    P[:, 1] = np.nan
+    P[[10, 40, 70], 1] = P[[10, 40, 70], 0] + 0.045
+    P[:, 2] = np.nan
+    P[20:23, 2] = P[50:53, 2] = 0.5
+    P[1::2, 3] = np.nan
+    traj = _traj(P)
+    assert withdraw_scattered(traj) == 2
+    assert not np.isfinite(traj.positions[:, 1:3]).any()
+    np.testing.assert_array_equal(traj.positions[:, [0, 3]], P[:, [0, 3]])
+    shorter = _traj(P)  # confirmed after 3 frames: column 2's runs of 3 are enough
+    assert withdraw_scattered(shorter, RelabelConfig(confirm_frames=3)) == 1
+    np.testing.assert_array_equal(shorter.positions[:, 2], P[:, 2])
