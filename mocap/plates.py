@@ -23,8 +23,8 @@ On finished trajectories (after :mod:`mocap.relabel` and :mod:`mocap.reunite`), 
 3. cuts every identity into tracklets (runs of consecutive samples, also cut where the votes change) and
    gives a tracklet whose votes all name one member (``min_votes``, and ``vote_fraction`` of its samples) to
    that member; a tracklet without enough votes goes with the nearest voted tracklet of its identity (the
-   tracker followed one marker through it), unless the nearest before and after disagree and its own votes
-   side with neither;
+   tracker followed one marker through it), unless the nearest before and after disagree and neither its own
+   votes nor a short gap (``near_frames``, the other side farther) side with one;
 4. moves each tracklet given to a member into that member's identity where it is free over those frames,
    longest first;
 5. gives the tracker's unconfirmed points (:meth:`mocap.tracker.Tracker.unconfirmed`: a marker the recording
@@ -67,6 +67,9 @@ class PlateConfig:
         tolerance_m: points match a plate when each of their distances is within this of the plate's, m.
         min_votes: fewest votes a tracklet needs to be given to a member ...
         vote_fraction: ... and fewest, as a fraction of its samples.
+        near_frames: a tracklet with too few votes, between voted tracklets of its identity that name different
+            members, follows the one at most this many frames away when the other is farther (a marker back after
+            a short gap, then the identity carried on to another marker after a long one).
     """
 
     spread_m: float = 0.0025
@@ -75,6 +78,7 @@ class PlateConfig:
     tolerance_m: float = 0.003
     min_votes: int = 3
     vote_fraction: float = 0.5
+    near_frames: int = 12
 
 
 def _cliques(adjacent: np.ndarray) -> list[list[int]]:
@@ -313,36 +317,46 @@ def _tracklets(seen: np.ndarray, vote: np.ndarray) -> list[tuple[int, np.ndarray
 def _destinations(runs: list[tuple[int, np.ndarray]], vote: np.ndarray, cfg: PlateConfig) -> list[int]:
     """Step 3: the identity each tracklet is given (-1: none). A tracklet with too few votes of its own follows
     the nearest voted tracklets of its identity; where those before and after it disagree, it follows the one
-    its own votes name, if any."""
+    its own votes name, if any, else, without votes of its own, the one within ``near_frames`` of it when the
+    other is farther."""
     dest, few = [], []
     for col, run in runs:
         v = vote[run, col]
         named = np.unique(v[v >= 0])
         enough = (v >= 0).sum() >= max(cfg.min_votes, cfg.vote_fraction * run.size)
         dest.append(int(named[0]) if named.size == 1 and enough else -1)
-        few.append(int(named[0]) if named.size == 1 else -1)
+        few.append(int(named[0]) if named.size == 1 else -1 if named.size == 0 else -2)  # (-2: votes disagree)
+    before, after = _nearest_voted(runs, dest, True), _nearest_voted(runs, dest, False)
     out = []
-    for d, f, *sides in zip(dest, few, _nearest_voted(runs, dest, True), _nearest_voted(runs, dest, False),
-                            strict=True):
-        named = {x for x in sides if x >= 0}  # the nearest voted before and after: none, one, or two alike
-        if d < 0 and len(named) == 2 and f in named:
-            named = {f}  # they disagree, and its own few votes side with one of them
+    for d, f, (b, b_gap), (a, a_gap) in zip(dest, few, before, after, strict=True):
+        named = {x for x in (b, a) if x >= 0}  # the nearest voted before and after: none, one, or two alike
+        if d < 0 and len(named) == 2:
+            if f in named:
+                named = {f}  # they disagree, and its own few votes side with one of them
+            elif f != -1:
+                pass  # its own votes name another member: left where it is
+            elif b_gap <= cfg.near_frames < a_gap:
+                named = {b}  # (the identity's own continuity across a short gap, against a re-identification)
+            elif a_gap <= cfg.near_frames < b_gap:
+                named = {a}
         out.append(d if d >= 0 or len(named) != 1 else named.pop())
     return out
 
 
-def _nearest_voted(runs: list[tuple[int, np.ndarray]], dest: list[int], forward: bool) -> list[int]:
+def _nearest_voted(runs: list[tuple[int, np.ndarray]], dest: list[int], forward: bool) -> list[tuple[int, int]]:
     """Per tracklet, the destination of the nearest tracklet of its identity given one, before it (``forward``)
-    or after it; -1 for none. (``runs`` come identity by identity, in time order.)"""
-    out = [-1] * len(runs)
+    or after it, and the frames between the two; (-1, 0) for none. (``runs`` come identity by identity, in time
+    order.)"""
+    out = [(-1, 0)] * len(runs)
     order = range(len(runs)) if forward else range(len(runs) - 1, -1, -1)
-    column, last = None, -1
+    column, last, edge = None, -1, 0
     for i in order:
-        if runs[i][0] != column:
-            column, last = runs[i][0], -1
-        out[i] = last
+        col, run = runs[i]
+        if col != column:
+            column, last = col, -1
+        out[i] = (last, int(run[0] - edge) if forward else int(edge - run[-1])) if last >= 0 else (-1, 0)
         if dest[i] >= 0:
-            last = dest[i]
+            last, edge = dest[i], int(run[-1] if forward else run[0])
     return out
 
 

@@ -185,6 +185,18 @@ def test_a_short_tracklet_between_disagreeing_neighbours_follows_the_one_its_own
         assert _destinations(runs, vote, PlateConfig()) == [5, expected, 7]
 
 
+@pytest.mark.parametrize("late", [False, True])
+def test_a_short_tracklet_without_votes_follows_the_neighbour_a_short_gap_away(late):
+    """As above, with no vote on the 3 frames: 2 frames after the run voted 5 and 67 before the one voted 7, they
+    continue the marker the identity held before its short gap (the identity went on to another marker after the
+    long one). Mirrored in time, the near neighbour is the later one. Both far: left where they are."""
+    vote = np.full((100, 1), -1)
+    vote[0:10, 0], vote[80:90, 0] = 5, 7
+    runs = [(0, np.arange(0, 10)), (0, np.arange(76, 79) if late else np.arange(11, 14)), (0, np.arange(80, 90))]
+    assert _destinations(runs, vote, PlateConfig()) == [5, 7 if late else 5, 7]
+    assert _destinations(runs, vote, PlateConfig(near_frames=1)) == [5, -1, 7]
+
+
 def test_the_distances_are_those_of_every_pair_of_points():
     rng = np.random.default_rng(19)
     P = rng.normal(0.0, 1.0, (40, 12, 3)) + np.array([5.0, -3.0, 1.0])
