@@ -11,8 +11,8 @@ from pathlib import Path
 from mocap.errors import MocapError
 
 
-def check_output_path(path: str | os.PathLike) -> Path:
-    """Fail early, with a clear message, if ``path`` cannot be written."""
+def _checked(path: str | os.PathLike) -> Path:
+    """``path``, if it names a file in an existing, writable folder; else a clear error."""
     path = Path(path)
     if path.is_dir():
         raise MocapError(f"{path}: is a folder; give a file name for the output")
@@ -20,13 +20,25 @@ def check_output_path(path: str | os.PathLike) -> Path:
         raise MocapError(f"{path}: output folder {path.parent} does not exist; create it first")
     if not os.access(path.parent, os.W_OK):
         raise MocapError(f"{path}: output folder {path.parent} is not writable")
-    try:  # (access() says yes to root everywhere, and knows nothing of read-only or special file systems)
-        fd, probe = tempfile.mkstemp(dir=path.parent, prefix=f".{path.stem}.", suffix=".probe")
+    return path
+
+
+def _temporary_beside(path: Path, suffix: str) -> Path:
+    """A new empty file in ``path``'s folder. Creating it is the real test of the folder: access() says yes to root
+    everywhere, and knows nothing of read-only or special file systems."""
+    try:
+        fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.stem}.", suffix=suffix)
     except OSError as err:
         raise MocapError(f"{path}: cannot create files in {path.parent} ({err.strerror}); choose another "
                          "output folder") from None
     os.close(fd)
-    os.unlink(probe)
+    return Path(tmp)
+
+
+def check_output_path(path: str | os.PathLike) -> Path:
+    """Fail early, with a clear message, if ``path`` cannot be written."""
+    path = _checked(path)
+    _temporary_beside(path, ".probe").unlink()
     return path
 
 
@@ -37,10 +49,8 @@ def atomic_output(path: str | os.PathLike) -> Iterator[Path]:
     On any exception the temporary file is removed and an existing ``path`` is untouched.
     The temporary name keeps the final suffix, for libraries that choose by extension.
     """
-    path = check_output_path(path)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.stem}.", suffix=f".tmp{path.suffix}")
-    os.close(fd)
-    tmp_path = Path(tmp)
+    path = _checked(path)
+    tmp_path = _temporary_beside(path, f".tmp{path.suffix}")
     try:
         yield tmp_path
         os.replace(tmp_path, path)

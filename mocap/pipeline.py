@@ -209,13 +209,14 @@ def reconstruct(take: str | os.PathLike, options: ReconstructOptions | None = No
                    disable=None if opts.progress else True, leave=False)
         blobs = 0  # detections over the whole run, all cameras
         for frame_index, dets in bar:
-            blobs += sum(len(d) for d in dets)
+            counts = [len(d) for d in dets]
+            blobs += sum(counts)
             verdict = fit.offer(frame_index, dets)
             if verdict is not None:
                 _report_calibration_fit(rig, verdict, path)
             result = tracker.step(frame_index, dets)
             if (frame_index - opts.start) % scan_every == 0:  # (a window that missed its marker is not blind)
-                blind.offer(frame_index, [len(d) for d in dets], result.positions)
+                blind.offer(frame_index, counts, result.positions)
             if notice is not None:
                 notice.cancel()  # (the first frame is done)
             if mcap is not None:
@@ -233,7 +234,7 @@ def reconstruct(take: str | os.PathLike, options: ReconstructOptions | None = No
     if opts.relabel:
         before = traj.n_markers
         log.info("identity repair: %d identities over %d frames ...", before, traj.n_frames)
-        stats = repair_identities(traj, unconfirmed=tracker.unconfirmed())
+        stats = repair_identities(traj, RelabelConfig(confirm_frames=confirm), unconfirmed=tracker.unconfirmed())
         log.info("identity repair: %d duplicate samples dropped; %d swaps undone; %d identities -> %d (fragments "
                  "re-linked, tracks cut where they jumped; %d joined by the shapes of rigid clusters); %d exchanges "
                  "undone where markers passed close; %d bursts of hops unscrambled; %d samples labelled by rigid "
@@ -243,7 +244,7 @@ def reconstruct(take: str | os.PathLike, options: ReconstructOptions | None = No
                  "scattered identities (no %d frames running) withdrawn",
                  stats.duplicates, stats.swaps, before, traj.n_markers, stats.reunited, stats.exchanges,
                  stats.unscrambled, stats.plate_samples, stats.rejoined, stats.anchor_moves, stats.filled,
-                 stats.bridged, stats.skin_exchanges, stats.withdrawn, RelabelConfig().confirm_frames)
+                 stats.bridged, stats.skin_exchanges, stats.withdrawn, confirm)
     traj.camera_names = rig.names
     traj.metadata.update({"source": str(path), "software": f"mocap {__version__}", "cameras": len(rig)})
     if traj.n_markers == 0 and blobs == 0:

@@ -330,14 +330,12 @@ def _destinations(runs: list[tuple[int, np.ndarray]], vote: np.ndarray, cfg: Pla
     out = []
     for d, f, (b, b_gap), (a, a_gap) in zip(dest, few, before, after, strict=True):
         named = {x for x in (b, a) if x >= 0}  # the nearest voted before and after: none, one, or two alike
-        if d < 0 and len(named) == 2:
+        if d < 0 and len(named) == 2:  # they disagree: its own few votes, else (none) a short gap, may side
             if f in named:
-                named = {f}  # they disagree, and its own few votes side with one of them
-            elif f != -1:
-                pass  # its own votes name another member: left where it is
-            elif b_gap <= cfg.near_frames < a_gap:
+                named = {f}
+            elif f == -1 and b_gap <= cfg.near_frames < a_gap:
                 named = {b}  # (the identity's own continuity across a short gap, against a re-identification)
-            elif a_gap <= cfg.near_frames < b_gap:
+            elif f == -1 and a_gap <= cfg.near_frames < b_gap:
                 named = {a}
         out.append(d if d >= 0 or len(named) != 1 else named.pop())
     return out

@@ -141,8 +141,9 @@ class RelabelConfig:
             extrapolation gate was a standing marker's) takes its velocity from its sample before, when at most this
             many frames before.
         confirm_frames: an identity the passes leave without a run of this many consecutive samples, and with
-            fewer than twice as many in all, is withdrawn (:func:`withdraw_scattered`): the tracker's confirmation,
-            which the repair's pieces must meet too.
+            fewer than twice as many in all, is withdrawn (:func:`withdraw_scattered`): the tracker's confirmation
+            (``mocap.reconstruct`` passes :attr:`TrackerConfig.confirm_frames`), which the repair's pieces must meet
+            too.
     """
 
     swap_ratio: float = 0.25

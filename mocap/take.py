@@ -155,8 +155,6 @@ class _Recording:
         self.n_frames += frames
 
     def _read_png(self, index: int) -> np.ndarray | None:
-        if self._files[index] is None:
-            return None
         image = cv2.imread(str(self._files[index]), cv2.IMREAD_UNCHANGED)
         if image is not None and image.dtype == np.uint16:
             image = self._to_8_bits(image)
@@ -185,10 +183,11 @@ class _Recording:
         self._warned = 0
         if self._files:
             for index in range(start, stop):
+                if self._files[index] is None:  # (missing from the numbering: reported when opened)
+                    yield None
+                    continue
                 image = self._read_png(index)
-                if self._files[index] is None:
-                    self._bad_frame(index, "is missing from the numbered PNG files")
-                elif image is None:
+                if image is None:
                     self._bad_frame(index, f"({self._files[index].name}) cannot be read as an 8- or 16-bit PNG")
                 elif (image.shape[1], image.shape[0]) != size:
                     raise MocapError(f"{self._files[index]}: image size {image.shape[1]}x{image.shape[0]} differs "
