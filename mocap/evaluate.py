@@ -49,6 +49,12 @@ log = logging.getLogger(__name__)
 _MOT_METRICS = ["num_switches", "idf1", "idp", "idr", "mota"]
 _UNRELATED_FRACTION = 0.05  # fewer output points than this fraction matched: the truth is of another take
 _JUMP_REACH = 2  # frames: a switch this near a jump of its truth marker is put down to the jump
+_CLUSTER_M = 0.12  # m: two labels this near (median) may be exchanged by the recording ...
+_CLUSTER_SPREAD_M = 0.01  # m: ... if their distance holds this well (robust spread)
+_CONTEXT_M = 0.4  # m: neighbours within this tell the two apart ...
+_EXCHANGE_M = 0.03  # m: ... by how far each stands from one and the other; an exchange changes that by this at least
+_EXCHANGE_RATIO = 0.25  # and turns it round at every such neighbour (a + b below this fraction of a - b) ...
+_EXCHANGE_NEIGHBOURS = 3  # ... of this many at least
 
 
 @dataclass
@@ -400,7 +406,8 @@ def _reference_jumps(truth_pos: np.ndarray, fps: float) -> np.ndarray:
       marker centres are that close) of where the first one's path leads, or the first one's last sample within
       that of where the second one's path comes from (constant-velocity extrapolations, forwards and backwards;
       a single sample stands for itself): the recording gave the marker another name. Both labels' samples
-      either side of the change are flagged.
+      either side of the change are flagged;
+    * two labels exchanged across a gap (:func:`_exchanged_across_gaps`): both labels' samples either side of it.
     """
     cfg = RelabelConfig()
     jumps = np.zeros(truth_pos.shape[:2], dtype=bool)
@@ -423,7 +430,77 @@ def _reference_jumps(truth_pos: np.ndarray, fps: float) -> np.ndarray:
             | (np.linalg.norm(source - last, axis=1) < cfg.duplicate_m))
     jumps[ends[e[near], 0], ends[e[near], 1]] = True
     jumps[starts[b[near], 0] + 1, starts[b[near], 1]] = True
+    for before, after, a, b in _exchanged_across_gaps(truth_pos, fps):
+        jumps[before, [a, b]] = True
+        jumps[after, [a, b]] = True
     return jumps
+
+
+def _runs(mask: np.ndarray) -> list[tuple[int, int]]:
+    """(first, last) frame of each run of True in ``mask`` (F,)."""
+    frames = np.flatnonzero(mask)
+    if frames.size == 0:
+        return []
+    breaks = np.flatnonzero(np.diff(frames) > 1)
+    return list(zip(np.r_[frames[0], frames[breaks + 1]].tolist(), np.r_[frames[breaks], frames[-1]].tolist(),
+                    strict=True))
+
+
+def _exchanged_across_gaps(truth_pos: np.ndarray, fps: float) -> list[tuple[int, int, int, int]]:
+    """(last frame before, first frame after, label a, label b): two labels of one cluster (``truth_pos`` (F, M, 3),
+    m) that the recording exchanged while both were hidden (an auto-labeller's guess at a symmetric cluster after a
+    gap). A pair is a cluster where its median distance is under ``_CLUSTER_M`` and its robust spread under
+    ``_CLUSTER_SPREAD_M``; it is compared by the markers around it (:func:`_contrast`, over 0.1 s at each end of a
+    run of frames where both are seen). Where ``_EXCHANGE_NEIGHBOURS`` neighbours or more tell a from b on both
+    sides of a gap and every one of them turned round (|before + after| under ``_EXCHANGE_RATIO`` of |before -
+    after|, which averages over ``_EXCHANGE_M``), the labels were exchanged: a joint's turn changes how far a
+    neighbour stands from a and from b by a few centimetres, it does not reverse that at every neighbour at once."""
+    M = truth_pos.shape[1]
+    seen = np.isfinite(truth_pos[..., 0])
+    window = max(1, int(round(0.1 * fps)))
+    found = []
+    for a, b in zip(*np.triu_indices(M, 1), strict=True):
+        both = seen[:, a] & seen[:, b]
+        if both.sum() < 2:
+            continue
+        d = np.linalg.norm(truth_pos[both, a] - truth_pos[both, b], axis=1)
+        middle = np.median(d)
+        if middle > _CLUSTER_M or 1.4826 * np.median(np.abs(d - middle)) > _CLUSTER_SPREAD_M:
+            continue
+        anchor: tuple[int, dict[int, float]] | None = None  # the last run's end whose neighbours told a from b
+        for first, last in _runs(both):
+            if anchor is not None:
+                head = _contrast(truth_pos, seen, np.arange(first, min(last, first + window - 1) + 1), a, b)
+                common = [r for r in head if r in anchor[1]]
+                if len(common) >= _EXCHANGE_NEIGHBOURS:
+                    then = np.array([anchor[1][r] for r in common])
+                    now = np.array([head[r] for r in common])
+                    kept, turned = np.abs(then - now), np.abs(then + now)
+                    if kept.mean() > _EXCHANGE_M and (turned < _EXCHANGE_RATIO * kept).all():
+                        found.append((turned.sum() / kept.sum(), anchor[0], first, int(a), int(b)))
+            tail = _contrast(truth_pos, seen, np.arange(max(first, last - window + 1), last + 1), a, b)
+            if len(tail) >= _EXCHANGE_NEIGHBOURS:
+                anchor = (last, tail)
+    # A label moved to its partner's marker also turns round against a third marker midway between them: of the
+    # exchanges found for one label over overlapping spans, only the clearest is kept.
+    return [(before, after, a, b) for score, before, after, a, b in found
+            if not any(other < score and {a, b} & {c, d} and before2 < after and before < after2
+                       for other, before2, after2, c, d in found)]
+
+
+def _contrast(truth_pos: np.ndarray, seen: np.ndarray, frames: np.ndarray, a: int, b: int) -> dict[int, float]:
+    """For each other label seen in ``frames`` within ``_CONTEXT_M`` of label a: the median of its distance to a minus
+    its distance to b over those frames, m, where that tells a from b (``_EXCHANGE_M`` / 2 or more)."""
+    out = {}
+    for r in np.flatnonzero(seen[frames].any(axis=0)):
+        if r in (a, b):
+            continue
+        f = frames[seen[frames, r]]
+        to_a = np.linalg.norm(truth_pos[f, a] - truth_pos[f, r], axis=1)
+        value = float(np.median(to_a - np.linalg.norm(truth_pos[f, b] - truth_pos[f, r], axis=1)))
+        if np.median(to_a) < _CONTEXT_M and abs(value) >= _EXCHANGE_M / 2:
+            out[int(r)] = value
+    return out
 
 
 def _at_reference_jumps(frames: np.ndarray, oids: np.ndarray, m: _Matches, near_jump: np.ndarray) -> np.ndarray:

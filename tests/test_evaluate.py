@@ -180,6 +180,42 @@ def test_a_label_given_to_another_marker_for_one_frame_is_put_down_to_the_record
     assert report.reference_jumps == 0 and report.switches_at_reference_jumps == 0
 
 
+def _arm_truth(exchange: bool) -> Truth:
+    """An upper arm (three markers) and a forearm (three markers 0.12, 0.15 and 0.18 m from the elbow) whose elbow
+    opens from 100 to 160 degrees while the arm moves on; the forearm is hidden for frames 30-49, and with
+    ``exchange`` the recording gives its first and last markers each other's labels after that gap."""
+    F = 80
+    s = np.linspace(0.0, 1.0, F)[:, None]
+    elbow = np.array([0.0, 0.0, 1.0]) + s * np.array([0.4, 0.1, 0.0])  # (F, 3)
+    u, w, n = np.eye(3)  # upper arm along x (elbow to shoulder), the elbow turns in the x-y plane about z
+    theta = np.radians(100.0 + 60.0 * s)  # (F, 1)
+    v = np.cos(theta) * u + np.sin(theta) * w  # (F, 3) forearm direction
+    upper = [0.06 * u + 0.03 * n, 0.10 * u - 0.03 * n, 0.14 * u + 0.03 * n]
+    fore = [0.12 * v, 0.15 * v + 0.04 * n, 0.18 * v]
+    positions = np.stack([elbow + p for p in upper] + [elbow + p for p in fore], axis=1)  # (F, 6, 3)
+    positions[30:50, 3:] = np.nan
+    if exchange:
+        positions[50:, [3, 5]] = positions[50:, [5, 3]]
+    M = positions.shape[1]
+    return Truth(labels=[f"A{j}" for j in range(3)] + [f"F{j}" for j in range(3)], fps=FPS, positions=positions,
+                 camera_names=["c1", "c2"], uv=np.zeros((F, 2, M, 2)), visible=np.ones((F, 2, M), dtype=bool),
+                 sigma_px=np.full((F, 2, M), 0.1), settings={})
+
+
+def test_labels_a_recording_exchanged_across_a_gap_are_put_down_to_it() -> None:
+    """The whole sprint's forearm (frames 1037-1282, 2314-2382, 2458-2529): after a gap the recording gives the
+    cluster's first and last markers each other's labels (its triangle with the middle marker is nearly isosceles).
+    The upper arm's markers, all farther from the forearm's far end whatever the elbow's angle, show it; the output
+    that follows the markers counts two switches there, put down to the recording. The elbow opening by 60 degrees
+    over the gap alone is no exchange."""
+    physical = _arm_truth(exchange=False)
+    report = evaluate(output_of(physical.positions), _arm_truth(exchange=True))
+    assert report.switches == 2 and report.switches_at_reference_jumps == 2
+    assert report.reference_jumps == 4  # both labels' samples at frames 29 and 50
+    report = evaluate(output_of(physical.positions), physical)
+    assert report.switches == 0 and report.reference_jumps == 0
+
+
 def test_restarted_track_is_one_switch_and_a_gap_none(truth: Truth) -> None:
     F = truth.n_frames
     restarted = np.concatenate([truth.positions, np.full((F, 1, 3), np.nan)], axis=1)
