@@ -298,7 +298,8 @@ def evaluate(traj: Trajectories, truth: Truth, rig: Rig | None = None, gate_mm: 
                     "this truth belongs to this output", n_match, out_points, gate_mm)
     mot = _mot_summary(acc)
     switch_frames, switch_oids = _switch_events(acc)
-    jumps = _reference_jumps(truth_pos / 1000.0, float(truth.fps))
+    exchanges = _exchanged_across_gaps(truth_pos / 1000.0, float(truth.fps))
+    jumps = _reference_jumps(truth_pos / 1000.0, float(truth.fps), exchanges)
     near_jump = binary_dilation(jumps, structure=np.ones((2 * _JUMP_REACH + 1, 1), dtype=bool))  # (F, M)
 
     crlb = math.nan
@@ -353,7 +354,7 @@ def evaluate(traj: Trajectories, truth: Truth, rig: Rig | None = None, gate_mm: 
         switches=int(mot["num_switches"]),
         switches_per_10k=_ratio(1e4 * mot["num_switches"], n_req),
         reference_jumps=int(jumps.sum()),
-        switches_at_reference_jumps=int(_at_reference_jumps(switch_frames, switch_oids, m, near_jump).sum()),
+        switches_at_reference_jumps=int(_at_reference_jumps(switch_frames, switch_oids, m, near_jump, exchanges).sum()),
         idf1=mot["idf1"],
         idp=mot["idp"],
         idr=mot["idr"],
@@ -396,7 +397,8 @@ def _switch_events(acc: mm.MOTAccumulator) -> tuple[np.ndarray, np.ndarray]:
             switches["OId"].to_numpy(dtype=np.intp))
 
 
-def _reference_jumps(truth_pos: np.ndarray, fps: float) -> np.ndarray:
+def _reference_jumps(truth_pos: np.ndarray, fps: float, exchanges: list[tuple[int, int, int, int]] = ()
+                     ) -> np.ndarray:
     """(F, M) bool: truth samples (``truth_pos`` (F, M, 3), m) where the recording's labelling is at fault, so that an
     output that follows the markers counts ID switches there:
 
@@ -407,7 +409,8 @@ def _reference_jumps(truth_pos: np.ndarray, fps: float) -> np.ndarray:
       that of where the second one's path comes from (constant-velocity extrapolations, forwards and backwards;
       a single sample stands for itself): the recording gave the marker another name. Both labels' samples
       either side of the change are flagged;
-    * two labels exchanged across a gap (:func:`_exchanged_across_gaps`): both labels' samples either side of it.
+    * two labels exchanged across a gap (``exchanges``, from :func:`_exchanged_across_gaps`): both labels' samples
+      either side of it.
     """
     cfg = RelabelConfig()
     jumps = np.zeros(truth_pos.shape[:2], dtype=bool)
@@ -430,7 +433,7 @@ def _reference_jumps(truth_pos: np.ndarray, fps: float) -> np.ndarray:
             | (np.linalg.norm(source - last, axis=1) < cfg.duplicate_m))
     jumps[ends[e[near], 0], ends[e[near], 1]] = True
     jumps[starts[b[near], 0] + 1, starts[b[near], 1]] = True
-    for before, after, a, b in _exchanged_across_gaps(truth_pos, fps):
+    for before, after, a, b in exchanges:
         jumps[before, [a, b]] = True
         jumps[after, [a, b]] = True
     return jumps
@@ -503,17 +506,23 @@ def _contrast(truth_pos: np.ndarray, seen: np.ndarray, frames: np.ndarray, a: in
     return out
 
 
-def _at_reference_jumps(frames: np.ndarray, oids: np.ndarray, m: _Matches, near_jump: np.ndarray) -> np.ndarray:
+def _at_reference_jumps(frames: np.ndarray, oids: np.ndarray, m: _Matches, near_jump: np.ndarray,
+                        exchanges: list[tuple[int, int, int, int]] = ()) -> np.ndarray:
     """(S,) bool: the ID switches (``frames``, ``oids``: (S,) frame and truth marker) within ``_JUMP_REACH`` of a
     reference jump (``near_jump`` (F, M)) of their truth marker, at the switch or at that marker's previous matched
     frame: a label the recording gave another marker for one frame is matched to that marker's identity there, and
-    the switch comes where the label is next seen on its own marker."""
+    the switch comes where the label is next seen on its own marker. A switch of one of two labels the recording
+    exchanged across a gap (``exchanges``: last frame before, first after, the two labels) counts where the span
+    from its previous match to it overlaps that gap: the output may have missed the samples either side of it."""
     F = near_jump.shape[0]
     key = np.sort(m.marker.astype(np.int64) * F + m.frame)  # matches by marker, then frame
     i = np.searchsorted(key, oids.astype(np.int64) * F + frames) - 1  # the match before the switch
     prev = key[np.maximum(i, 0)]
     prev_frame = np.where((i >= 0) & (prev // F == oids), prev % F, frames)
-    return near_jump[frames, oids] | near_jump[prev_frame, oids]
+    at = near_jump[frames, oids] | near_jump[prev_frame, oids]
+    for before, after, a, b in exchanges:
+        at |= np.isin(oids, (a, b)) & (prev_frame <= after) & (frames >= before)
+    return at
 
 
 # ---------------------------------------------------------------------------- CLI

@@ -212,6 +212,10 @@ def test_labels_a_recording_exchanged_across_a_gap_are_put_down_to_it() -> None:
     report = evaluate(output_of(physical.positions), _arm_truth(exchange=True))
     assert report.switches == 2 and report.switches_at_reference_jumps == 2
     assert report.reference_jumps == 4  # both labels' samples at frames 29 and 50
+    missed = physical.positions.copy()
+    missed[20:30] = missed[50:60] = np.nan  # the output has the forearm only well away from the gap
+    report = evaluate(output_of(missed), _arm_truth(exchange=True))
+    assert report.switches == 2 and report.switches_at_reference_jumps == 2
     report = evaluate(output_of(physical.positions), physical)
     assert report.switches == 0 and report.reference_jumps == 0
 
