@@ -56,6 +56,7 @@ from __future__ import annotations
 
 import itertools
 import math
+from collections.abc import Iterator
 from dataclasses import dataclass
 
 import numpy as np
@@ -140,6 +141,18 @@ class RelabelConfig:
         end_velocity_frames: an identity ending on a tracklet of one sample (no velocity of its own: its
             extrapolation gate was a standing marker's) takes its velocity from its sample before, when at most this
             many frames before.
+        cluster_tie_m: joint assignments of a cluster whose summed distance change is within this per marker of the
+            best's are ties (a near-symmetric cluster and its mirror image), m ...
+        context_reach_m: ... told apart by the identities within this of the cluster's members, m ...
+        context_margin_m: ... the one whose neighbours' (centred) distances changed least winning where it beats every
+            other by this much, m (else the best stands).
+        glimpse_members: a cluster glimpsed twice a short gap apart (:meth:`_Linker._assign_glimpses`) needs this many
+            markers on each side ...
+        glimpse_reach_m: ... within this of each other across the gap, m ...
+        glimpse_tol_m: ... and is matched by one common step where every marker's step deviates less than this from
+            it, m ...
+        glimpse_ratio: ... and every other matching's deviates this many times as much ...
+        glimpse_margin_m: ... plus this, m.
         confirm_frames: an identity the passes leave without a run of this many consecutive samples, and with
             fewer than twice as many in all, is withdrawn (:func:`withdraw_scattered`): the tracker's confirmation
             (``mocap.reconstruct`` passes :attr:`TrackerConfig.confirm_frames`), which the repair's pieces must meet
@@ -175,6 +188,14 @@ class RelabelConfig:
     loose_refuse: int = 2
     end_velocity_frames: int = 3
     confirm_frames: int = 4
+    cluster_tie_m: float = 0.0005
+    context_reach_m: float = 0.4
+    context_margin_m: float = 0.01
+    glimpse_members: int = 3
+    glimpse_reach_m: float = 0.15
+    glimpse_tol_m: float = 0.012
+    glimpse_ratio: float = 2.0
+    glimpse_margin_m: float = 0.015
 
     def jump_acc(self, fps: float) -> float:
         """The acceleration, m/frame^2, above which a track jumped at ``fps`` Hz (``split_acc_m`` and
@@ -378,9 +399,10 @@ def relink_tracklets(traj: Trajectories, config: RelabelConfig | None = None) ->
     their distances to attached identities changed, else by the mean disagreement of the two
     constant-velocity extrapolations across a short gap (the identity's forwards, the tracklet's
     backwards). Tracklets starting together that are attached to each other (a cluster back in view)
-    are then assigned jointly, by their distances to each other as well; one that fits no identity may
-    take one back from a newcomer that continued it (:meth:`_Linker.take_back`), else it starts a new
-    one. Output columns are the resulting identities.
+    are then assigned jointly, by their distances to each other as well (near-ties, a symmetric cluster and its
+    mirror image, by the identities around it), and a cluster glimpsed twice a short gap apart by the one step that
+    carries it (:meth:`_Linker._assign_glimpses`); one that fits no identity may take one back from a newcomer that
+    continued it (:meth:`_Linker.take_back`), else it starts a new one. Output columns are the resulting identities.
     """
     cfg = config or RelabelConfig()
     runs = split_tracklets(traj.positions, cfg.jump_acc(traj.fps), cfg.reversal_acc(traj.fps))
@@ -485,6 +507,7 @@ class _Linker:
         if open_chains:
             self._assign(start, group, heads, open_chains, assigned, refused, changes)
             self._assign_cluster(start, group, heads, open_chains, assigned, refused)
+            self._assign_glimpses(start, group, open_chains, assigned, changes)
         taken = set(assigned.values())
         for g in range(len(group)):
             if g not in assigned and heads[g]:
@@ -682,17 +705,24 @@ class _Linker:
                 total += change
             return total if relations >= len(members) else np.inf
 
-        best, best_score = None, np.inf
-        for choice in itertools.permutations(chains, len(members)):
-            value = score(choice)
-            if value < best_score:
-                best, best_score = choice, value
-        if best is None:
+        scored = [(score(choice), choice) for choice in itertools.permutations(chains, len(members))]
+        best_score, best = min(scored, key=lambda sc: sc[0], default=(np.inf, None))
+        if not np.isfinite(best_score):
             return
+        # A near-symmetric cluster (an isosceles triangle of skin markers) fits its mirror image within noise: such
+        # ties go to the choice the markers around the cluster stand towards as they stood before the gap.
+        tied = [choice for value, choice in scored if value <= best_score + cfg.cluster_tie_m * len(members)]
+        by_context = False
+        if len(tied) > 1:
+            context = np.array([self._context_change([group[g] for g in members], choice) for choice in tied])
+            order = np.argsort(context)  # (NaN last)
+            if np.isfinite(context).all() and context[order[1]] > context[order[0]] + cfg.context_margin_m:
+                best, by_context = tied[int(order[0])], True
         current = tuple(assigned.get(g, -1) for g in members)
         if current == best:
             return
-        if -1 not in current and len(set(current)) == len(current) and all(c in chains for c in current):
+        if not by_context and -1 not in current and len(set(current)) == len(current) and all(
+                c in chains for c in current):
             if score(current) <= best_score + cfg.cluster_margin_m * len(members):
                 return
         for other, c in list(assigned.items()):
@@ -700,6 +730,91 @@ class _Linker:
                 del assigned[other]
         for g, c in zip(members, best, strict=True):
             assigned[g] = c
+
+    def _assign_glimpses(self, start: int, group: list[np.ndarray], open_chains: list[int],
+                         assigned: dict[int, int], changes: dict[tuple[int, int], float]) -> None:
+        """A cluster glimpsed twice a short gap apart keeps its layout.
+
+        Markers of a cluster seen in single frames (a forearm in glimpses, each too short for a velocity, moving 20
+        mm a frame with its markers 47 mm apart) defeat the extrapolations. Tracklets starting here and identities
+        ended together within ``max_gap`` frames, ``glimpse_members`` or more on each side within
+        ``glimpse_reach_m`` of the other, are matched by the one common step that carries the ones onto the
+        others: each injective matching is scored by the worst deviation of its steps from their mean; the best
+        replaces the links made where it deviates less than ``glimpse_tol_m`` and every other matching deviates
+        ``glimpse_ratio`` times as much plus ``glimpse_margin_m``, unless a link distances measured is in the way.
+        Three markers or more: two can be carried onto two others of a parallelogram plate by one step.
+        """
+        cfg, P = self.cfg, self.P
+        if len(group) < cfg.glimpse_members:
+            return
+        first = np.array([P[run[0, 0], run[0, 1]] for run in group])  # (n, 3)
+        ended: dict[int, list[int]] = {}
+        for c in open_chains:
+            if start - self.ends[c][0] <= cfg.max_gap:
+                ended.setdefault(self.ends[c][0], []).append(c)
+        for chains in ended.values():
+            last = np.array([self.ends[c][1] for c in chains])  # (k, 3)
+            near = np.linalg.norm(first[:, None] - last[None], axis=2) < cfg.glimpse_reach_m  # (n, k)
+            members, candidates = np.flatnonzero(near.any(axis=1)), np.flatnonzero(near.any(axis=0))
+            if min(len(members), len(candidates)) < cfg.glimpse_members or max(len(members), len(candidates)) > 6:
+                continue
+            fits = []  # (worst deviation of a step from the common one m, tracklets, identities)
+            for g_idx, c_idx in _injections(members, candidates):
+                step = first[g_idx] - last[c_idx]  # (m, 3)
+                if (np.linalg.norm(step, axis=1) < cfg.glimpse_reach_m).all():
+                    fits.append((float(np.linalg.norm(step - step.mean(axis=0), axis=1).max()), g_idx, c_idx))
+            if not fits:
+                continue
+            fits.sort(key=lambda fit: fit[0])
+            best = fits[0][0]
+            if best >= cfg.glimpse_tol_m or (len(fits) > 1 and fits[1][0] <= cfg.glimpse_ratio * best
+                                             + cfg.glimpse_margin_m):
+                continue
+            want = {int(g): chains[c] for g, c in zip(fits[0][1], fits[0][2], strict=True)}
+            if any((g, assigned[g]) in changes for g in want if g in assigned):
+                continue
+            for other, c in list(assigned.items()):
+                if c in want.values() and other not in want:
+                    del assigned[other]
+            assigned.update(want)
+
+    def _profile(self, samples: np.ndarray, skip: set[int]) -> dict[int, float]:
+        """Median distance, m, from a tracklet's samples (n, 2) (frame, column) to each identity seen with them
+        within ``context_reach_m`` (the identities in ``skip`` left out)."""
+        frames, cols = samples[:, 0], samples[:, 1]
+        d = np.linalg.norm(self.P[frames] - self.P[frames, cols][:, None, :], axis=2)  # (n, M)
+        own = self.owner[frames]
+        out = {}
+        for other in np.unique(own[own >= 0]).tolist():
+            if other not in skip and (middle := quick_median(d[own == other])) < self.cfg.context_reach_m:
+                out[other] = middle
+        return out
+
+    def _context_change(self, runs: list[np.ndarray], choice: tuple[int, ...]) -> float:
+        """How the identities around a cluster stand towards its tracklets ``runs`` (first ``shape_history_s``) and
+        towards the identities ``choice`` they would continue (last ``shape_history_s`` before the gap): the mean
+        change, m, of each neighbour's distances to the members, centred on their mean over the members (a joint's
+        turn moves them alike, a mirror image turns them round); NaN where no neighbour is measured at every member
+        on both sides."""
+        then = [self._profile(np.concatenate(self.chains[c])[-self.history:], set(choice)) for c in choice]
+        now = [self._profile(run[: self.history], set(choice)) for run in runs]
+        common = sorted(set.intersection(*(set(p) for p in then + now)))
+        if not common:
+            return np.nan
+        before = np.array([[p[o] for o in common] for p in then])  # (members, neighbours)
+        after = np.array([[p[o] for o in common] for p in now])
+        return float(np.abs((before - before.mean(axis=0)) - (after - after.mean(axis=0))).mean())
+
+
+def _injections(rows: np.ndarray, cols: np.ndarray) -> Iterator[tuple[np.ndarray, np.ndarray]]:
+    """Every one-to-one matching of the smaller of ``rows`` and ``cols`` into the other: (row, column) index arrays of
+    equal length."""
+    if len(rows) <= len(cols):
+        for perm in itertools.permutations(cols.tolist(), len(rows)):
+            yield rows, np.array(perm)
+    else:
+        for perm in itertools.permutations(rows.tolist(), len(cols)):
+            yield np.array(perm), cols
 
 
 def withdraw_scattered(traj: Trajectories, config: RelabelConfig | None = None) -> int:

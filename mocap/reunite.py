@@ -31,7 +31,9 @@ whose distances hold within 5 mm (skin-mounted, a forearm's), seen together for 
 after a gap), each map taken only where its context confirms it; a skin cluster's shape drifts, so there the
 nearer in time wins among maps whose shapes differ by a millimetre or two (2 mm per second apart), which chains
 a cluster seen in glimpses in time order. On the whole sprint (seed 1) the forearm's three markers back after
-its 6 s gap get their identities back that way (47 -> 45 switches, IDF1 0.9803 -> 0.9903).
+its 6 s gap get their identities back that way (47 -> 45 switches, IDF1 0.9803 -> 0.9903). It also maps glimpses
+in a gap of their identities (``fill_holes``: new identities that started later, were seen less and were never
+seen with their images, which go on after the glimpse).
 
 Only whole samples move between identity columns; positions are never changed.
 """
@@ -68,12 +70,15 @@ class ReuniteConfig:
         gap_cost_m: among maps that fit alike, the one across the shorter time wins: each second between two
             identities counts as this much change, m.
         rounds: most passes; each joins identities once, so a cluster away n times needs log2(n + 1) passes.
-        context_s: the context is measured over the new identities' first and their images' last samples, this
-            many seconds' worth of frames (``context_s`` x fps samples), s.
+        context_s: the context is measured over the new identities' first and their images' last samples (before the
+            new ones start), this many seconds' worth of frames (``context_s`` x fps samples), s.
         context_reach_m: other identities within this (median) distance of a member make the context, m.
         context_max_m: a map whose context changed more than this is not taken, m ...
         context_margin_m: ... nor one whose rival's context changed less than this more, m.
         require_context: every map, not only an ambiguous one, must be confirmed by its context.
+        fill_holes: new identities may also be ones that started later, were seen less and were never seen with their
+            images (glimpses of a cluster in its identities' gap, which go on after it), not only ones that started
+            after their images ended.
     """
 
     reach_m: float = 1.0
@@ -91,10 +96,11 @@ class ReuniteConfig:
     context_max_m: float = 0.03
     context_margin_m: float = 0.02
     require_context: bool = False
+    fill_holes: bool = False
 
 
 SKIN_CLUSTERS = ReuniteConfig(min_frames=12, spread_m=0.005, tolerance_m=0.004, mean_tolerance_m=0.003,
-                              gap_cost_m=0.002, require_context=True)
+                              gap_cost_m=0.002, require_context=True, fill_holes=True)
 
 
 class _Matcher:
@@ -176,7 +182,8 @@ def _context_change(P: np.ndarray, seen: np.ndarray, mapping: dict[int, int], wi
                     min_seen: int = 3) -> float:
     """Mean change, m, of how the other identities near both sides stand towards the mapped ones (``P`` (F, M, 3),
     ``seen`` (F, M)): for each neighbour within ``reach`` m of a member on both sides, its median distances to the
-    new identities (over their first ``window`` samples) and to their images (over the images' last ``window``),
+    new identities (over their first ``window`` samples) and to their images (over the images' last ``window`` before
+    the new ones start),
     each centred on their mean over the members; NaN where no neighbour is seen on both sides."""
     news, olds = list(mapping), list(mapping.values())
     members = set(news) | set(olds)
@@ -184,11 +191,13 @@ def _context_change(P: np.ndarray, seen: np.ndarray, mapping: dict[int, int], wi
     if others.size == 0:
         return np.nan
 
+    start = min(int(np.argmax(seen[:, x])) for x in news)
+
     def profile(ids: list[int], tail: bool) -> np.ndarray:
         out = np.full((len(ids), others.size), np.nan)
         for i, x in enumerate(ids):
             frames = np.flatnonzero(seen[:, x])
-            frames = frames[-window:] if tail else frames[:window]
+            frames = frames[frames < start][-window:] if tail else frames[:window]
             with_n = seen[frames][:, others]  # (T, n)
             d = np.linalg.norm(P[frames][:, others] - P[frames, x][:, None], axis=2)
             d[~with_n] = np.nan
@@ -237,7 +246,10 @@ def _matches(P: np.ndarray, fps: float, cfg: ReuniteConfig) -> list[tuple[int, i
     last = np.where(seen.any(axis=0), F - 1 - np.argmax(seen[::-1], axis=0), -1)
     median, spread, count = pair_statistics(P, cfg.min_frames)
     rigid = (spread < cfg.spread_m) & (median < cfg.reach_m)  # (NaN compares False)
-    after = first[:, None] > last[None, :]  # (M, M): identity b started after identity a ended
+    after = first[:, None] > last[None, :]  # (M, M): identity b started after identity a ended ...
+    if cfg.fill_holes:  # ... or b, started later and seen less, was never seen with a (it lies in a's gaps)
+        size = seen.sum(axis=0)
+        after |= (count == 0) & (size[:, None] < size[None, :]) & (first[:, None] > first[None, :])
     gap_cost = cfg.gap_cost_m * np.maximum(first[:, None] - last[None, :], 0) / fps
     window = max(1, int(round(cfg.context_s * fps)))
     matcher = _Matcher(median, rigid, after, seen.sum(axis=0), count > 0, gap_cost, cfg)

@@ -157,6 +157,46 @@ def test_cluster_back_in_view_together_is_relinked_by_its_own_distances():
     assert _same_identities(traj, P)
 
 
+def test_a_symmetric_cluster_back_in_view_is_told_from_its_mirror_image_by_its_neighbours():
+    """The whole sprint's forearm: three skin markers on an isosceles triangle (here exactly: 50, 50 and 60 mm) are
+    hidden for 80 frames at 120 Hz while the elbow opens, and come back with the tracker's identities of its two
+    ends exchanged. Their own distances fit both ways; the upper arm's markers (0.3 m away, in view throughout)
+    stand nearer one end than the other, and that decides."""
+    F = 220
+    s = np.linspace(0.0, 1.0, F)[:, None]
+    elbow = np.array([0.0, 0.0, 1.0]) + s * np.array([0.3, 0.1, 0.0])
+    u, w, n = np.eye(3)
+    theta = np.radians(110.0 + 20.0 * s)
+    v = np.cos(theta) * u + np.sin(theta) * w  # (F, 3) the forearm's direction
+    upper = [0.12 * u + 0.03 * n, 0.16 * u - 0.03 * n, 0.20 * u + 0.03 * n]
+    fore = [0.20 * v, 0.23 * v + 0.04 * n, 0.26 * v]
+    P = np.stack([elbow + p for p in upper] + [elbow + p for p in fore], axis=1)  # (F, 6, 3)
+    returned = P.copy()
+    returned[60:140, 3:] = np.nan
+    returned[140:, [3, 5]] = P[140:, [5, 3]]
+    traj = Trajectories([f"M{k + 1:03d}" for k in range(6)], 120.0, returned)
+    relink_tracklets(traj)
+    assert traj.n_markers == 6
+    assert _same_identities(traj, P)
+
+
+def test_a_cluster_glimpsed_twice_keeps_its_layout():
+    """The whole sprint's forearm at frames 2654 and 2656: three markers (47, 49 and 80 mm apart) moving 20 mm a
+    frame at 120 Hz along their shortest side are seen for single frames two apart. A lone sample has no
+    velocity, and its standing extrapolation lies nearer the marker ahead; the one step that carries all three
+    onto their next glimpse links them."""
+    triangle = np.array([[0.0, 0.0, 0.0], [0.047, 0.0, 0.0], [0.0655, 0.045, 0.0]])
+    step = 0.02 * (triangle[1] - triangle[0]) / np.linalg.norm(triangle[1] - triangle[0])
+    P = np.array([0.0, 0.0, 1.0]) + triangle[None] + np.arange(100)[:, None, None] * step
+    seen = np.zeros(100, dtype=bool)
+    seen[:40] = seen[[46, 48]] = seen[60:] = True
+    glimpsed = np.where(seen[:, None, None], P, np.nan)
+    for members, linked in ((3, True), (4, False)):  # (needing a fourth marker: no such rule)
+        traj = Trajectories(["a", "b", "c"], 120.0, glimpsed.copy())
+        relink_tracklets(traj, RelabelConfig(glimpse_members=members))
+        assert (traj.n_markers == 3 and _same_identities(traj, P)) == linked
+
+
 def test_marker_back_takes_its_identity_back_from_a_newcomer():
     """A newcomer on the same segment, 13 mm from a marker that just vanished, kept that marker's identity (its
     distances changed by 5.7 mm, within the gate); when the marker itself comes back, 20 frames later, its

@@ -150,3 +150,25 @@ def test_a_skin_cluster_seen_in_a_glimpse_between_two_gaps_chains_up_in_time_ord
     traj = Trajectories([f"M{k + 1:03d}" for k in range(P.shape[1])], 100.0, P)
     assert reunite_clusters(traj, SKIN_CLUSTERS) == 6
     assert sorted(columns_follow(traj, truth)) == list(range(7))
+
+
+def test_a_skin_cluster_glimpsed_in_its_identities_gap_joins_them():
+    """The whole sprint's forearm at frames 2439-2458: its identities are known before a 1 s gap and after another
+    (other passes joined those), and in between the cluster is seen for 0.2 s as new identities, its two ends in
+    the order of the mirror image. Those never started after the old ones ended; they lie in their gap. The
+    skin-cluster pass joins them, each to its own marker by the upper arm's distances; without ``fill_holes`` it
+    leaves them alone."""
+    rng = np.random.default_rng(12)
+    truth = _arm(rng)
+    away = np.r_[200:300, 320:400]
+    kept = truth[:, :3].copy()
+    kept[away] = np.nan
+    kept[300:320] = np.nan
+    glimpse = np.full((FRAMES, 3, 3), np.nan)
+    glimpse[300:320] = truth[300:320, [1, 0, 2]]  # (new identities, their first two in the mirror's order)
+    P = np.concatenate([kept, truth[:, 3:], glimpse], axis=1)
+    assert reunite_clusters(Trajectories([f"M{k + 1:03d}" for k in range(10)], 100.0, P.copy()),
+                            replace(SKIN_CLUSTERS, fill_holes=False)) == 0
+    traj = Trajectories([f"M{k + 1:03d}" for k in range(10)], 100.0, P)
+    assert reunite_clusters(traj, SKIN_CLUSTERS) == 3
+    assert sorted(columns_follow(traj, truth)) == list(range(7))
