@@ -100,9 +100,10 @@ class EvalReport:
     rmse_axis_mm: list[float]
     switches: int
     switches_per_10k: float
-    reference_jumps: int  # truth marker-frames where the truth jumps or a marker is renamed (labelling faults)
+    reference_jumps: int  # truth marker-frames where the truth jumps, a marker is renamed or two labels exchanged
     switches_at_reference_jumps: int  # of ``switches``, those within 2 frames of a jump of their truth marker (at
-    # the switch, or at that marker's previous match: the identity it had there was the recording's fault)
+    # the switch, or at that marker's previous match: the identity it had there was the recording's fault), or
+    # whose span since that match overlaps a gap its label was exchanged across
     idf1: float
     idp: float
     idr: float
@@ -144,7 +145,8 @@ class EvalReport:
             lines.append(
                 f"truth jumps  {self.reference_jumps} truth marker-frames jump or change label (the recording's "
                 f"labelling); "
-                f"{self.switches_at_reference_jumps} of the ID switches are within 2 frames of one")
+                f"{self.switches_at_reference_jumps} of the ID switches are within 2 frames of one or across an "
+                f"exchange")
         if per_marker:
             width = max([len(m.label) for m in self.per_marker] + [6])
             lines.append(f"{'marker':<{width}}  complete %   RMSE mm  switches  identity %")
