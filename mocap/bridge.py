@@ -68,7 +68,7 @@ class BridgeConfig:
 
     min_gap: int = 2
     max_gap_s: float = 3.0
-    fit_frames: int = 10
+    fit_frames: int = 15
     check_frames: int = 3
     neighbours: int = 8
     reach_m: float = 0.6
