@@ -39,6 +39,7 @@ from mocap.crlb import crlb_covariance
 from mocap.errors import MocapError
 from mocap.export.c3d import read_c3d
 from mocap.relabel import RelabelConfig
+from mocap.rigid import column_runs
 from mocap.trajectories import Trajectories
 from mocap.truth import Truth, load_truth
 
@@ -300,8 +301,9 @@ def evaluate(traj: Trajectories, truth: Truth, rig: Rig | None = None, gate_mm: 
                     "this truth belongs to this output", n_match, out_points, gate_mm)
     mot = _mot_summary(acc)
     switch_frames, switch_oids = _switch_events(acc)
-    exchanges = _exchanged_across_gaps(truth_pos / 1000.0, float(truth.fps))
-    jumps = _reference_jumps(truth_pos / 1000.0, float(truth.fps), exchanges)
+    truth_m = truth_pos / 1000.0
+    exchanges = _exchanged_across_gaps(truth_m, float(truth.fps))
+    jumps = _reference_jumps(truth_m, float(truth.fps), exchanges)
     near_jump = binary_dilation(jumps, structure=np.ones((2 * _JUMP_REACH + 1, 1), dtype=bool))  # (F, M)
 
     crlb = math.nan
@@ -399,8 +401,7 @@ def _switch_events(acc: mm.MOTAccumulator) -> tuple[np.ndarray, np.ndarray]:
             switches["OId"].to_numpy(dtype=np.intp))
 
 
-def _reference_jumps(truth_pos: np.ndarray, fps: float, exchanges: list[tuple[int, int, int, int]] = ()
-                     ) -> np.ndarray:
+def _reference_jumps(truth_pos: np.ndarray, fps: float, exchanges: list[tuple[int, int, int, int]]) -> np.ndarray:
     """(F, M) bool: truth samples (``truth_pos`` (F, M, 3), m) where the recording's labelling is at fault, so that an
     output that follows the markers counts ID switches there:
 
@@ -441,16 +442,6 @@ def _reference_jumps(truth_pos: np.ndarray, fps: float, exchanges: list[tuple[in
     return jumps
 
 
-def _runs(mask: np.ndarray) -> list[tuple[int, int]]:
-    """(first, last) frame of each run of True in ``mask`` (F,)."""
-    frames = np.flatnonzero(mask)
-    if frames.size == 0:
-        return []
-    breaks = np.flatnonzero(np.diff(frames) > 1)
-    return list(zip(np.r_[frames[0], frames[breaks + 1]].tolist(), np.r_[frames[breaks], frames[-1]].tolist(),
-                    strict=True))
-
-
 def _exchanged_across_gaps(truth_pos: np.ndarray, fps: float) -> list[tuple[int, int, int, int]]:
     """(last frame before, first frame after, label a, label b): two labels of one cluster (``truth_pos`` (F, M, 3),
     m) that the recording exchanged while both were hidden (an auto-labeller's guess at a symmetric cluster after a
@@ -473,7 +464,8 @@ def _exchanged_across_gaps(truth_pos: np.ndarray, fps: float) -> list[tuple[int,
         if middle > _CLUSTER_M or 1.4826 * np.median(np.abs(d - middle)) > _CLUSTER_SPREAD_M:
             continue
         anchor: tuple[int, dict[int, float]] | None = None  # the last run's end whose neighbours told a from b
-        for first, last in _runs(both):
+        for _, run in column_runs(both[:, None], np.zeros((len(both), 1), dtype=bool)):
+            first, last = int(run[0]), int(run[-1])
             if anchor is not None:
                 head = _contrast(truth_pos, seen, np.arange(first, min(last, first + window - 1) + 1), a, b)
                 common = [r for r in head if r in anchor[1]]
@@ -509,7 +501,7 @@ def _contrast(truth_pos: np.ndarray, seen: np.ndarray, frames: np.ndarray, a: in
 
 
 def _at_reference_jumps(frames: np.ndarray, oids: np.ndarray, m: _Matches, near_jump: np.ndarray,
-                        exchanges: list[tuple[int, int, int, int]] = ()) -> np.ndarray:
+                        exchanges: list[tuple[int, int, int, int]]) -> np.ndarray:
     """(S,) bool: the ID switches (``frames``, ``oids``: (S,) frame and truth marker) within ``_JUMP_REACH`` of a
     reference jump (``near_jump`` (F, M)) of their truth marker, at the switch or at that marker's previous matched
     frame: a label the recording gave another marker for one frame is matched to that marker's identity there, and

@@ -68,7 +68,7 @@ from mocap.exchange import undo_exchanges
 from mocap.fill import fill_from_unconfirmed
 from mocap.plates import label_plates
 from mocap.quickstats import quick_median
-from mocap.reunite import SKIN_CLUSTERS, reunite_clusters
+from mocap.reunite import SKIN_CLUSTERS, centred_change, reunite_clusters
 from mocap.rigid import split_tracklets
 from mocap.scramble import unscramble_bursts
 from mocap.skin import undo_skin_exchanges
@@ -793,17 +793,15 @@ class _Linker:
     def _context_change(self, runs: list[np.ndarray], choice: tuple[int, ...]) -> float:
         """How the identities around a cluster stand towards its tracklets ``runs`` (first ``shape_history_s``) and
         towards the identities ``choice`` they would continue (last ``shape_history_s`` before the gap): the mean
-        change, m, of each neighbour's distances to the members, centred on their mean over the members (a joint's
-        turn moves them alike, a mirror image turns them round); NaN where no neighbour is measured at every member
-        on both sides."""
+        change of each neighbour's distances to the members (:func:`mocap.reunite.centred_change`), m; NaN where no
+        neighbour is measured at every member on both sides."""
         then = [self._profile(np.concatenate(self.chains[c])[-self.history:], set(choice)) for c in choice]
         now = [self._profile(run[: self.history], set(choice)) for run in runs]
         common = sorted(set.intersection(*(set(p) for p in then + now)))
         if not common:
             return np.nan
-        before = np.array([[p[o] for o in common] for p in then])  # (members, neighbours)
-        after = np.array([[p[o] for o in common] for p in now])
-        return float(np.abs((before - before.mean(axis=0)) - (after - after.mean(axis=0))).mean())
+        return centred_change(np.array([[p[o] for o in common] for p in then]),  # (members, neighbours)
+                              np.array([[p[o] for o in common] for p in now]))
 
 
 def _injections(rows: np.ndarray, cols: np.ndarray) -> Iterator[tuple[np.ndarray, np.ndarray]]:

@@ -49,7 +49,7 @@ import numpy as np
 from mocap.rigid import PAIRS, PERMUTATIONS, pair_statistics, rigid_triangles
 from mocap.trajectories import Trajectories
 
-__all__ = ["SKIN_CLUSTERS", "ReuniteConfig", "reunite_clusters"]
+__all__ = ["SKIN_CLUSTERS", "ReuniteConfig", "centred_change", "reunite_clusters"]
 
 
 
@@ -211,9 +211,14 @@ def _context_change(P: np.ndarray, seen: np.ndarray, mapping: dict[int, int], wi
     ok &= (np.fmin.reduce(new_p, axis=0) < reach) & (np.fmin.reduce(old_p, axis=0) < reach)  # (NaN compares False)
     if not ok.any():
         return np.nan
-    new_c = new_p[:, ok] - new_p[:, ok].mean(axis=0)
-    old_c = old_p[:, ok] - old_p[:, ok].mean(axis=0)
-    return float(np.abs(new_c - old_c).mean())
+    return centred_change(old_p[:, ok], new_p[:, ok])
+
+
+def centred_change(before: np.ndarray, after: np.ndarray) -> float:
+    """Mean change, m, of neighbours' distances to a cluster's members, ``before`` and ``after`` (members,
+    neighbours), each neighbour's centred on its mean over the members: a joint's turn moves them alike and changes
+    little, a mirror image of the cluster turns them round."""
+    return float(np.abs((before - before.mean(axis=0)) - (after - after.mean(axis=0))).mean())
 
 
 def _join(traj: Trajectories, pairs: list[tuple[int, int]]) -> None:
