@@ -16,24 +16,33 @@ jointly, by every distance of every marker involved at once.
    identities seen neither in the ``window_s`` before the burst nor during it that appear within ``newcomer_s``
    after it within ``reach_m`` of one of its identities (a marker lost in the burst and found again as a new
    identity, or as one lost long before, whose tail is a burst identity's), then the leavers: those last seen
-   within ``newcomer_s`` before the burst's last hop, within ``reach_m`` of one of its identities, and not seen
-   again through the window after it (an identity that ended in the burst while another took its marker);
-2. measures, over the ``window_s`` before the burst, each burst identity's distance to every identity within
-   ``reach_m`` (median and robust spread), and over the ``window_s`` from ``gap`` frames after it, the same from
-   each burst identity's tail;
+   within ``newcomer_s`` before the burst's first hop or later, within ``reach_m`` of one of its identities, and
+   not seen again through the window after it (an identity that ended in the burst while another took its marker);
+2. measures each burst identity's distance to every identity within ``reach_m`` over the ``history_s`` before the
+   burst: the range it kept (its ``range_quantile`` and 1 - ``range_quantile`` quantiles), and over the
+   ``window_s`` from ``gap`` frames after it, the median from each burst identity's tail;
 3. scores every permutation of the burst identities' tails by the log-likelihood ratio of those distances against
-   "no information": a distance is rigid with prior probability ``exp(-spread / rigid_scale_m)`` (a wrist bar's
-   two markers, 0.5 mm over the window, almost surely; an elbow's skin marker, 3 mm, hardly), and then stays within
-   ``spread + noise_m`` (Gaussian); else it is anywhere within ``reach_m``. A marker with no rigid neighbour costs
-   the same under every permutation, so the steady distances decide;
+   "no information" (anywhere within ``reach_m``): a distance stays in the range it kept, its edges blurred by
+   ``range_noise_m`` (Gaussian), except with probability ``outlier``. Skin markers of one segment keep their
+   distances to a few millimetres, markers across a joint to the few centimetres the joint's motion allows, and a
+   distance that ranged over more than ``loose_m`` is not scored. Only distances measured over ``min_history_s`` at
+   least are scored: a range seen for a second has not seen the poses a joint can take (an elbow opening for the
+   first time leaves every range of the forearm's), and there the burst is scored by the ``window_s`` before it
+   alone, as rigid or not: a distance is rigid with prior probability ``exp(-spread / rigid_scale_m)`` (spread:
+   its robust spread; a wrist bar's two markers, 0.5 mm over the window, almost surely; an elbow's skin marker,
+   3 mm, hardly), and then stays within ``spread + noise_m`` (Gaussian); else it is anywhere within ``reach_m``.
+   The window is also the fallback where the ranges put nothing back. (At 50 Hz an arm's skin markers are never
+   rigid enough for the window: on the two players' swings, 5 % of the views hidden, the tails the ranges put
+   back scored no better than the tracker's there);
 4. among the permutations within ``tie_nats`` of the best (a pair whose one rigid distance reads the same both ways
    round: an upper arm's two markers), takes the one whose distances changed least in all, loose ones too (each
    change capped at ``drift_cap_m``, the cap where unmeasured: the upper arm marker stays 100 mm nearer the shoulder
    than the elbow's), where it does so by ``drift_gap_m`` over the next; else the one that moves the fewest
    identities (the tracker's choice stands where nothing tells). It is applied where it beats keeping the tails by
-   ``margin_nats`` and, scored against the window before ending ``recheck_s`` earlier, is still tied with the best
+   ``margin_nats`` and, scored against the frames before ending ``recheck_s`` earlier, is still tied with the best
    and no worse than keeping the tails (frames right before a burst can hold the recording's own garbled labels): from
-   the frame of the burst that gives the tracks the smoothest paths through it.
+   the frame of the burst that gives the tracks the smoothest paths through it. (A distance's drift is how far it
+   left its range, or changed from its median over the window.)
 
 Steps 3 and 4 choose what scoring all g! permutations would, without trying them all: each choice (the least
 cost; the least drift among those near it, and the next; the fewest moves) is found by branch and bound, since a
@@ -46,7 +55,9 @@ Only whole samples move between identity columns; positions are never changed.
 
 from __future__ import annotations
 
+import functools
 import warnings
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -73,8 +84,15 @@ class ScrambleConfig:
         reach_m: ... and in space, m, are one burst; identities hidden in the burst within this of a hop join it,
             and distances within this are measured.
         near_m: identities seen within this of a hop during the burst join it, m.
-        window_s: distances are taken over this long before the burst and after it, s ...
+        window_s: distances are taken over this long after the burst (and before it, where the ranges cannot
+            tell), s ...
         gap: ... the after window starting this many frames after the burst's last hop (its tails settle).
+        history_s: the ranges of the distances are taken over this long before the burst, s ...
+        min_history_s: ... and scored where measured over this long at least, s.
+        range_quantile: a range spans the distance's this and 1 - this quantiles ...
+        range_noise_m: ... its edges blurred by this, m (one standard deviation) ...
+        outlier: ... and a distance leaves it anyway with this probability ...
+        loose_m: ... and a distance that ranged over more than this is not scored, m.
         rigid_scale_m: a distance whose robust spread over the window before is s is rigid with prior probability
             exp(-s / this) ...
         noise_m: ... and then stays within s + this, m (one standard deviation).
@@ -99,6 +117,12 @@ class ScrambleConfig:
     near_m: float = 0.2
     window_s: float = 0.3
     gap: int = 2
+    history_s: float = 5.0
+    min_history_s: float = 2.0
+    range_quantile: float = 0.01
+    range_noise_m: float = 0.004
+    outlier: float = 0.02
+    loose_m: float = 0.06
     rigid_scale_m: float = 0.001
     noise_m: float = 0.001
     tie_nats: float = 3.0
@@ -123,24 +147,32 @@ def unscramble_bursts(traj: Trajectories, jump_acc: float, config: ScrambleConfi
     recheck = max(1, int(round(cfg.recheck_s * traj.fps)))  # frames
     column = np.arange(P.shape[1])  # where each identity's tail after the bursts put back so far now is
     recent = max(1, int(round(cfg.newcomer_s * traj.fps)))  # frames
+    history = max(window, int(round(cfg.history_s * traj.fps)))  # frames
+    established = max(enough, int(round(cfg.min_history_s * traj.fps)))  # samples a range needs
     for first, last, found in _bursts(P, _hop_frames(P, jump_acc), join, jump_acc, cfg):
         ids = column[found]
         start = last + 1 + cfg.gap
         if ids.size > cfg.max_identities or first < window or start + window > len(P):
             continue
         before = slice(first - window, first)
-        ids = np.union1d(ids, _newcomers_and_leavers(P, ids, before, last, start + recent, recent, window, cfg))
-        now, _, seen = _window_distances(P, slice(start, start + window), ids)
-        tables = _tables(P, ids, before, now, seen >= enough, enough, cfg)
-        order = None if tables is None else _choose(tables, cfg)
-        if order is not None and first - recheck - window >= 0:  # the window before must not be the only witness
-            earlier = _tables(P, ids, slice(first - recheck - window, first - recheck), now, seen >= enough, enough,
-                              cfg)
-            least = None if earlier is None else _least(earlier.costs, earlier.costs, np.inf, 1)
-            if earlier is not None:
-                cost = earlier.cost(np.stack([np.arange(ids.size), order]))  # keeping the tails, the choice
-                if least is None or cost[1] - least[0][0] >= cfg.tie_nats or cost[1] > cost[0]:
-                    order = None
+        ids = np.union1d(ids, _newcomers_and_leavers(P, ids, before, first, last, start + recent, recent, window,
+                                                     cfg))
+        now, _, measured = _window_distances(P, slice(start, start + window), ids)
+        seen = measured >= enough
+        order = None
+        for span, need, ranged in ((history, established, True), (window, enough, False)):
+            tables = _tables(P, ids, slice(max(0, first - span), first), now, seen, need, cfg, ranged)
+            order = None if tables is None else _choose(tables, cfg)
+            if order is not None and first - recheck - window >= 0:  # the frames before must not be the only witness
+                earlier = _tables(P, ids, slice(max(0, first - recheck - span), first - recheck), now, seen, need, cfg,
+                                  ranged)
+                least = None if earlier is None else _least(earlier.costs, earlier.costs, np.inf, 1)
+                if earlier is not None:
+                    cost = earlier.cost(np.stack([np.arange(ids.size), order]))  # keeping the tails, the choice
+                    if least is None or cost[1] - least[0][0] >= cfg.tie_nats or cost[1] > cost[0]:
+                        order = None
+            if order is not None:
+                break
         if order is not None:
             traj.permute_tails(smoothest_split(P, first, last, ids, ids[order]), ids[order], ids)
             moved = np.arange(P.shape[1])
@@ -211,15 +243,15 @@ def _bursts(P: np.ndarray, hops: np.ndarray, join: int, jump_acc: float, cfg: Sc
     return out
 
 
-def _newcomers_and_leavers(P: np.ndarray, ids: np.ndarray, before: slice, last: int, until: int, recent: int,
-                           window: int, cfg: ScrambleConfig) -> np.ndarray:
+def _newcomers_and_leavers(P: np.ndarray, ids: np.ndarray, before: slice, first: int, last: int, until: int,
+                           recent: int, window: int, cfg: ScrambleConfig) -> np.ndarray:
     """The identities of ``P`` (F, M, 3) that may hold a burst identity's head or tail (step 1), each within
     ``reach_m`` of one of the burst's identities ``ids`` in its first or last frame: those seen neither over
-    ``before`` (the window before the burst) nor in the burst (up to frame ``last``) that appear before frame
-    ``until`` (a marker lost in the burst found again under another identity), then, where they fit in too, those
-    last seen within ``recent`` frames before ``last`` and not seen again before ``until + window`` (a marker whose
-    identity ended in the burst and whose marker another identity took). None where they would make more than
-    ``max_identities``."""
+    ``before`` (the window before the burst) nor in the burst (frames ``first`` to ``last``) that appear before
+    frame ``until`` (a marker lost in the burst found again under another identity), then, where they fit in too,
+    those last seen ``recent`` frames before ``first`` or later and not seen again before ``until + window`` (a
+    marker whose identity ended in the burst and whose marker another identity took). None where they would make
+    more than ``max_identities``."""
     out = np.zeros(0, dtype=np.intp)
     if ids.size + 1 > cfg.max_identities:
         return out
@@ -233,7 +265,7 @@ def _newcomers_and_leavers(P: np.ndarray, ids: np.ndarray, before: slice, last: 
         candidates.append((new, last + 1 + seen_later[:, new].argmax(axis=0)))  # (first frame seen)
     if gone.size:
         ended = before.start + len(seen_then) - 1 - seen_then[::-1, gone].argmax(axis=0)  # (last frame seen)
-        candidates.append((gone[ended >= last - recent], ended[ended >= last - recent]))
+        candidates.append((gone[ended >= first - recent], ended[ended >= first - recent]))
     for found, frames in candidates:
         with np.errstate(invalid="ignore"):
             d = np.linalg.norm(P[frames[:, None], ids] - P[frames, found][:, None], axis=2)  # (n, g)
@@ -251,16 +283,22 @@ def _shaken(P: np.ndarray) -> np.ndarray:
 
 
 def _tables(P: np.ndarray, ids: np.ndarray, before: slice, now: np.ndarray, seen: np.ndarray, enough: int,
-            cfg: ScrambleConfig) -> _Tables | None:
+            cfg: ScrambleConfig, ranged: bool) -> _Tables | None:
     """The permutation score tables (:class:`_Tables`) of the burst identities ``ids`` of ``P`` (F, M, 3) against
-    their distances over the frames ``before`` (measured in ``enough`` of them at least); ``now``, ``seen`` (g, M):
-    their tails' median distances after, m, and whether measured. None where no distance was measured before."""
-    was, spread, count = _window_distances(P, before, ids)
-    near = (count >= enough) & (was < cfg.reach_m)
+    their distances over the frames ``before`` (measured in ``enough`` of them at least): the ranges they kept
+    (``ranged``) or whether they held (step 3); ``now``, ``seen`` (g, M): their tails' median distances after, m,
+    and whether measured. None where no distance was measured before."""
+    if ranged:
+        low, high, middle, count = _window_ranges(P, before, ids, cfg.range_quantile)
+        stats, terms = (low, high), _range_terms
+    else:
+        middle, spread, count = _window_distances(P, before, ids)
+        stats, terms = (middle, spread), _rigid_terms
+    near = (count >= enough) & (middle < cfg.reach_m)
     near[np.arange(ids.size), ids] = False
     if not near.any():
         return None
-    return _Tables.build(ids, near, was, spread, now, seen, cfg)
+    return _Tables.build(ids, near, stats, now, seen, functools.partial(terms, cfg=cfg))
 
 
 @dataclass(frozen=True)
@@ -279,11 +317,13 @@ class _Tables:
     linked: np.ndarray
 
     @classmethod
-    def build(cls, ids: np.ndarray, near: np.ndarray, was: np.ndarray, spread: np.ndarray, now: np.ndarray,
-              seen: np.ndarray, cfg: ScrambleConfig) -> _Tables:
-        """The tables of the burst identities ``ids`` (g,): ``near`` (g, M) the distances measured before; ``was``,
-        ``spread`` (g, M) their medians and robust spreads, m; ``now``, ``seen`` (g, M) each tail's median
-        distances after, m, and whether measured."""
+    def build(cls, ids: np.ndarray, near: np.ndarray, stats: tuple[np.ndarray, np.ndarray], now: np.ndarray,
+              seen: np.ndarray, terms: Callable[..., np.ndarray]) -> _Tables:
+        """The tables of the burst identities ``ids`` (g,): ``near`` (g, M) the distances measured before; ``stats``
+        two (g, M) statistics of each (a range's ends, or a median and a robust spread), m; ``now``, ``seen`` (g, M)
+        each tail's median distances after, m, and whether measured; ``terms(measured, now, a, b)`` scores distances
+        measured now against statistics ``a``, ``b`` (:func:`_range_terms`, :func:`_rigid_terms`)."""
+        a, b = stats
         g = ids.size
         members, partners = np.nonzero(near)  # (n,) each: a burst member and an identity it was measured to
         slot = np.full(now.shape[1], -1)
@@ -291,14 +331,14 @@ class _Tables:
         inside = slot[partners] >= 0  # the partner is a burst member too: its tail moves with the permutation
         single = np.zeros((2, g, g))
         out = ~inside  # every tail t (g, n_out): its distance to the partner
-        terms = _terms(seen[:, partners[out]], now[:, partners[out]], was[members[out], partners[out]],
-                       spread[members[out], partners[out]], cfg)  # (2, g, n_out)
-        np.add.at(single, (slice(None), members[out]), terms.transpose(0, 2, 1))
+        scored = terms(seen[:, partners[out]], now[:, partners[out]], a[members[out], partners[out]],
+                       b[members[out], partners[out]])  # (2, g, n_out)
+        np.add.at(single, (slice(None), members[out]), scored.transpose(0, 2, 1))
         pairs = np.zeros((2, g, g, g, g))
         m, q = members[inside], slot[partners[inside]]
-        terms = _terms(seen[:, ids, None], now[:, ids, None], was[m, partners[inside]], spread[m, partners[inside]],
-                       cfg)  # (2, g, g, n_in): tail t to the identity of tail u
-        np.add.at(pairs, (slice(None), m, q), terms.transpose(0, 3, 1, 2))
+        scored = terms(seen[:, ids, None], now[:, ids, None], a[m, partners[inside]], b[m, partners[inside]]
+                       )  # (2, g, g, n_in): tail t to the identity of tail u
+        np.add.at(pairs, (slice(None), m, q), scored.transpose(0, 3, 1, 2))
         return cls(single, pairs, np.unique(np.c_[m, q], axis=0).reshape(-1, 2))
 
     @property
@@ -325,8 +365,25 @@ class _Tables:
         return total + self.pairs[which, m, q, perms[:, m], perms[:, q]].sum(axis=1)
 
 
-def _terms(measured: np.ndarray, now: np.ndarray, then: np.ndarray, spread: np.ndarray, cfg: ScrambleConfig
-           ) -> np.ndarray:
+def _range_terms(measured: np.ndarray, now: np.ndarray, low: np.ndarray, high: np.ndarray, cfg: ScrambleConfig
+                 ) -> np.ndarray:
+    """(2, ...) the cost (nats: the negative log-likelihood ratio, 0 where unmeasured or the range is wider than
+    ``loose_m``) and the drift (m: how far outside its range, capped at ``drift_cap_m``; the cap where unmeasured)
+    of distances measured now (``now``, ``measured``: any shape ending in n) that kept to ``low`` .. ``high`` (n,)
+    before, m (step 3 of the module docstring)."""
+    width = high - low
+    sigma = cfg.range_noise_m
+    with np.errstate(invalid="ignore"):  # (unmeasured: NaN, scored 0 and the cap)
+        outside = np.maximum(np.maximum(low - now, now - high), 0.0)
+        density = np.exp(-0.5 * (outside / sigma) ** 2) / (width + np.sqrt(2 * np.pi) * sigma)  # 1/m
+        ratio = (1 - cfg.outlier) * density * cfg.reach_m + cfg.outlier
+        cost = -np.where(measured & (width < cfg.loose_m), np.log(ratio), 0.0)
+        drift = np.where(measured, np.minimum(outside, cfg.drift_cap_m), cfg.drift_cap_m)
+    return np.stack([cost, drift])
+
+
+def _rigid_terms(measured: np.ndarray, now: np.ndarray, then: np.ndarray, spread: np.ndarray, cfg: ScrambleConfig
+                 ) -> np.ndarray:
     """(2, ...) the cost (nats: the negative log-likelihood ratio, 0 where unmeasured) and the drift (m: the capped
     change, the cap where unmeasured) of distances measured now (``now``, ``measured``: any shape ending in n) that
     were ``then`` with robust spread ``spread`` (n,) before, m."""
@@ -433,3 +490,14 @@ def _window_distances(P: np.ndarray, frames: slice, ids: np.ndarray) -> tuple[np
         d = np.linalg.norm(P[frames, ids, None] - P[frames, None, :], axis=3)  # (w, g, M)
         middle = np.nanmedian(d, axis=0)
         return middle, 1.4826 * np.nanmedian(np.abs(d - middle), axis=0), np.isfinite(d).sum(axis=0)
+
+
+def _window_ranges(P: np.ndarray, frames: slice, ids: np.ndarray, quantile: float
+                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The ``quantile`` and 1 - ``quantile`` quantiles, the median and the count of the distances (m) from identities
+    ``ids`` (g,) of ``P`` (F, M, 3) to every identity over ``frames``: four (g, M) arrays."""
+    with np.errstate(invalid="ignore"), warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # (all-NaN: no distance)
+        d = np.linalg.norm(P[frames, ids, None] - P[frames, None, :], axis=3)  # (w, g, M)
+        low, middle, high = np.nanquantile(d, [quantile, 0.5, 1 - quantile], axis=0)
+        return low, high, middle, np.isfinite(d).sum(axis=0)

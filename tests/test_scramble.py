@@ -2,13 +2,15 @@
 
 from __future__ import annotations
 
+import functools
 import itertools
 import warnings
 
 import numpy as np
+import pytest
 from scipy.spatial.transform import Rotation
 
-from mocap.scramble import ScrambleConfig, _choose, _Tables, unscramble_bursts
+from mocap.scramble import ScrambleConfig, _choose, _range_terms, _rigid_terms, _Tables, unscramble_bursts
 from tests.test_relabel import _traj
 
 FPS = 50.0  # (the frame rate of tests.test_relabel._traj)
@@ -218,11 +220,76 @@ def test_an_identity_that_ended_just_before_the_burst_takes_its_marker_back():
     np.testing.assert_array_equal(alone.positions, seen)
 
 
-def test_the_search_chooses_what_enumeration_chooses():
+def test_an_identity_that_ended_before_a_long_burst_began_is_a_leaver():
+    """As above, and 8 frames later, in the same burst, the shoulder's and the elbow's tails exchange too: the burst
+    ends 10 frames after the ended identity was last seen, past ``newcomer_s`` (6 frames) from its last hop but not
+    from its first. It is a leaver still, and every tail goes back, from the frame the burst's permutation is applied
+    at (one frame for the whole burst: its last hop's)."""
+    P = _arm()
+    seen = P.copy()
+    seen[48:, 4] = np.nan
+    seen[50:, 3] = P[50:, 4]
+    seen[50:, 5] = P[50:, 3]
+    seen[58:, [0, 2]] = P[58:, [2, 0]]
+    expected = P.copy()
+    expected[48:50, 4] = np.nan
+    expected[50:, 5] = np.nan
+    traj = _traj(seen)
+    assert unscramble_bursts(traj, JUMP) == 1
+    np.testing.assert_array_equal(traj.positions[58:], expected[58:])
+    np.testing.assert_array_equal(traj.positions[:50], seen[:50])
+
+
+def _skin_arm(frames: int = 500, seed: int = 0, wobble_m: float = 0.003) -> np.ndarray:
+    """(F, 9, 3) at 50 Hz: three torso markers (the torso turning 0.4 rad either way every 4 s), an upper arm and an
+    elbow marker (the arm lifting 0.3-1.5 rad every 3.1 s), a forearm marker, a wrist bar's two markers and a hand
+    marker (the elbow bending 0.4-2.0 rad every 2.3 s): skin markers, each wobbling ``wobble_m`` on its segment at
+    its own 0.4-1.5 Hz; 0.3 mm noise."""
+    t = np.arange(frames) / FPS
+    rng = np.random.default_rng(seed)
+    torso_local = np.array([[0.0, 0.0, 0.0], [0.0, -0.18, -0.05], [-0.08, -0.09, -0.25]])  # the shoulder second
+    upper_local = np.array([[0.0, 0.0, -0.12], [0.02, 0.0, -0.27]])
+    fore_local = np.array([[0.0, 0.03, -0.10], [0.02, 0.0, -0.24], [-0.02, 0.0, -0.24], [0.0, 0.0, -0.33]])
+    zeros = np.zeros(frames)
+    turn = Rotation.from_rotvec(np.c_[zeros, zeros, 0.4 * np.sin(2 * np.pi * t / 4.0)])
+    torso = np.einsum("fij,nj->fni", turn.as_matrix(), torso_local) + [0.0, 0.0, 1.4]
+    arm = turn * Rotation.from_rotvec(np.c_[0.9 + 0.6 * np.sin(2 * np.pi * t / 3.1), zeros, zeros])
+    upper = np.einsum("fij,nj->fni", arm.as_matrix(), upper_local) + torso[:, 1:2]
+    elbow = torso[:, 1] + arm.apply([0.0, 0.0, -0.28])
+    fore = arm * Rotation.from_rotvec(np.c_[1.2 + 0.8 * np.sin(2 * np.pi * t / 2.3 + 1.0), zeros, zeros])
+    forearm = np.einsum("fij,nj->fni", fore.as_matrix(), fore_local) + elbow[:, None]
+    P = np.concatenate([torso, upper, forearm], axis=1)
+    freq, phase = rng.uniform(0.4, 1.5, (2, 1, P.shape[1], 3))
+    P = P + wobble_m * np.sin(2 * np.pi * freq * t[:, None, None] + 4 * np.pi * phase)
+    return P + rng.normal(0, 0.0003, P.shape)
+
+
+def test_skin_markers_permuted_after_seconds_of_motion_get_their_markers_back_by_their_ranges():
+    """The two players' swing, 5 % of the views hidden: an arm's skin markers (3 mm wobble: never rigid over a window
+    of 0.3 s) permuted at frame 400, the upper arm's, the elbow's, the forearm's and the wrist's tails shifted by one.
+    The ranges their distances kept over the 5 s before (a few millimetres within a segment, 1-2 cm from the elbow
+    to the wrist whatever the bend) put all four back; the window before alone, scoring rigid distances, chooses
+    another permutation."""
+    P = _skin_arm()
+    cycle = [3, 4, 5, 6]
+    seen = P.copy()
+    seen[400:, cycle] = P[400:, np.roll(cycle, 1)]
+    traj = _traj(seen.copy())
+    assert unscramble_bursts(traj, JUMP) == 1
+    np.testing.assert_array_equal(traj.positions, P)
+    window_only = _traj(seen.copy())
+    unscramble_bursts(window_only, JUMP, ScrambleConfig(min_history_s=1e3))
+    assert not np.array_equal(window_only.positions, P)
+
+
+@pytest.mark.parametrize("ranged", [False, True])
+def test_the_search_chooses_what_enumeration_chooses(ranged):
     """On random bursts of 2-7 members whose tails were permuted at random (seeded), the branch and bound chooses
     the permutation that scoring all g! and applying step 4 to them chooses: of those within ``tie_nats`` of the
-    best, the least drift where the next is ``drift_gap_m`` more, else the fewest moves, then the least cost."""
+    best, the least drift where the next is ``drift_gap_m`` more, else the fewest moves, then the least cost. Both
+    scores: the ranges kept (here median +- spread) and the window's rigid distances."""
     cfg = ScrambleConfig()
+    terms = functools.partial(_range_terms if ranged else _rigid_terms, cfg=cfg)
     rng = np.random.default_rng(0)
     chosen = 0
     for _ in range(60):
@@ -234,7 +301,8 @@ def test_the_search_chooses_what_enumeration_chooses():
         near = rng.random((g, n)) < 0.6
         near[np.arange(g), ids] = False
         now = was[rng.permutation(g)] + rng.normal(0, 0.001, (g, n))
-        tables = _Tables.build(ids, near, was, spread, now, rng.random((g, n)) < 0.9, cfg)
+        stats = (was - spread, was + spread) if ranged else (was, spread)
+        tables = _Tables.build(ids, near, stats, now, rng.random((g, n)) < 0.9, terms)
         every = np.array(list(itertools.permutations(range(g))))
         cost, drift = tables.cost(every), tables.drift(every)
         moves = (every != np.arange(g)).sum(axis=1)
