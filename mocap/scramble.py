@@ -24,16 +24,16 @@ jointly, by every distance of every marker involved at once.
 3. scores every permutation of the burst identities' tails by the log-likelihood ratio of those distances against
    "no information" (anywhere within ``reach_m``): a distance stays in the range it kept, its edges blurred by
    ``range_noise_m`` (Gaussian), except with probability ``outlier``. Skin markers of one segment keep their
-   distances to a few millimetres, markers across a joint to the few centimetres the joint's motion allows, and a
+   distances to a few millimetres, markers across a joint to the few centimetres the joint's motion allows; a
    distance that ranged over more than ``loose_m`` is not scored. Only distances measured over ``min_history_s`` at
    least are scored: a range seen for a second has not seen the poses a joint can take (an elbow opening for the
-   first time leaves every range of the forearm's), and there the burst is scored by the ``window_s`` before it
-   alone, as rigid or not: a distance is rigid with prior probability ``exp(-spread / rigid_scale_m)`` (spread:
-   its robust spread; a wrist bar's two markers, 0.5 mm over the window, almost surely; an elbow's skin marker,
-   3 mm, hardly), and then stays within ``spread + noise_m`` (Gaussian); else it is anywhere within ``reach_m``.
-   The window is also the fallback where the ranges put nothing back. (At 50 Hz an arm's skin markers are never
-   rigid enough for the window: on the two players' swings, 5 % of the views hidden, the tails the ranges put
-   back scored no better than the tracker's there);
+   first time leaves every range of the forearm's). A burst none of whose distances has such a range (a take's
+   first seconds) is scored by the ``window_s`` before it alone, as rigid or not: a distance is rigid with prior
+   probability ``exp(-spread / rigid_scale_m)`` (its robust spread; a wrist bar's two markers, 0.5 mm over the
+   window, almost surely; an elbow's skin marker, 3 mm, hardly), and then stays within ``spread + noise_m``
+   (Gaussian); else it is anywhere within ``reach_m``. At 50 Hz an arm's skin markers are never rigid enough for
+   the window: in the two players' swing with 5 % of the views hidden (seed 4) the right permutation scored no
+   better there than the tracker's tails, and a wrong one better;
 4. among the permutations within ``tie_nats`` of the best (a pair whose one rigid distance reads the same both ways
    round: an upper arm's two markers), takes the one whose distances changed least in all, loose ones too (each
    change capped at ``drift_cap_m``, the cap where unmeasured: the upper arm marker stays 100 mm nearer the shoulder
@@ -162,7 +162,9 @@ def unscramble_bursts(traj: Trajectories, jump_acc: float, config: ScrambleConfi
         order = None
         for span, need, ranged in ((history, established, True), (window, enough, False)):
             tables = _tables(P, ids, slice(max(0, first - span), first), now, seen, need, cfg, ranged)
-            order = None if tables is None else _choose(tables, cfg)
+            if tables is None:
+                continue  # (no range measured long enough: the window before decides)
+            order = _choose(tables, cfg)
             if order is not None and first - recheck - window >= 0:  # the frames before must not be the only witness
                 earlier = _tables(P, ids, slice(max(0, first - recheck - span), first - recheck), now, seen, need, cfg,
                                   ranged)
@@ -171,8 +173,7 @@ def unscramble_bursts(traj: Trajectories, jump_acc: float, config: ScrambleConfi
                     cost = earlier.cost(np.stack([np.arange(ids.size), order]))  # keeping the tails, the choice
                     if least is None or cost[1] - least[0][0] >= cfg.tie_nats or cost[1] > cost[0]:
                         order = None
-            if order is not None:
-                break
+            break
         if order is not None:
             traj.permute_tails(smoothest_split(P, first, last, ids, ids[order]), ids[order], ids)
             moved = np.arange(P.shape[1])
