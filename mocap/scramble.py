@@ -19,7 +19,9 @@ jointly, by every distance of every marker involved at once.
    within ``newcomer_s`` before the burst's first hop or later, within ``reach_m`` of one of its identities, and
    not seen again through the window after it (an identity that ended in the burst while another took its marker);
 2. measures each burst identity's distance to every identity within ``reach_m`` over the ``history_s`` before the
-   burst: the range it kept (its ``range_quantile`` and 1 - ``range_quantile`` quantiles), and over the
+   burst, since the identity was last missing for ``history_gap_s`` (before such a gap it may have been another
+   marker's: the tracker's re-identifications after long gaps are where identities get mixed): the range it kept
+   (its ``range_quantile`` and 1 - ``range_quantile`` quantiles), and over the
    ``window_s`` from ``gap`` frames after it, the median from each burst identity's tail;
 3. scores every permutation of the burst identities' tails by the log-likelihood ratio of those distances against
    "no information" (anywhere within ``reach_m``): a distance stays in the range it kept, its edges blurred by
@@ -88,7 +90,8 @@ class ScrambleConfig:
             tell), s ...
         gap: ... the after window starting this many frames after the burst's last hop (its tails settle).
         history_s: the ranges of the distances are taken over this long before the burst, s ...
-        min_history_s: ... and scored where measured over this long at least, s.
+        min_history_s: ... and scored where measured over this long at least, s ...
+        history_gap_s: ... each burst identity's since it was last missing this long in a row, s.
         range_quantile: a range spans the distance's this and 1 - this quantiles ...
         range_noise_m: ... its edges blurred by this, m (one standard deviation) ...
         outlier: ... and a distance leaves it anyway with this probability ...
@@ -119,6 +122,7 @@ class ScrambleConfig:
     gap: int = 2
     history_s: float = 5.0
     min_history_s: float = 2.0
+    history_gap_s: float = 0.5
     range_quantile: float = 0.01
     range_noise_m: float = 0.004
     outlier: float = 0.02
@@ -149,6 +153,7 @@ def unscramble_bursts(traj: Trajectories, jump_acc: float, config: ScrambleConfi
     recent = max(1, int(round(cfg.newcomer_s * traj.fps)))  # frames
     history = max(window, int(round(cfg.history_s * traj.fps)))  # frames
     established = max(enough, int(round(cfg.min_history_s * traj.fps)))  # samples a range needs
+    history_gap = max(1, int(round(cfg.history_gap_s * traj.fps)))  # frames
     for first, last, found in _bursts(P, _hop_frames(P, jump_acc), join, jump_acc, cfg):
         ids = column[found]
         start = last + 1 + cfg.gap
@@ -160,14 +165,14 @@ def unscramble_bursts(traj: Trajectories, jump_acc: float, config: ScrambleConfi
         now, _, measured = _window_distances(P, slice(start, start + window), ids)
         seen = measured >= enough
         order = None
-        for span, need, ranged in ((history, established, True), (window, enough, False)):
-            tables = _tables(P, ids, slice(max(0, first - span), first), now, seen, need, cfg, ranged)
+        for span, need, gap in ((history, established, history_gap), (window, enough, None)):
+            tables = _tables(P, ids, slice(max(0, first - span), first), now, seen, need, cfg, gap)
             if tables is None:
                 continue  # (no range measured long enough: the window before decides)
             order = _choose(tables, cfg)
             if order is not None and first - recheck - window >= 0:  # the frames before must not be the only witness
                 earlier = _tables(P, ids, slice(max(0, first - recheck - span), first - recheck), now, seen, need, cfg,
-                                  ranged)
+                                  gap)
                 least = None if earlier is None else _least(earlier.costs, earlier.costs, np.inf, 1)
                 if earlier is not None:
                     cost = earlier.cost(np.stack([np.arange(ids.size), order]))  # keeping the tails, the choice
@@ -284,13 +289,13 @@ def _shaken(P: np.ndarray) -> np.ndarray:
 
 
 def _tables(P: np.ndarray, ids: np.ndarray, before: slice, now: np.ndarray, seen: np.ndarray, enough: int,
-            cfg: ScrambleConfig, ranged: bool) -> _Tables | None:
+            cfg: ScrambleConfig, gap: int | None) -> _Tables | None:
     """The permutation score tables (:class:`_Tables`) of the burst identities ``ids`` of ``P`` (F, M, 3) against
-    their distances over the frames ``before`` (measured in ``enough`` of them at least): the ranges they kept
-    (``ranged``) or whether they held (step 3); ``now``, ``seen`` (g, M): their tails' median distances after, m,
-    and whether measured. None where no distance was measured before."""
-    if ranged:
-        low, high, middle, count = _window_ranges(P, before, ids, cfg.range_quantile)
+    their distances over the frames ``before`` (measured in ``enough`` of them at least): the ranges they kept since
+    their last ``gap`` frames missing in a row, or (None) whether they held (step 3); ``now``, ``seen`` (g, M): their
+    tails' median distances after, m, and whether measured. None where no distance was measured before."""
+    if gap is not None:
+        low, high, middle, count = _window_ranges(P, before, ids, cfg.range_quantile, gap)
         stats, terms = (low, high), _range_terms
     else:
         middle, spread, count = _window_distances(P, before, ids)
@@ -493,12 +498,19 @@ def _window_distances(P: np.ndarray, frames: slice, ids: np.ndarray) -> tuple[np
         return middle, 1.4826 * np.nanmedian(np.abs(d - middle), axis=0), np.isfinite(d).sum(axis=0)
 
 
-def _window_ranges(P: np.ndarray, frames: slice, ids: np.ndarray, quantile: float
+def _window_ranges(P: np.ndarray, frames: slice, ids: np.ndarray, quantile: float, gap: int
                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """The ``quantile`` and 1 - ``quantile`` quantiles, the median and the count of the distances (m) from identities
-    ``ids`` (g,) of ``P`` (F, M, 3) to every identity over ``frames``: four (g, M) arrays."""
+    ``ids`` (g,) of ``P`` (F, M, 3) to every identity over ``frames``, each identity's since its last ``gap`` frames
+    missing in a row (``frames`` being a slice of ``P``): four (g, M) arrays."""
+    seen = np.isfinite(P[frames, ids, 0])  # (w, g)
+    index = np.arange(len(seen))[:, None]
+    missing = index - np.maximum.accumulate(np.where(seen, index, -1), axis=0)  # frames missing in a row, 0 if seen
+    long_gap = missing >= gap
+    since = np.where(long_gap.any(axis=0), len(seen) - np.argmax(long_gap[::-1], axis=0), 0)  # (g,)
     with np.errstate(invalid="ignore"), warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)  # (all-NaN: no distance)
         d = np.linalg.norm(P[frames, ids, None] - P[frames, None, :], axis=3)  # (w, g, M)
+        d[index < since] = np.nan
         low, middle, high = np.nanquantile(d, [quantile, 0.5, 1 - quantile], axis=0)
         return low, high, middle, np.isfinite(d).sum(axis=0)

@@ -10,7 +10,15 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from mocap.scramble import ScrambleConfig, _choose, _range_terms, _rigid_terms, _Tables, unscramble_bursts
+from mocap.scramble import (
+    ScrambleConfig,
+    _choose,
+    _range_terms,
+    _rigid_terms,
+    _Tables,
+    _window_ranges,
+    unscramble_bursts,
+)
 from tests.test_relabel import _traj
 
 FPS = 50.0  # (the frame rate of tests.test_relabel._traj)
@@ -280,6 +288,25 @@ def test_skin_markers_permuted_after_seconds_of_motion_get_their_markers_back_by
     window_only = _traj(seen.copy())
     unscramble_bursts(window_only, JUMP, ScrambleConfig(min_history_s=1e3))
     assert not np.array_equal(window_only.positions, P)
+
+
+
+def test_a_range_is_taken_since_the_identity_was_last_missing_for_long():
+    """An identity that held the hand marker, was missing for 0.6 s and then held the forearm marker (the tracker's
+    re-identification after a long gap: the sprint's forearm, seed 1, frame 1868): its distances are ranged over the
+    forearm marker's samples alone (cut at gaps of 0.5 s); cut at gaps of 0.8 s only, they span both markers'."""
+    P = _skin_arm()
+    seen = P.copy()
+    seen[100:250, 5] = P[100:250, 8]
+    seen[100:250, 8] = np.nan
+    seen[250:280, 5] = np.nan
+    frames = slice(0, 400)
+    low, high, _, count = _window_ranges(seen, frames, np.array([5]), 0.01, 25)
+    d = np.linalg.norm(P[280:400, 5] - P[280:400, 3], axis=1)
+    assert count[0, 3] == 120
+    np.testing.assert_allclose([low[0, 3], high[0, 3]], np.quantile(d, [0.01, 0.99]))
+    low, high, _, count = _window_ranges(seen, frames, np.array([5]), 0.01, 40)
+    assert count[0, 3] == 370 and high[0, 3] - low[0, 3] > 2 * (np.ptp(d))
 
 
 @pytest.mark.parametrize("ranged", [False, True])
