@@ -56,8 +56,12 @@ class AnchorConfig:
     Attributes:
         tolerance_m: a fragment's median distance to an anchor must be within this of the target's, m (skin
             markers: a few millimetres; the cluster's other markers differ by centimetres).
-        spread_m: an anchor's distance to the target (and to the fragment) spreads less than this, m.
+        spread_m: an anchor's distance to the target (and to the fragment) spreads less than this, m (an elbow's or
+            a toe's skin marker to its neighbours: 3-5 mm).
         joint_spread_m: ... or less than this for the fragment's own anchors (a marker by a joint), m.
+        move_spread_m: the anchors a sample's vote is judged by (:func:`move_refuted_samples`) spread less than this,
+            m: a sample is judged in its one frame, a fragment over all of its (with ``spread_m`` there, the whole
+            sprint's forearm moved 9 switches' worth of samples wrongly).
         reach_m: anchors are within this of the target (median), m.
         min_frames: frames an anchor and the target must be seen together.
         piece_frames: frames an anchor and the fragment must be seen together.
@@ -69,7 +73,8 @@ class AnchorConfig:
     """
 
     tolerance_m: float = 0.006
-    spread_m: float = 0.003
+    spread_m: float = 0.005
+    move_spread_m: float = 0.003
     joint_spread_m: float = 0.006
     reach_m: float = 0.3
     min_frames: int = 30
@@ -80,11 +85,12 @@ class AnchorConfig:
     vote_fraction: float = 0.5
 
 
-def _statistics(P: np.ndarray, cfg: AnchorConfig) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """:func:`mocap.rigid.pair_statistics` of ``P`` (F, M, 3) (median m, spread m, count) and the (M, M) bool anchors
-    (step 1 of the module docstring)."""
+def _statistics(P: np.ndarray, cfg: AnchorConfig, spread_m: float
+                ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`mocap.rigid.pair_statistics` of ``P`` (F, M, 3) (median m, spread m, count) and the (M, M) bool anchors,
+    those spreading less than ``spread_m`` (step 1 of the module docstring)."""
     median, spread, count = pair_statistics(P, cfg.piece_frames)
-    return median, spread, count, _steady(median, spread, count, cfg, cfg.spread_m)
+    return median, spread, count, _steady(median, spread, count, cfg, spread_m)
 
 
 def _steady(median: np.ndarray, spread: np.ndarray, count: np.ndarray, cfg: AnchorConfig, spread_m: float
@@ -146,7 +152,7 @@ def rejoin_by_anchors(traj: Trajectories, config: AnchorConfig | None = None) ->
     P = traj.positions
     if traj.n_markers < cfg.min_anchors + 2 or not np.isfinite(P[..., 0]).any():
         return 0
-    median, spread, count, strong = _statistics(P, cfg)
+    median, spread, count, strong = _statistics(P, cfg, cfg.spread_m)
     frames = np.isfinite(P[..., 0]).sum(axis=0)
     root = np.arange(traj.n_markers)
     arrays = [traj.positions, traj.residuals, traj.camera_masks]
@@ -262,18 +268,18 @@ def move_refuted_samples(traj: Trajectories, config: AnchorConfig | None = None,
     tracker's hops between markers of a cluster (a forearm's Marker3 and Marker4, mostly seen in turn, under one
     identity for a while).
 
-    A sample votes when its identity's anchors refute it (none seen in its frame agrees within ``tolerance_m``,
-    one or more disagree), or when its identity has no anchors; it votes for the one identity without a sample in
-    its frame that it fits (``min_anchors`` anchors or more agree, more agree than disagree, none disagree for a
-    sample of an identity without anchors), unless another sample of its frame votes for that identity too. Each
-    identity is cut into pieces at gaps, at jumps (an acceleration over ``jump_acc``, m/frame^2, on both samples
-    of a step), at hops there and back (over ``hop_m`` in opposite directions), and where the votes change (to or
-    from a sample its own anchors agree with, or between two identities) and its path does not go on through the
-    change (``hop_m``: a hop on the first sample after a gap shows no acceleration); a piece moves when
-    ``vote_fraction`` of its samples or more vote for one identity and none for another, that identity has no sample
-    over its frames, and it makes no acceleration above ``jump_acc`` with that identity's samples next to its ends.
-    A marker that merely strays from an anchor for a frame or two (skin, a merged blob) is a small share of its
-    piece and stays. Pieces with more votes move first.
+    A sample votes when its identity's anchors (``move_spread_m``) refute it (none seen in its frame agrees within
+    ``tolerance_m``, one or more disagree), or when its identity has no anchors; it votes for the one identity without a
+    sample in its frame that it fits (``min_anchors`` anchors or more agree, more agree than disagree, none disagree for
+    a sample of an identity without anchors), unless another sample of its frame votes for that identity too. Each
+    identity is cut into pieces at gaps, at jumps (an acceleration over ``jump_acc``, m/frame^2, on both samples of a
+    step), at hops there and back (over ``hop_m`` in opposite directions), and where the votes change (to or from a
+    sample its own anchors agree with, or between two identities) and its path does not go on through the change
+    (``hop_m``: a hop on the first sample after a gap shows no acceleration); a piece moves when ``vote_fraction`` of
+    its samples or more vote for one identity and none for another, that identity has no sample over its frames, and it
+    makes no acceleration above ``jump_acc`` with that identity's samples next to its ends. A marker that merely strays
+    from an anchor for a frame or two (skin, a merged blob) is a small share of its piece and stays. Pieces with more
+    votes move first.
 
     Returns the number of samples moved.
     """
@@ -282,7 +288,7 @@ def move_refuted_samples(traj: Trajectories, config: AnchorConfig | None = None,
     F, M = P.shape[:2]
     if M < cfg.min_anchors + 2:
         return 0
-    median, _, _, strong = _statistics(P, cfg)
+    median, _, _, strong = _statistics(P, cfg, cfg.move_spread_m)
     if not strong.any():
         return 0
     seen = np.isfinite(P[..., 0])
