@@ -25,6 +25,8 @@ it, the joins changed the plates it learned), :func:`rejoin_by_anchors`:
    share frames (the target's identity held a neighbour for a while), the fragment's sample replaces the
    target's where its distances to the anchors in that frame fit the target's (mean within ``tolerance_m``) and
    the target's own do not; the sample left over moves to a new identity.
+4. repeats 1-3 with anchors spreading less than ``loose_spread_m`` for the fragments left over (skin markers keep
+   their distances to 3-5 mm; looser anchors in the first pass disagree where strict ones would have agreed).
 
 :func:`move_refuted_samples` then moves the tracker's hops: pieces of an identity (its samples cut at gaps, jumps,
 hops there and back, and where the fit to the anchors changes and the path breaks) whose samples fit another
@@ -56,12 +58,11 @@ class AnchorConfig:
     Attributes:
         tolerance_m: a fragment's median distance to an anchor must be within this of the target's, m (skin
             markers: a few millimetres; the cluster's other markers differ by centimetres).
-        spread_m: an anchor's distance to the target (and to the fragment) spreads less than this, m (an elbow's or
-            a toe's skin marker to its neighbours: 3-5 mm).
+        spread_m: an anchor's distance to the target (and to the fragment) spreads less than this, m ...
+        loose_spread_m: ... or, for a fragment that fits no identity so, less than this, m (a second pass: an elbow's
+            or a toe's skin marker to its neighbours spreads 3-5 mm; in one pass the looser anchors that disagree
+            kept the sprint start's forearm marker from joining its identity).
         joint_spread_m: ... or less than this for the fragment's own anchors (a marker by a joint), m.
-        move_spread_m: the anchors a sample's vote is judged by (:func:`move_refuted_samples`) spread less than this,
-            m: a sample is judged in its one frame, a fragment over all of its (with ``spread_m`` there, the whole
-            sprint's forearm moved 9 switches' worth of samples wrongly).
         reach_m: anchors are within this of the target (median), m.
         min_frames: frames an anchor and the target must be seen together.
         piece_frames: frames an anchor and the fragment must be seen together.
@@ -73,8 +74,8 @@ class AnchorConfig:
     """
 
     tolerance_m: float = 0.006
-    spread_m: float = 0.005
-    move_spread_m: float = 0.003
+    spread_m: float = 0.003
+    loose_spread_m: float = 0.005
     joint_spread_m: float = 0.006
     reach_m: float = 0.3
     min_frames: int = 30
@@ -102,13 +103,14 @@ def _steady(median: np.ndarray, spread: np.ndarray, count: np.ndarray, cfg: Anch
 
 
 def _target(p: int, median: np.ndarray, spread: np.ndarray, count: np.ndarray, strong: np.ndarray,
-            frames: np.ndarray, cfg: AnchorConfig) -> int:
-    """The identity fragment ``p`` joins (step 2-3 of the module docstring), or -1."""
+            frames: np.ndarray, cfg: AnchorConfig, spread_m: float) -> int:
+    """The identity fragment ``p`` joins (step 2-3 of the module docstring; anchors ``strong``, the fragment's
+    distances spreading less than ``spread_m``), or -1."""
     joint = strong[p][None, :] & _steady(median, spread, count, cfg, cfg.joint_spread_m)
     anchors = (strong | joint) & (count[p] >= cfg.piece_frames)[None, :]  # (target, anchor)
     anchors[:, p] = False
     with np.errstate(invalid="ignore"):
-        ok = anchors & (np.abs(median[p][None, :] - median) <= cfg.tolerance_m) & (spread[p] < cfg.spread_m)[None, :]
+        ok = anchors & (np.abs(median[p][None, :] - median) <= cfg.tolerance_m) & (spread[p] < spread_m)[None, :]
     n_ok = ok.sum(axis=1)
     fits = (n_ok >= cfg.min_anchors) & (n_ok > (anchors & ~ok).sum(axis=1)) & (frames > frames[p])
     fits[p] = False
@@ -146,13 +148,21 @@ def rejoin_by_anchors(traj: Trajectories, config: AnchorConfig | None = None) ->
     """Join fragments of identities to the identity whose rigid anchors they repeat (see the module docstring), in
     place. Samples displaced where the two overlapped go to new identity columns appended at the end.
 
+    Anchors spread less than ``spread_m``; a second pass gives the fragments left over anchors spreading less than
+    ``loose_spread_m``.
+
     Returns the number of fragments joined (their columns are left empty: the caller drops them).
     """
     cfg = config or AnchorConfig()
+    return sum(_rejoin(traj, cfg, spread_m) for spread_m in (cfg.spread_m, cfg.loose_spread_m))
+
+
+def _rejoin(traj: Trajectories, cfg: AnchorConfig, spread_m: float) -> int:
+    """One pass of :func:`rejoin_by_anchors` with anchors spreading less than ``spread_m``, m."""
     P = traj.positions
     if traj.n_markers < cfg.min_anchors + 2 or not np.isfinite(P[..., 0]).any():
         return 0
-    median, spread, count, strong = _statistics(P, cfg, cfg.spread_m)
+    median, spread, count, strong = _statistics(P, cfg, spread_m)
     frames = np.isfinite(P[..., 0]).sum(axis=0)
     root = np.arange(traj.n_markers)
     arrays = [traj.positions, traj.residuals, traj.camera_masks]
@@ -161,7 +171,7 @@ def rejoin_by_anchors(traj: Trajectories, config: AnchorConfig | None = None) ->
     for p in np.argsort(frames, kind="stable"):
         if frames[p] == 0:
             continue
-        q = _target(int(p), median, spread, count, strong, frames, cfg)
+        q = _target(int(p), median, spread, count, strong, frames, cfg, spread_m)
         if q < 0:
             continue
         r = int(root[q])
@@ -268,7 +278,7 @@ def move_refuted_samples(traj: Trajectories, config: AnchorConfig | None = None,
     tracker's hops between markers of a cluster (a forearm's Marker3 and Marker4, mostly seen in turn, under one
     identity for a while).
 
-    A sample votes when its identity's anchors (``move_spread_m``) refute it (none seen in its frame agrees within
+    A sample votes when its identity's anchors refute it (none seen in its frame agrees within
     ``tolerance_m``, one or more disagree), or when its identity has no anchors; it votes for the one identity without a
     sample in its frame that it fits (``min_anchors`` anchors or more agree, more agree than disagree, none disagree for
     a sample of an identity without anchors), unless another sample of its frame votes for that identity too. Each
@@ -288,7 +298,7 @@ def move_refuted_samples(traj: Trajectories, config: AnchorConfig | None = None,
     F, M = P.shape[:2]
     if M < cfg.min_anchors + 2:
         return 0
-    median, _, _, strong = _statistics(P, cfg, cfg.move_spread_m)
+    median, _, _, strong = _statistics(P, cfg, cfg.spread_m)
     if not strong.any():
         return 0
     seen = np.isfinite(P[..., 0])
