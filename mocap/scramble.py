@@ -21,8 +21,8 @@ jointly, by every distance of every marker involved at once.
 2. measures each burst identity's distance to every identity within ``reach_m`` over the ``history_s`` before the
    burst, since the identity was last missing for ``history_gap_s`` (before such a gap it may have been another
    marker's: the tracker's re-identifications after long gaps are where identities get mixed): the range it kept
-   (its ``range_quantile`` and 1 - ``range_quantile`` quantiles), and over the
-   ``window_s`` from ``gap`` frames after it, the median from each burst identity's tail;
+   (its ``range_quantile`` and 1 - ``range_quantile`` quantiles), and over the ``window_s`` from ``gap`` frames
+   after it, the median from each burst identity's tail;
 3. scores every permutation of the burst identities' tails by the log-likelihood ratio of those distances against
    "no information" (anywhere within ``reach_m``): a distance stays in the range it kept, its edges blurred by
    ``range_noise_m`` (Gaussian), except with probability ``outlier``. Skin markers of one segment keep their
