@@ -44,7 +44,10 @@ jointly, by every distance of every marker involved at once.
    ``margin_nats`` and, scored against the frames before ending ``recheck_s`` earlier, is still tied with the best
    and no worse than keeping the tails (frames right before a burst can hold the recording's own garbled labels): from
    the frame of the burst that gives the tracks the smoothest paths through it. (A distance's drift is how far it
-   left its range, or changed from its median over the window.)
+   left its range, or changed from its median over the window.) Then each frame of the burst gives its samples of
+   the burst's identities to those whose paths through it (cubic Hermite curves from their last two samples before
+   it to their first two after) they lie nearest, where that makes the tracks smoother: the tracker's hops between
+   the first hop and the frame the tails were permuted from.
 
 Steps 3 and 4 choose what scoring all g! permutations would, without trying them all: each choice (the least
 cost; the least drift among those near it, and the next; the fewest moves) is found by branch and bound, since a
@@ -68,7 +71,7 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 
 from mocap.exchange import smoothest_split
-from mocap.trajectories import Trajectories
+from mocap.trajectories import MISSING, Trajectories
 
 __all__ = ["ScrambleConfig", "unscramble_bursts"]
 
@@ -182,6 +185,7 @@ def unscramble_bursts(traj: Trajectories, jump_acc: float, config: ScrambleConfi
             break
         if order is not None:
             traj.permute_tails(smoothest_split(P, first, last, ids, ids[order]), ids[order], ids)
+            _settle_burst(traj, first, last, ids)
             moved = np.arange(P.shape[1])
             moved[ids[order]] = ids
             column = moved[column]
@@ -515,3 +519,46 @@ def _window_ranges(P: np.ndarray, frames: slice, ids: np.ndarray, quantile: floa
         d[index < since] = np.nan
         low, middle, high = np.nanquantile(d, [quantile, 0.5, 1 - quantile], axis=0)
         return low, high, middle, np.isfinite(d).sum(axis=0)
+
+
+
+def _settle_burst(traj: Trajectories, first: int, last: int, ids: np.ndarray) -> None:
+    """Inside a burst put back (frames ``first`` .. ``last``; its tails permuted from one frame of it), give each
+    frame's samples of the identities ``ids`` (g,) to the identities whose paths through the burst they lie nearest
+    (optimal assignment per frame), a path being the cubic Hermite curve from an identity's last two samples before
+    the burst to its first two after it; kept where that makes their summed squared accelerations smaller, in
+    place (the tracker's hops between the first hop and the frame the tails were permuted from)."""
+    P = traj.positions
+    before, after = first - 1, last + 1
+    if before < 1 or after + 1 >= len(P):
+        return
+    ends = P[[before - 1, before, after, after + 1]][:, ids]  # (4, g, 3)
+    ids = ids[np.isfinite(ends[..., 0]).all(axis=0)]  # (s,) identities seen on both sides
+    if ids.size < 2:
+        return
+    ends = P[[before - 1, before, after, after + 1]][:, ids]
+    n = after - before
+    t = (np.arange(first, last + 1) - before)[:, None, None] / n  # (k, 1, 1)
+    path = ((2 * t**3 - 3 * t**2 + 1) * ends[1] + (t**3 - 2 * t**2 + t) * n * (ends[1] - ends[0])
+            + (3 * t**2 - 2 * t**3) * ends[2] + (t**3 - t**2) * n * (ends[3] - ends[2]))  # (k, s, 3)
+    around = slice(before - 1, after + 2)
+    arrays = (traj.positions, traj.residuals, traj.camera_masks)
+    kept = [array[first:last + 1][:, ids].copy() for array in arrays]
+    roughness = _roughness(P[around][:, ids])
+    for k, f in enumerate(range(first, last + 1)):
+        held = ids[np.isfinite(P[f, ids, 0])]
+        if held.size < 2:
+            continue
+        rows, cols = linear_sum_assignment(np.linalg.norm(path[k][:, None] - P[f, held][None], axis=2))
+        for array in arrays:
+            samples = array[f, held[cols]].copy()
+            array[f, ids] = MISSING[array.dtype.kind]
+            array[f, ids[rows]] = samples
+    if _roughness(P[around][:, ids]) >= roughness:
+        for array, values in zip(arrays, kept, strict=True):
+            array[first:last + 1, ids] = values
+
+
+def _roughness(P: np.ndarray) -> float:
+    """Summed squared accelerations (second differences) of the tracks ``P`` (F, g, 3), m^2/frame^4."""
+    return float(np.nansum((P[2:] - 2 * P[1:-1] + P[:-2]) ** 2))

@@ -60,6 +60,20 @@ def test_three_identities_permuted_in_a_swing_get_their_markers_back():
     np.testing.assert_array_equal(traj.positions, P)
 
 
+
+def test_hops_inside_a_burst_before_the_tails_were_permuted_are_settled_too():
+    """The forearm's and the upper arm's identities exchange markers for frames 50-51 before the cycle of three from
+    frame 52 (the two players at seed 1 had six switches inside such bursts). The tails go back from one frame of
+    the burst; the frames before it are given to the identities whose paths through the burst (from their last two
+    samples before it to their first two after) they lie on: every sample is its marker's again."""
+    P = _arm()
+    seen = P.copy()
+    seen[50:52, [1, 3]] = P[50:52, [3, 1]]
+    seen[52:, [1, 2, 3]] = P[52:, [3, 1, 2]]
+    traj = _traj(seen)
+    assert unscramble_bursts(traj, JUMP) == 1
+    np.testing.assert_array_equal(traj.positions, P)
+
 def test_an_arm_that_kept_its_identities_is_left_alone():
     P = _arm()
     traj = _traj(P)
