@@ -278,18 +278,18 @@ def move_refuted_samples(traj: Trajectories, config: AnchorConfig | None = None,
     tracker's hops between markers of a cluster (a forearm's Marker3 and Marker4, mostly seen in turn, under one
     identity for a while).
 
-    A sample votes when its identity's anchors refute it (none seen in its frame agrees within
-    ``tolerance_m``, one or more disagree), or when its identity has no anchors; it votes for the one identity without a
-    sample in its frame that it fits (``min_anchors`` anchors or more agree, more agree than disagree, none disagree for
-    a sample of an identity without anchors), unless another sample of its frame votes for that identity too. Each
-    identity is cut into pieces at gaps, at jumps (an acceleration over ``jump_acc``, m/frame^2, on both samples of a
-    step), at hops there and back (over ``hop_m`` in opposite directions), and where the votes change (to or from a
-    sample its own anchors agree with, or between two identities) and its path does not go on through the change
-    (``hop_m``: a hop on the first sample after a gap shows no acceleration); a piece moves when ``vote_fraction`` of
-    its samples or more vote for one identity and none for another, that identity has no sample over its frames, and it
-    makes no acceleration above ``jump_acc`` with that identity's samples next to its ends. A marker that merely strays
-    from an anchor for a frame or two (skin, a merged blob) is a small share of its piece and stays. Pieces with more
-    votes move first.
+    A sample votes when its identity's anchors refute it (none seen in its frame agrees within ``tolerance_m``,
+    one or more disagree), or when its identity has no anchors; it votes for the one identity without a sample in
+    its frame that it fits (``min_anchors`` anchors or more agree, more agree than disagree, none disagree for a
+    sample of an identity without anchors), unless another sample of its frame votes for that identity too. Each
+    identity is cut into pieces at gaps, at jumps (an acceleration over ``jump_acc``, m/frame^2, on both samples
+    of a step), at hops there and back (over ``hop_m`` in opposite directions), and where the votes change (to or
+    from a sample its own anchors agree with, or between two identities) and its path does not go on through the
+    change (``hop_m``: a hop on the first sample after a gap shows no acceleration); a piece moves when
+    ``vote_fraction`` of its samples or more vote for one identity and none for another, that identity has no sample
+    over its frames, and it makes no acceleration above ``jump_acc`` with that identity's samples next to its ends.
+    A marker that merely strays from an anchor for a frame or two (skin, a merged blob) is a small share of its
+    piece and stays. Pieces with more votes move first.
 
     Returns the number of samples moved.
     """

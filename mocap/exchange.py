@@ -121,6 +121,12 @@ def _exchanged(P: np.ndarray, frame: int, a: int, b: int, cfg: ExchangeConfig) -
     return bool(swapped.mean() < cfg.fit_m and kept.mean() > cfg.step_m)
 
 
+def roughness(P: np.ndarray) -> float:
+    """Summed squared accelerations (second differences) of the tracks ``P`` (F, g, 3), missing samples skipped,
+    m^2/frame^4."""
+    return float(np.nansum((P[2:] - 2 * P[1:-1] + P[:-2]) ** 2))
+
+
 def smoothest_split(P: np.ndarray, first: int, last: int, ids: np.ndarray, tails: np.ndarray) -> int:
     """The frame from which identities ``ids`` take the tails of ``tails`` (both (g,)): the one of ``first`` + 1 ..
     ``last`` + 1 that gives their tracks in ``P`` (F, M, 3) the smallest summed squared accelerations over frames
@@ -129,7 +135,7 @@ def smoothest_split(P: np.ndarray, first: int, last: int, ids: np.ndarray, tails
     best, best_cost = last + 1, np.inf
     for split in range(first + 1, last + 2):
         path = np.where((frames >= split)[:, None, None], P[frames][:, tails], P[frames][:, ids])  # (n, g, 3)
-        cost = float(np.nansum((path[2:] - 2 * path[1:-1] + path[:-2]) ** 2))
+        cost = roughness(path)
         if cost < best_cost:
             best, best_cost = split, cost
     return best

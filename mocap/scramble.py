@@ -70,7 +70,7 @@ from scipy.optimize import linear_sum_assignment
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 
-from mocap.exchange import smoothest_split
+from mocap.exchange import roughness, smoothest_split
 from mocap.trajectories import MISSING, Trajectories
 
 __all__ = ["ScrambleConfig", "unscramble_bursts"]
@@ -533,10 +533,10 @@ def _settle_burst(traj: Trajectories, first: int, last: int, ids: np.ndarray) ->
     if before < 1 or after + 1 >= len(P):
         return
     ends = P[[before - 1, before, after, after + 1]][:, ids]  # (4, g, 3)
-    ids = ids[np.isfinite(ends[..., 0]).all(axis=0)]  # (s,) identities seen on both sides
-    if ids.size < 2:
+    both = np.isfinite(ends[..., 0]).all(axis=0)  # identities seen on both sides
+    if both.sum() < 2:
         return
-    ends = P[[before - 1, before, after, after + 1]][:, ids]
+    ids, ends = ids[both], ends[:, both]
     n = after - before
     t = (np.arange(first, last + 1) - before)[:, None, None] / n  # (k, 1, 1)
     path = ((2 * t**3 - 3 * t**2 + 1) * ends[1] + (t**3 - 2 * t**2 + t) * n * (ends[1] - ends[0])
@@ -544,7 +544,7 @@ def _settle_burst(traj: Trajectories, first: int, last: int, ids: np.ndarray) ->
     around = slice(before - 1, after + 2)
     arrays = (traj.positions, traj.residuals, traj.camera_masks)
     kept = [array[first:last + 1][:, ids].copy() for array in arrays]
-    roughness = _roughness(P[around][:, ids])
+    rough_before = roughness(P[around][:, ids])
     for k, f in enumerate(range(first, last + 1)):
         held = ids[np.isfinite(P[f, ids, 0])]
         if held.size < 2:
@@ -554,11 +554,7 @@ def _settle_burst(traj: Trajectories, first: int, last: int, ids: np.ndarray) ->
             samples = array[f, held[cols]].copy()
             array[f, ids] = MISSING[array.dtype.kind]
             array[f, ids[rows]] = samples
-    if _roughness(P[around][:, ids]) >= roughness:
+    if roughness(P[around][:, ids]) >= rough_before:
         for array, values in zip(arrays, kept, strict=True):
             array[first:last + 1, ids] = values
 
-
-def _roughness(P: np.ndarray) -> float:
-    """Summed squared accelerations (second differences) of the tracks ``P`` (F, g, 3), m^2/frame^4."""
-    return float(np.nansum((P[2:] - 2 * P[1:-1] + P[:-2]) ** 2))
