@@ -31,7 +31,9 @@ the frames on both sides of a decision are known, and these identity errors are 
   after the leg was hidden) is assigned jointly: the distances between its own markers must match those between the
   identities they take, which no marker-by-marker cost can check. The tracker's own link is
   preferred and kept across any gap unless the distances clearly disagree (``shape_refuse_m``: a new
-  marker next to a hidden one took its identity); it is the fallback when nothing else fits. Across a short gap it
+  marker next to a hidden one took its identity); it is the fallback when nothing else fits, but not for one sample
+  the identity hopped onto and off again, off its path, at frame rates where such a hop cannot be the body's own
+  acceleration (:meth:`RelabelConfig.hops_clear`). Across a short gap it
   is refused too where the extrapolation misses the tracklet and the tracklet holds its distances to two identities
   or more that the identity moved against (``loose_refuse``: a marker of another segment). A newcomer
   whose distances changed less than that can still have taken the identity: when the marker itself comes
@@ -153,6 +155,8 @@ class RelabelConfig:
             it, m ...
         glimpse_ratio: ... and every other matching's deviates this many times as much ...
         glimpse_margin_m: ... plus this, m.
+        clear_hop_ratio: where a body's accelerations stay this many times below ``split_acc_m`` (:meth:`hops_clear`),
+            a lone sample its identity hopped onto and off again, off its path, does not keep the identity.
         confirm_frames: an identity the passes leave without a run of this many consecutive samples, and with
             fewer than twice as many in all, is withdrawn (:func:`withdraw_scattered`): the tracker's confirmation
             (``mocap.reconstruct`` passes :attr:`TrackerConfig.confirm_frames`), which the repair's pieces must meet
@@ -196,6 +200,7 @@ class RelabelConfig:
     glimpse_tol_m: float = 0.012
     glimpse_ratio: float = 2.0
     glimpse_margin_m: float = 0.015
+    clear_hop_ratio: float = 2.0
 
     def jump_acc(self, fps: float) -> float:
         """The acceleration, m/frame^2, above which a track jumped at ``fps`` Hz (``split_acc_m`` and
@@ -206,6 +211,12 @@ class RelabelConfig:
         """The acceleration, m/frame^2, above which two consecutive opposite accelerations are a jump at ``fps``
         Hz (``split_reversal_m`` and ``split_acc_mps2``)."""
         return max(self.split_reversal_m, self.split_acc_mps2 / fps**2)
+
+    def hops_clear(self, fps: float) -> bool:
+        """Whether at ``fps`` Hz a body's own accelerations (``split_acc_mps2``) stay ``clear_hop_ratio`` times
+        below the jump threshold the markers' spacing sets (``split_acc_m``): a jump is then surely a hop to
+        another marker (100 Hz and more with the defaults; a 50 Hz swing reaches the threshold)."""
+        return self.split_acc_mps2 / fps**2 * self.clear_hop_ratio <= self.split_acc_m
 
 
 @dataclass
@@ -485,6 +496,7 @@ class _Linker:
         self.P, self.shape_max, self.cfg = P, shape_max, cfg
         self.acc_per_frame2 = cfg.stitch_acc_mps2 / (fps * fps)  # m/frame^2
         self.lone_max = int(round(cfg.lone_max_s * fps))  # frames
+        self.hops_clear = cfg.hops_clear(fps)
         self.history = max(cfg.shape_window, int(round(cfg.shape_history_s * fps)))  # distances remembered, samples
         self.chains: list[list[np.ndarray]] = []
         self.ends: list[tuple[int, np.ndarray, np.ndarray]] = []
@@ -597,6 +609,8 @@ class _Linker:
                 if same and gap <= cfg.max_gap and miss >= gate and (
                         _loose(self.memory[c], heads[g], c, cfg) >= cfg.loose_refuse):
                     refused.add((g, c))  # (a marker of another segment, where the extrapolation says it is not)
+                elif same and gap == 1 and len(run) == 1 and miss >= gate and self.hops_clear:
+                    refused.add((g, c))  # (one sample the identity hopped onto and off again, off its path)
                 elif same:
                     cost[g, j] = cfg.own_link_weight * miss if gap > cfg.max_gap or miss < gate else np.inf
                 elif gap <= cfg.max_gap and miss < gate:

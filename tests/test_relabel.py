@@ -280,6 +280,33 @@ def test_a_step_onto_a_neighbour_45_mm_away_and_back_is_cut():
     assert not _same_identities(old, truth)
 
 
+def test_one_sample_hopped_onto_at_120_hz_does_not_keep_the_identity():
+    """The sprint start's forearm at 120 Hz (rendered with photon noise): marker B, 45 mm from A, comes back after
+    23 frames hidden; A's identity holds it for one frame while A is missed, then A again, and B goes on under a
+    new identity. The lone sample is off A's path and the jumps on both sides of it are clear at 120 Hz: it does
+    not keep A's identity, which goes on with A. With the tracker's own link kept for it, the sample takes A's
+    identity on to B's tracklet."""
+    fps = 120.0
+    t = np.arange(120) / fps
+    centre = np.stack([2.0 * t, 0.3 * np.sin(4.0 * t), np.ones_like(t)], axis=1)  # 2 m/s, curving
+    truth = centre[:, None, :] + np.array([[0.0, 0.0, 0.0], [0.0, 0.045, 0.0]])[None]  # A and B
+    seen = np.concatenate([truth, np.full((120, 1, 3), np.nan)], axis=1)
+    seen[41:64, 1] = np.nan  # B hidden over frames 41-63 ...
+    seen[64, 0] = truth[64, 1]  # ... A missed at frame 64, its identity on B there ...
+    seen[65:, 2] = truth[65:, 1]  # ... and B under a new identity after
+    seen[64:, 1] = np.nan
+    cfg = RelabelConfig()
+    assert cfg.hops_clear(fps) and not cfg.hops_clear(50.0)
+    traj = _traj(seen)
+    traj.fps = fps
+    relink_tracklets(traj, cfg)
+    assert _same_identities(traj, truth)
+    old = _traj(seen)
+    old.fps = fps
+    relink_tracklets(old, RelabelConfig(clear_hop_ratio=np.inf))
+    assert not _same_identities(old, truth)
+
+
 def test_a_marker_held_by_two_identities_stays_with_the_one_it_continues():
     """Marker 4 is hidden from frame 50 on and its identity's track takes marker 0 (frames 50-52), while marker 0's
     own identity misses frame 50 and holds it again from 51: two identities on one point in frames 51-52. The
