@@ -32,8 +32,8 @@ the frames on both sides of a decision are known, and these identity errors are 
   identities they take, which no marker-by-marker cost can check. The tracker's own link is
   preferred and kept across any gap unless the distances clearly disagree (``shape_refuse_m``: a new
   marker next to a hidden one took its identity); it is the fallback when nothing else fits, but not for one sample
-  the identity hopped onto and off again, off its path, at frame rates where such a hop cannot be the body's own
-  acceleration (:meth:`RelabelConfig.hops_clear`). Across a short gap it
+  the identity jumped onto (no gap), off its path, and left again, at frame rates where such a jump cannot be the
+  body's own acceleration (:meth:`RelabelConfig.hops_clear`). Across a short gap it
   is refused too where the extrapolation misses the tracklet and the tracklet holds its distances to two identities
   or more that the identity moved against (``loose_refuse``: a marker of another segment). A newcomer
   whose distances changed less than that can still have taken the identity: when the marker itself comes
@@ -156,7 +156,7 @@ class RelabelConfig:
         glimpse_ratio: ... and every other matching's deviates this many times as much ...
         glimpse_margin_m: ... plus this, m.
         clear_hop_ratio: where a body's accelerations stay this many times below ``split_acc_m`` (:meth:`hops_clear`),
-            a lone sample its identity hopped onto and off again, off its path, does not keep the identity.
+            one sample its identity jumped onto (no gap), off its path, and left again does not keep the identity.
         confirm_frames: an identity the passes leave without a run of this many consecutive samples, and with
             fewer than twice as many in all, is withdrawn (:func:`withdraw_scattered`): the tracker's confirmation
             (``mocap.reconstruct`` passes :attr:`TrackerConfig.confirm_frames`), which the repair's pieces must meet
@@ -610,7 +610,7 @@ class _Linker:
                         _loose(self.memory[c], heads[g], c, cfg) >= cfg.loose_refuse):
                     refused.add((g, c))  # (a marker of another segment, where the extrapolation says it is not)
                 elif same and gap == 1 and len(run) == 1 and miss >= gate and self.hops_clear:
-                    refused.add((g, c))  # (one sample the identity hopped onto and off again, off its path)
+                    refused.add((g, c))  # (one sample the identity jumped onto, off its path, and left again)
                 elif same:
                     cost[g, j] = cfg.own_link_weight * miss if gap > cfg.max_gap or miss < gate else np.inf
                 elif gap <= cfg.max_gap and miss < gate:
