@@ -48,7 +48,9 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
     src.add_argument("--up", choices=sorted(UP_AXES), help="the motion file's up axis (default: detected)")
     src.add_argument("--frames", type=int, help=f"frames to render (default: the whole file, or "
                                                 f"{DEFAULT_BODY_FRAMES} for the built-in body)")
-    src.add_argument("--start", type=int, default=0, help="first frame of the motion to render (default 0)")
+    src.add_argument("--start", type=int, default=0,
+                     help="first frame of the motion to render, counted at the take's frame rate (after --fps; "
+                          "default 0)")
     src.add_argument("--fps", type=float, help="frame rate of the take, Hz (default: the file's rate, or 120 for "
                                                "the built-in body); a C3D file is resampled linearly")
     src.add_argument("--markers", type=int, default=DEFAULT_MARKERS,
