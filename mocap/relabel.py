@@ -488,8 +488,8 @@ class _Linker:
         memory: per identity, its distances (m) to the other identities seen with it, the last ``shape_history_s``
             seconds' worth of samples.
         owner: (F, M) the identity each sample was given (-1: not yet).
-        junction: per identity, its last link after a gap that distances measured: the index of the
-            tracklet it starts, the memory before it, how much the distances changed (m), the frame.
+        junction: per identity, its last link across a gap: the index of the tracklet it starts, the memory
+            before it, how much the distances changed (m; inf where they could not be compared), the frame.
     """
 
     def __init__(self, P: np.ndarray, shape_max: int, cfg: RelabelConfig, fps: float) -> None:
@@ -541,9 +541,9 @@ class _Linker:
                 self.chains.append([])
                 self.ends.append(None)
                 self.memory.append({})
-            elif self.chains[c] and ((g, c) in changes or start - self.ends[c][0] > cfg.max_gap):
-                # (a link over a long gap that no distances measured: the tracker's re-identification in its
-                # widened radius, which a newcomer far from the marker may have taken)
+            elif self.chains[c] and ((g, c) in changes or start - self.ends[c][0] > 1):
+                # (a link across a gap that no distances measured: the tracker's re-identification, which a newcomer
+                # next to the hidden marker, or far from it in the widened radius after a long gap, may have taken)
                 self.junction[c] = (len(self.chains[c]), dict(self.memory[c]), changes.get((g, c), np.inf), start)
             self.chains[c].append(run)
             self.ends[c] = self._end(c)
@@ -622,9 +622,9 @@ class _Linker:
         """The identity a tracklet starting at ``start`` takes back, if any: one re-linked after a gap within
         ``shape_max`` frames to a continuation whose distances changed by ``usurp_margin_m`` more than this
         tracklet's ``head`` distances differ from the identity's before the gap (and those by less than
-        ``shape_gate_m``), or whose distances could not be compared across a gap over ``max_gap``. A newcomer
-        next to a marker that had just vanished took its identity, or one far from it through the tracker's
-        widened re-identification radius."""
+        ``shape_gate_m``), or whose distances could not be compared. A newcomer next to a marker that had just
+        vanished took its identity (a hand marker 5 cm from a hidden forearm marker at 60 Hz), or one far from it
+        through the tracker's widened re-identification radius."""
         cfg = self.cfg
         best, best_change = None, np.inf
         for c, (_, before, continued, frame) in self.junction.items():

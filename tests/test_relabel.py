@@ -237,6 +237,28 @@ def test_marker_back_takes_its_identity_back_from_a_far_newcomer():
     np.testing.assert_array_equal(traj.positions[100:, owner_of_0], P[100:, 0])
 
 
+def test_marker_back_takes_its_identity_back_from_a_newcomer_no_distance_measured_over_a_short_gap():
+    """As in the sprint start rendered at 60 Hz: a hand marker, swinging about the wrist so that none of its
+    distances to the forearm holds, first seen 3 frames after a forearm marker 54 mm from it vanished, kept that
+    marker's identity (the tracker's own link; nothing measured it). When the forearm marker comes back 6 frames
+    later, its distances fit the identity's from before the gap, and it takes the identity back. (Only links over
+    gaps beyond ``max_gap``, or measured ones, could be taken back before: the hand kept the identity.)"""
+    P = _segment()
+    t = np.arange(P.shape[0]) / 50.0
+    swing = 0.8 * np.sin(2 * np.pi * 2.0 * t)  # the wrist's angle, rad
+    hand = P[:, 0] + 0.054 * np.stack([np.cos(swing), np.zeros_like(t), np.sin(swing)], axis=1)
+    truth = np.concatenate([P, hand[:, None]], axis=1)
+    seen = np.concatenate([P, np.full((P.shape[0], 1, 3), np.nan)], axis=1)
+    seen[80:, 0] = np.nan  # marker 0 vanishes at frame 80 ...
+    seen[83:, 0] = hand[83:]  # ... its column follows the hand from frame 83 ...
+    seen[89:, 5] = P[89:, 0]  # ... and the marker comes back at frame 89 as a new identity
+    traj = _traj(seen)
+    relink_tracklets(traj)
+    assert _same_identities(traj, truth)
+    owner_of_0 = [c for c in range(traj.n_markers) if np.allclose(traj.positions[10, c], P[10, 0])][0]
+    np.testing.assert_array_equal(traj.positions[89:, owner_of_0], P[89:, 0])
+
+
 def test_a_fast_swing_at_50_hz_is_not_cut_where_a_jump_is():
     """A wrist on a 0.5 m circle at 3.2 turns per second (200 m/s^2, 80 mm/frame^2 at 50 Hz) is one tracklet
     at 50 Hz; a 150 mm jump off it cuts it. (Cut by 60 mm/frame^2 alone, a serve's fast arm was cut at each
