@@ -40,6 +40,10 @@ def test_a_replayed_capture_gives_the_pipelines_trajectories(tmp_path, capsys):
     assert "completeness 100.0000%" in line and "switches 0 " in line and "IDF1 1.0000" in line
 
 
-def test_a_missing_capture_is_named(tmp_path, capsys):
-    assert _tool().main(["replay", str(tmp_path / "none.pkl")]) == 2
+def test_a_missing_or_broken_capture_is_named(tmp_path, capsys):
+    tool = _tool()
+    assert tool.main(["replay", str(tmp_path / "none.pkl")]) == 2
     assert "none.pkl: no such capture" in capsys.readouterr().err
+    (tmp_path / "cut.pkl").write_bytes(b"\x80\x04\x95")
+    assert tool.main(["replay", str(tmp_path / "cut.pkl")]) == 2
+    assert "cut.pkl: not a capture of this version" in capsys.readouterr().err

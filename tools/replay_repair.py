@@ -56,8 +56,11 @@ def capture(take: str, out: Path, start: int = 0, stop: int | None = None) -> No
 
 def replay(path: Path, truth_path: Path) -> str:
     """Run the repair on the capture at ``path`` and score it against ``truth_path``: one line of figures."""
-    with open(path, "rb") as fh:
-        traj, config, unconfirmed = pickle.load(fh)
+    try:
+        with open(path, "rb") as fh:
+            traj, config, unconfirmed = pickle.load(fh)
+    except (pickle.UnpicklingError, EOFError, AttributeError, ValueError) as err:
+        raise MocapError(f"{path}: not a capture of this version ({err}); capture the take again") from err
     settings = RelabelConfig(confirm_frames=config.confirm_frames)
     began = time.perf_counter()
     repair_identities(traj, settings, unconfirmed=unconfirmed)
