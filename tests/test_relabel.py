@@ -275,16 +275,30 @@ def test_a_fast_swing_at_50_hz_is_not_cut_where_a_jump_is():
     assert len(split_tracklets(P, split)) == 2
 
 
+def _curving(offsets: np.ndarray, fps: float = 120.0, n_frames: int = 120) -> np.ndarray:
+    """(F, M, 3) markers at ``offsets`` (M, 3) m from a point moving at 2 m/s along a curve, at ``fps`` Hz."""
+    t = np.arange(n_frames) / fps
+    centre = np.stack([2.0 * t, 0.3 * np.sin(4.0 * t), np.ones_like(t)], axis=1)
+    return centre[:, None, :] + offsets[None]
+
+
+def _relinked_right(seen: np.ndarray, truth: np.ndarray, fps: float, config: RelabelConfig) -> bool:
+    """Whether :func:`relink_tracklets` with ``config`` leaves every identity of ``seen`` on one marker of
+    ``truth`` (a take at ``fps`` Hz)."""
+    traj = _traj(seen)
+    traj.fps = fps
+    relink_tracklets(traj, config)
+    return _same_identities(traj, truth)
+
+
 def test_a_step_onto_a_neighbour_45_mm_away_and_back_is_cut():
     """The sprint start's forearm at 120 Hz: marker A's identity misses a frame and takes marker B, 45 mm away and
     just back in view, for 3 frames, then A again. The steps (45 mm/frame^2 there and back) stay below the 60 mm
     jump threshold, but the two accelerations of each step point opposite ways: the 3 samples are cut off and go to
     B's identity, A's keeps A alone. Without the reversal rule A's identity keeps B's samples."""
     fps = 120.0
-    t = np.arange(120) / fps
-    centre = np.stack([2.0 * t, 0.3 * np.sin(4.0 * t), np.ones_like(t)], axis=1)  # 2 m/s, curving
     offsets = np.array([[0.0, 0.0, 0.0], [0.0, 0.045, 0.0], [0.06, 0.02, 0.0], [-0.05, 0.03, 0.01]])
-    truth = centre[:, None, :] + offsets[None]  # A, B and two markers of the same segment
+    truth = _curving(offsets, fps)  # A, B and two markers of the same segment
     seen = truth.copy()
     seen[:65, 1] = np.nan  # B hidden until frame 65 ...
     seen[60, 0] = np.nan  # ... A missed at frame 60 ...
@@ -292,14 +306,8 @@ def test_a_step_onto_a_neighbour_45_mm_away_and_back_is_cut():
     cfg = RelabelConfig()
     step = np.linalg.norm(seen[62:64, 0] - 2 * seen[63:65, 0] + seen[64:66, 0], axis=1)  # at frames 63, 64
     assert cfg.reversal_acc(fps) < step.min() and step.max() < cfg.jump_acc(fps)
-    traj = _traj(seen)
-    traj.fps = fps
-    relink_tracklets(traj, cfg)
-    assert _same_identities(traj, truth)
-    old = _traj(seen)
-    old.fps = fps
-    relink_tracklets(old, RelabelConfig(split_reversal_m=np.inf))
-    assert not _same_identities(old, truth)
+    assert _relinked_right(seen, truth, fps, cfg)
+    assert not _relinked_right(seen, truth, fps, RelabelConfig(split_reversal_m=np.inf))
 
 
 def test_one_sample_hopped_onto_at_120_hz_does_not_keep_the_identity():
@@ -309,9 +317,7 @@ def test_one_sample_hopped_onto_at_120_hz_does_not_keep_the_identity():
     not keep A's identity, which goes on with A. With the tracker's own link kept for it, the sample takes A's
     identity on to B's tracklet."""
     fps = 120.0
-    t = np.arange(120) / fps
-    centre = np.stack([2.0 * t, 0.3 * np.sin(4.0 * t), np.ones_like(t)], axis=1)  # 2 m/s, curving
-    truth = centre[:, None, :] + np.array([[0.0, 0.0, 0.0], [0.0, 0.045, 0.0]])[None]  # A and B
+    truth = _curving(np.array([[0.0, 0.0, 0.0], [0.0, 0.045, 0.0]]), fps)  # A and B
     seen = np.concatenate([truth, np.full((120, 1, 3), np.nan)], axis=1)
     seen[41:64, 1] = np.nan  # B hidden over frames 41-63 ...
     seen[64, 0] = truth[64, 1]  # ... A missed at frame 64, its identity on B there ...
@@ -319,14 +325,8 @@ def test_one_sample_hopped_onto_at_120_hz_does_not_keep_the_identity():
     seen[64:, 1] = np.nan
     cfg = RelabelConfig()
     assert cfg.hops_clear(fps) and not cfg.hops_clear(50.0)
-    traj = _traj(seen)
-    traj.fps = fps
-    relink_tracklets(traj, cfg)
-    assert _same_identities(traj, truth)
-    old = _traj(seen)
-    old.fps = fps
-    relink_tracklets(old, RelabelConfig(clear_hop_ratio=np.inf))
-    assert not _same_identities(old, truth)
+    assert _relinked_right(seen, truth, fps, cfg)
+    assert not _relinked_right(seen, truth, fps, RelabelConfig(clear_hop_ratio=np.inf))
 
 
 def test_a_marker_held_by_two_identities_stays_with_the_one_it_continues():
