@@ -1,0 +1,109 @@
+"""Samples off their identity's own path are withheld (offline).
+
+Inside a tight cluster (a hand on a wheel's rim, a forearm's markers 47 mm apart seen in glimpses) an identity
+whose marker is hidden for a frame or two can hold a neighbour's point meanwhile and come back to its own: one to
+three samples on another marker between two stretches of its own. Each such hop costs two identity switches, and
+a user reads a 40-120 mm excursion that no body makes. No pass before this one can give the samples to the right
+identity when that identity has no samples around them (the neighbour's track was lost).
+
+:func:`withhold_off_path` fits a cubic in time to an identity's samples within ``reach_s`` on both sides of a short
+stretch (at least ``min_side`` samples on each side) and empties the stretch where every one of its samples misses
+that path by more than ``far_m`` and ``ratio`` times the fit's own worst residual: a stretch the identity's path
+passes through, or a path too irregular to say, is kept. The samples are removed (positions, residuals and camera
+masks), never moved: the output has a short gap where it had a wrong identity.
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+
+import numpy as np
+
+from mocap.trajectories import Trajectories
+
+__all__ = ["OffPathConfig", "withhold_off_path"]
+
+log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class OffPathConfig:
+    """Settings of :func:`withhold_off_path`.
+
+    Attributes:
+        reach_s: the path is fitted to the identity's samples at most this long before and after a stretch, s.
+        min_side: samples needed on each side of a stretch.
+        most: most samples in a stretch.
+        span_s: longest time from a stretch's first sample to its last, s.
+        far_m: every sample of a stretch misses the path by more than this, m ...
+        ratio: ... and by more than this many times the fit's worst residual on the samples it was fitted to.
+    """
+
+    reach_s: float = 0.07
+    min_side: int = 4
+    most: int = 3
+    span_s: float = 0.05
+    far_m: float = 0.030
+    ratio: float = 2.5
+
+
+def withhold_off_path(traj: Trajectories, config: OffPathConfig | None = None) -> int:
+    """Empty, in place, the short stretches of identities that miss their own path (module docstring).
+
+    Returns the number of samples withheld.
+    """
+    cfg = config or OffPathConfig()
+    reach = max(1, int(round(cfg.reach_s * traj.fps)))
+    span = int(round(cfg.span_s * traj.fps))
+    withheld = 0
+    for col in range(traj.n_markers):
+        frames = np.flatnonzero(np.isfinite(traj.positions[:, col, 0]))
+        for stretch in _off_path(frames, traj.positions[frames, col], reach, span, cfg):
+            traj.positions[stretch, col] = np.nan
+            traj.residuals[stretch, col] = np.nan
+            traj.camera_masks[stretch, col] = 0
+            withheld += len(stretch)
+    if withheld:
+        log.info("withheld %d samples off their identity's path (hops onto a neighbour)", withheld)
+    return withheld
+
+
+def _off_path(frames: np.ndarray, x: np.ndarray, reach: int, span: int, cfg: OffPathConfig) -> list[np.ndarray]:
+    """The stretches (frame arrays) of one identity, seen at ``frames`` (n,) at ``x`` (n, 3) m, that miss its path.
+
+    A stretch starts at a sample whose step from the sample before misses that sample's extrapolation (constant
+    velocity from the two before it) by more than ``far_m``: a sample on the path cannot be off it at its entry.
+    """
+    n = len(frames)
+    if n < 2 * cfg.min_side + 1:
+        return []
+    dt = np.diff(frames).astype(float)  # (n - 1,)
+    velocity = np.diff(x, axis=0) / dt[:, None]  # (n - 1, 3) m/frame, between samples i and i + 1
+    entry = np.zeros(n, dtype=bool)
+    entry[2:] = np.linalg.norm(x[2:] - x[1:-1] - velocity[:-1] * dt[1:, None], axis=1) > cfg.far_m
+    found: list[np.ndarray] = []
+    free_from = 0  # samples before this index belong to a stretch found already
+    for i in np.flatnonzero(entry):
+        if i < max(cfg.min_side, free_from):
+            continue
+        for k in range(1, cfg.most + 1):
+            last = i + k - 1
+            if last + cfg.min_side >= n or frames[last] - frames[i] > span:
+                break
+            side = ((frames >= frames[i] - reach) & (frames < frames[i])) | (
+                (frames > frames[last]) & (frames <= frames[last] + reach))
+            before = np.count_nonzero(side[:i])
+            if before < cfg.min_side or np.count_nonzero(side) - before < cfg.min_side:
+                continue
+            t = (frames[side] - frames[i]).astype(float)
+            basis = np.vander(t, 4)  # (m, 4): cubic in frames from the stretch's first
+            coef, *_ = np.linalg.lstsq(basis, x[side], rcond=None)
+            worst_fit = float(np.linalg.norm(basis @ coef - x[side], axis=1).max())
+            miss = np.linalg.norm(np.vander((frames[i:last + 1] - frames[i]).astype(float), 4) @ coef
+                                  - x[i:last + 1], axis=1)
+            if miss.min() > max(cfg.far_m, cfg.ratio * worst_fit):
+                found.append(frames[i:last + 1])
+                free_from = last + 1
+                break
+    return found

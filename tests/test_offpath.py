@@ -1,0 +1,70 @@
+"""Samples off their identity's own path are withheld: a hop onto a neighbour, not a hard turn of the marker itself."""
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from mocap.export.formats import read_trajectories
+from mocap.offpath import OffPathConfig, withhold_off_path
+from mocap.relabel import RelabelConfig
+from mocap.trajectories import Trajectories
+
+FPS = 120.0
+SPRINT = Path(__file__).resolve().parents[2] / "shared" / "data" / "c3d" / "kinematics_basket_sprint.c3d"
+
+
+def _hand_and_rim(frames: int = 240) -> tuple[np.ndarray, np.ndarray]:
+    """(F, 3) a hand circling at 1.3 m/s and (F, 3) a rim marker 60 mm from it turning with the wheel, m."""
+    t = np.arange(frames) / FPS
+    hand = np.stack([0.2 * np.cos(2 * np.pi * t), 0.2 * np.sin(2 * np.pi * t), 0.8 + 0.0 * t], axis=1)
+    rim = hand + 0.06 * np.stack([np.cos(5 * t), np.sin(5 * t), 0.0 * t], axis=1)
+    return hand, rim
+
+
+def test_a_hop_onto_a_neighbour_is_withheld_and_the_rest_kept():
+    hand, rim = _hand_and_rim()
+    P = np.stack([hand, rim], axis=1)  # (F, 2, 3)
+    P[[100, 102], 0] = rim[[100, 102]]  # the hand's identity holds the rim marker's point twice ...
+    P[101, 0] = np.nan  # ... while the hand is hidden
+    P[90:115, 1] = np.nan  # and the rim marker's own track is lost
+    traj = Trajectories(["M001", "M002"], FPS, P.copy())
+    assert withhold_off_path(traj) == 2
+    assert np.isnan(traj.positions[[100, 101, 102], 0]).all()
+    kept = np.isfinite(P[..., 0])
+    kept[[100, 102], 0] = False
+    np.testing.assert_array_equal(traj.positions[kept], P[kept])
+    assert (traj.camera_masks[[100, 102], 0] == 0).all() and np.isnan(traj.residuals[[100, 102], 0]).all()
+
+
+def test_a_marker_that_stops_dead_or_jitters_keeps_every_sample():
+    rng = np.random.default_rng(7)
+    hand, _ = _hand_and_rim()
+    stop = hand.copy()
+    stop[120:] = stop[120]  # 1.3 m/s to standstill in one frame (a hand landing on the rim)
+    noisy = hand + rng.normal(0.0, 0.0005, hand.shape)  # 0.5 mm noise, ten times a good system's
+    traj = Trajectories(["M001", "M002"], FPS, np.stack([stop, noisy], axis=1))
+    assert withhold_off_path(traj) == 0
+
+
+def test_a_hop_the_path_cannot_tell_is_kept():
+    hand, rim = _hand_and_rim()
+    P = hand[:, None].copy()
+    P[100] = hand[100] + np.array([0.0, 0.0, 0.025])  # 25 mm off: within the far_m of the default settings
+    assert withhold_off_path(Trajectories(["M001"], FPS, P.copy())) == 0
+    assert withhold_off_path(Trajectories(["M001"], FPS, P.copy()), OffPathConfig(far_m=0.02)) == 1
+
+
+def test_the_pass_runs_only_where_hops_are_clear():
+    cfg = RelabelConfig()
+    assert cfg.hops_clear(120.0) and cfg.hops_clear(100.0) and not cfg.hops_clear(50.0)
+
+
+@pytest.mark.skipif(not SPRINT.is_file(), reason=f"real data not found at {SPRINT} (../shared/data is not in a clone)")
+def test_recorded_wheelchair_sprint_keeps_all_but_a_handful_of_samples():
+    # The recording's own trajectories (OptiTrack, 120 Hz, wheel, hand and forearm clusters): a real marker's path
+    # is smooth at this rate; what is withheld is the recording's own 1-3 frame glitches.
+    traj = read_trajectories(SPRINT)
+    valid = int(np.isfinite(traj.positions[..., 0]).sum())
+    withheld = withhold_off_path(traj)
+    assert withheld <= 1e-4 * valid
