@@ -91,11 +91,11 @@ def _off_path(frames: np.ndarray, x: np.ndarray, reach: int, span: int, cfg: Off
             last = i + k - 1
             if last + cfg.min_side >= n or frames[last] - frames[i] > span:
                 break
-            side = ((frames >= frames[i] - reach) & (frames < frames[i])) | (
-                (frames > frames[last]) & (frames <= frames[last] + reach))
-            before = np.count_nonzero(side[:i])
-            if before < cfg.min_side or np.count_nonzero(side) - before < cfg.min_side:
+            first = np.searchsorted(frames, frames[i] - reach)  # the samples within reach on both sides
+            stop = np.searchsorted(frames, frames[last] + reach, side="right")
+            if i - first < cfg.min_side or stop - last - 1 < cfg.min_side:
                 continue
+            side = np.r_[first:i, last + 1:stop]
             t = (frames[side] - frames[i]).astype(float)
             basis = np.vander(t, 4)  # (m, 4): cubic in frames from the stretch's first
             coef, *_ = np.linalg.lstsq(basis, x[side], rcond=None)

@@ -197,24 +197,36 @@ def test_a_cluster_glimpsed_twice_keeps_its_layout():
         assert (traj.n_markers == 3 and _same_identities(traj, P)) == linked
 
 
+def _newcomer_took_the_identity(P: np.ndarray, newcomer: np.ndarray, vanish: int, follow: int, back: int
+                                ) -> tuple[np.ndarray, np.ndarray]:
+    """(truth, seen) of a newcomer keeping a vanished marker's identity: marker 0 of ``P`` vanishes at ``vanish``,
+    its column follows ``newcomer`` (F, 3) from ``follow``, and the marker comes back at ``back`` as a new identity
+    (column 5)."""
+    truth = np.concatenate([P, newcomer[:, None]], axis=1)
+    seen = np.concatenate([P, np.full((P.shape[0], 1, 3), np.nan)], axis=1)
+    seen[vanish:, 0] = np.nan
+    seen[follow:, 0] = newcomer[follow:]
+    seen[back:, 5] = P[back:, 0]
+    return truth, seen
+
+
+def _assert_marker_0_has_its_identity_back(traj: Trajectories, P: np.ndarray, back: int) -> None:
+    owner_of_0 = [c for c in range(traj.n_markers) if np.allclose(traj.positions[10, c], P[10, 0])][0]
+    np.testing.assert_array_equal(traj.positions[back:, owner_of_0], P[back:, 0])
+
+
 def test_marker_back_takes_its_identity_back_from_a_newcomer():
     """A newcomer on the same segment, 13 mm from a marker that just vanished, kept that marker's identity (its
     distances changed by 5.7 mm, within the gate); when the marker itself comes back, 20 frames later, its
     distances fit the identity's from before the gap exactly, and it takes the identity back."""
     P = _segment()
     newcomer = P[:, 0] + np.array([0.0, -0.01, -0.008])
-    truth = np.concatenate([P, newcomer[:, None]], axis=1)
-    seen = np.concatenate([P, np.full((P.shape[0], 1, 3), np.nan)], axis=1)
-    seen[78:, 0] = np.nan  # marker 0 vanishes at frame 78 ...
-    seen[80:, 0] = newcomer[80:]  # ... its column follows the newcomer from frame 80 ...
-    seen[100:, 5] = P[100:, 0]  # ... and the marker comes back at frame 100 as a new identity
+    truth, seen = _newcomer_took_the_identity(P, newcomer, vanish=78, follow=80, back=100)
     traj = _traj(seen)
     relink_tracklets(traj)
     assert traj.n_markers == 6
     assert _same_identities(traj, truth)
-    rows = np.flatnonzero(np.isfinite(traj.positions[:, :, 0]).any(axis=0))
-    owner_of_0 = [c for c in rows if np.allclose(traj.positions[10, c], P[10, 0])][0]
-    np.testing.assert_array_equal(traj.positions[100:, owner_of_0], P[100:, 0])
+    _assert_marker_0_has_its_identity_back(traj, P, 100)
 
 
 def test_marker_back_takes_its_identity_back_from_a_far_newcomer():
@@ -224,17 +236,13 @@ def test_marker_back_takes_its_identity_back_from_a_far_newcomer():
     before the gap, and it takes the identity back; the newcomer becomes an identity of its own."""
     P = _segment()
     far = P[:, 3] + np.array([0.0, 0.3, 0.15])  # a lone marker 0.3 m from the segment, moving with it
-    truth = np.concatenate([P, far[:, None]], axis=1)
-    seen = np.concatenate([P, np.full((P.shape[0], 1, 3), np.nan)], axis=1)
-    seen[40:, 0] = np.nan  # marker 0 vanishes at frame 40 ...
-    seen[60:, 0] = far[60:]  # ... its column follows the far newcomer from frame 60 (20 frames: over max_gap) ...
-    seen[100:, 5] = P[100:, 0]  # ... and the marker comes back at frame 100 as a new identity
+    # (the column follows the far newcomer 20 frames after the marker vanished: over max_gap)
+    truth, seen = _newcomer_took_the_identity(P, far, vanish=40, follow=60, back=100)
     traj = _traj(seen)
     relink_tracklets(traj)
     assert traj.n_markers == 6
     assert _same_identities(traj, truth)
-    owner_of_0 = [c for c in range(traj.n_markers) if np.allclose(traj.positions[10, c], P[10, 0])][0]
-    np.testing.assert_array_equal(traj.positions[100:, owner_of_0], P[100:, 0])
+    _assert_marker_0_has_its_identity_back(traj, P, 100)
 
 
 def test_marker_back_takes_its_identity_back_from_a_newcomer_no_distance_measured_over_a_short_gap():
@@ -247,16 +255,11 @@ def test_marker_back_takes_its_identity_back_from_a_newcomer_no_distance_measure
     t = np.arange(P.shape[0]) / 50.0
     swing = 0.8 * np.sin(2 * np.pi * 2.0 * t)  # the wrist's angle, rad
     hand = P[:, 0] + 0.054 * np.stack([np.cos(swing), np.zeros_like(t), np.sin(swing)], axis=1)
-    truth = np.concatenate([P, hand[:, None]], axis=1)
-    seen = np.concatenate([P, np.full((P.shape[0], 1, 3), np.nan)], axis=1)
-    seen[80:, 0] = np.nan  # marker 0 vanishes at frame 80 ...
-    seen[83:, 0] = hand[83:]  # ... its column follows the hand from frame 83 ...
-    seen[89:, 5] = P[89:, 0]  # ... and the marker comes back at frame 89 as a new identity
+    truth, seen = _newcomer_took_the_identity(P, hand, vanish=80, follow=83, back=89)
     traj = _traj(seen)
     relink_tracklets(traj)
     assert _same_identities(traj, truth)
-    owner_of_0 = [c for c in range(traj.n_markers) if np.allclose(traj.positions[10, c], P[10, 0])][0]
-    np.testing.assert_array_equal(traj.positions[89:, owner_of_0], P[89:, 0])
+    _assert_marker_0_has_its_identity_back(traj, P, 89)
 
 
 def test_a_fast_swing_at_50_hz_is_not_cut_where_a_jump_is():
