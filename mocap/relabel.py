@@ -33,7 +33,10 @@ the frames on both sides of a decision are known, and these identity errors are 
   preferred and kept across any gap unless the distances clearly disagree (``shape_refuse_m``: a new
   marker next to a hidden one took its identity); it is the fallback when nothing else fits, but not for one sample
   the identity jumped onto (no gap), off its path, and left again, at frame rates where such a jump cannot be the
-  body's own acceleration (:meth:`RelabelConfig.hops_clear`). Across a short gap it
+  body's own acceleration (:meth:`RelabelConfig.hops_clear`); below those rates such a sample stays with its
+  identity however far off the extrapolation (a 50 Hz serve's wrist whipping at 280 m/s^2 is cut at the jump rule
+  into a sample of its own, which no other identity, ended frames before and half a metre away, may take). Across a
+  short gap it
   is refused too where the extrapolation misses the tracklet and the tracklet holds its distances to two identities
   or more that the identity moved against (``loose_refuse``: a marker of another segment). A newcomer
   whose distances changed less than that can still have taken the identity: when the marker itself comes
@@ -159,7 +162,8 @@ class RelabelConfig:
         glimpse_ratio: ... and every other matching's deviates this many times as much ...
         glimpse_margin_m: ... plus this, m.
         clear_hop_ratio: where a body's accelerations stay this many times below ``split_acc_m`` (:meth:`hops_clear`),
-            one sample its identity jumped onto (no gap), off its path, and left again does not keep the identity.
+            one sample its identity jumped onto (no gap), off its path, and left again does not keep the identity;
+            at lower rates it does, at the cost of its miss.
         confirm_frames: an identity the passes leave without a run of this many consecutive samples, and with
             fewer than twice as many in all, is withdrawn (:func:`withdraw_scattered`): the tracker's confirmation
             (``mocap.reconstruct`` passes :attr:`TrackerConfig.confirm_frames`), which the repair's pieces must meet
@@ -615,6 +619,8 @@ class _Linker:
                     refused.add((g, c))  # (a marker of another segment, where the extrapolation says it is not)
                 elif same and gap == 1 and len(run) == 1 and miss >= gate and self.hops_clear:
                     refused.add((g, c))  # (one sample the identity jumped onto, off its path, and left again)
+                elif same and gap == 1 and len(run) == 1:  # (under 100 Hz: a swing's own sample, cut at a jump)
+                    cost[g, j] = cfg.own_link_weight * miss
                 elif same:
                     cost[g, j] = cfg.own_link_weight * miss if gap > cfg.max_gap or miss < gate else np.inf
                 elif gap <= cfg.max_gap and miss < gate:

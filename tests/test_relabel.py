@@ -332,6 +332,33 @@ def test_one_sample_hopped_onto_at_120_hz_does_not_keep_the_identity():
     assert not _relinked_right(seen, truth, fps, RelabelConfig(clear_hop_ratio=np.inf))
 
 
+def test_a_whipping_wrists_own_sample_at_50_hz_is_not_given_to_a_far_identity():
+    """A serve's wrist at 50 Hz: at 0.2 m/frame it whips down, three accelerations in a row over the jump threshold
+    (110-150 mm/frame^2, 280-370 m/s^2), which cut its sample at frame 29 into a tracklet of its own; the other
+    hand, 0.6 m away, vanished at frame 19. The sample stays with the wrist's identity. Refused like a hop (as at
+    120 Hz), it went to the other hand's identity and cost two switches (the recording's serve, frame 558)."""
+    fps, n = 50.0, 60
+    v = np.zeros((n, 3))  # the wrist's steps, m/frame
+    v[:, 1] = -0.2 * np.minimum(np.arange(n), 28) / 28.0
+    v[29] = [0.0, -0.17, -0.145]
+    v[30] = [0.0, -0.08, -0.21]
+    v[31:] = np.array([0.0, 0.03, -0.19]) * np.linspace(1.0, 0.0, n - 31)[:, None] ** 0.2
+    wrist = np.array([0.0, 0.5, 1.5]) + np.cumsum(v, axis=0)
+    hand = wrist[29] + np.array([0.3, 0.3, -0.4]) + np.outer(np.arange(n), [0.002, 0.0, 0.0])
+    truth = np.stack([wrist, hand], axis=1)
+    seen = truth.copy()
+    seen[19:, 1] = np.nan
+    cfg = RelabelConfig()
+    runs = split_tracklets(seen, cfg.jump_acc(fps), cfg.reversal_acc(fps))
+    assert [(int(r[0, 0]), len(r)) for r in runs if r[0, 1] == 0] == [(0, 29), (29, 1), (30, 30)]
+    assert not cfg.hops_clear(fps)
+    traj = _traj(seen)
+    relink_tracklets(traj, cfg)
+    assert _same_identities(traj, truth)
+    held = np.isfinite(traj.positions[:, :, 0]).sum(axis=0)
+    assert sorted(held.tolist()) == [19, 60]  # the wrist's 60 samples in one identity, the hand's 19 in another
+
+
 def test_a_marker_held_by_two_identities_stays_with_the_one_it_continues():
     """Marker 4 is hidden from frame 50 on and its identity's track takes marker 0 (frames 50-52), while marker 0's
     own identity misses frame 50 and holds it again from 51: two identities on one point in frames 51-52. The
