@@ -617,10 +617,11 @@ class _Linker:
                 if same and gap <= cfg.max_gap and miss >= gate and (
                         _loose(self.memory[c], heads[g], c, cfg) >= cfg.loose_refuse):
                     refused.add((g, c))  # (a marker of another segment, where the extrapolation says it is not)
-                elif same and gap == 1 and len(run) == 1 and miss >= gate and self.hops_clear:
-                    refused.add((g, c))  # (one sample the identity jumped onto, off its path, and left again)
-                elif same and gap == 1 and len(run) == 1:  # (under 100 Hz: a swing's own sample, cut at a jump)
-                    cost[g, j] = cfg.own_link_weight * miss
+                elif same and gap == 1 and len(run) == 1:  # (one sample the identity jumped onto and left again)
+                    if miss >= gate and self.hops_clear:
+                        refused.add((g, c))  # (off its path: a hop)
+                    else:
+                        cost[g, j] = cfg.own_link_weight * miss  # (under 100 Hz: a swing's own sample, however far)
                 elif same:
                     cost[g, j] = cfg.own_link_weight * miss if gap > cfg.max_gap or miss < gate else np.inf
                 elif gap <= cfg.max_gap and miss < gate:
