@@ -27,11 +27,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from mocap.rigid import close_pairs
 from mocap.trajectories import Trajectories
 
 __all__ = ["ExchangeConfig", "undo_exchanges"]
 
-_PAIRS_PER_BLOCK = 1 << 21  # identity pairs x frames per block of the all-pairs distances (48 MB of differences)
 
 
 @dataclass(frozen=True)
@@ -73,14 +73,7 @@ def undo_exchanges(traj: Trajectories, config: ExchangeConfig | None = None) -> 
 def _passages(P: np.ndarray, near_m: float) -> list[tuple[int, int, int]]:
     """(frame, a, b) with a < b, in time order: the closest frame of every run of consecutive frames in which
     identities a and b of ``P`` (F, M, 3) are closer than ``near_m``."""
-    hits = []
-    block = max(1, _PAIRS_PER_BLOCK // max(P.shape[1] ** 2, 1))  # frames
-    for start in range(0, len(P), block):
-        Q = P[start:start + block]
-        with np.errstate(invalid="ignore"):  # (NaN where either is missing: never near)
-            d = np.linalg.norm(Q[:, :, None] - Q[:, None, :], axis=3)  # (f, M, M)
-        f, a, b = np.nonzero(np.triu(d < near_m, 1))
-        hits.append(np.stack([f + start, a, b], axis=1))
+    hits = list(close_pairs(P, near_m))
     hits = np.concatenate(hits) if hits else np.zeros((0, 3), dtype=np.intp)
     if not len(hits):
         return []
@@ -104,15 +97,17 @@ def _exchanged(P: np.ndarray, frame: int, a: int, b: int, cfg: ExchangeConfig) -
         return False
     pair = [a, b]
     enough = cfg.window - 2  # samples a window needs
+    others = np.flatnonzero((np.isfinite(P[before, :, 0]).sum(axis=0) >= enough)
+                            & (np.isfinite(P[after, :, 0]).sum(axis=0) >= enough))  # (n,) those that can be attached
+    others = others[(others != a) & (others != b)]
     with np.errstate(invalid="ignore"), warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)  # (all-NaN windows: no distance)
-        d_before = np.linalg.norm(P[before, pair, None] - P[before, None, :], axis=3)  # (window, 2, M)
-        d_after = np.linalg.norm(P[after, pair, None] - P[after, None, :], axis=3)
-        was = np.nanmedian(d_before, axis=0)  # (2, M)
+        d_before = np.linalg.norm(P[before, pair, None] - P[before, None, others], axis=3)  # (window, 2, n)
+        d_after = np.linalg.norm(P[after, pair, None] - P[after, None, others], axis=3)
+        was = np.nanmedian(d_before, axis=0)  # (2, n)
         now = np.nanmedian(d_after, axis=0)
         attached = ((np.isfinite(d_before).sum(axis=0) >= enough) & (was < cfg.reach_m)
                     & (np.nanmax(d_before, axis=0) - np.nanmin(d_before, axis=0) < cfg.steady_m))
-    attached[:, pair] = False
     attached &= (np.isfinite(d_after).sum(axis=0) >= enough).all(axis=0)  # both tails measured after
     if not attached.any():
         return False

@@ -39,7 +39,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from mocap.rigid import jump_starts, pair_statistics
+from mocap.rigid import close_pairs, jump_starts, pair_statistics
 from mocap.trajectories import Trajectories
 
 __all__ = ["SkinConfig", "undo_skin_exchanges"]
@@ -179,13 +179,10 @@ def _pair_exchanges(P: np.ndarray, a: int, b: int, refs: tuple[np.ndarray, np.nd
 
 def _meeting(P: np.ndarray, among: np.ndarray, meet_m: float) -> np.ndarray:
     """(n, n) bool: identities ``among`` (n,) of ``P`` (F, M, 3) that come within ``meet_m`` of each other in some
-    frame (in chunks of frames: the (frames, n, n) distances stay small)."""
+    frame (:func:`mocap.rigid.close_pairs`)."""
     met = np.zeros((among.size, among.size), dtype=bool)
-    step = max(1, 2_000_000 // max(1, among.size**2))
-    for start in range(0, len(P), step):
-        X = P[start:start + step, among]
-        with np.errstate(invalid="ignore"):
-            met |= (np.linalg.norm(X[:, :, None] - X[:, None], axis=3) < meet_m).any(axis=0)
+    for hits in close_pairs(P[:, among], meet_m):
+        met[hits[:, 1], hits[:, 2]] = met[hits[:, 2], hits[:, 1]] = True
     return met
 
 
