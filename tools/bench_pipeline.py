@@ -22,7 +22,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import resource
 import subprocess
 import sys
 import tempfile
@@ -30,7 +29,7 @@ import time
 from pathlib import Path
 
 import numpy as np
-from machine_info import describe  # noqa: E402  (tools/ is on sys.path when run as a script)
+from machine_info import describe, peak_rss_kib  # noqa: E402  (tools/ is on sys.path when run as a script)
 
 
 def bench_speed(frames: int, rounds: int) -> None:
@@ -74,19 +73,6 @@ def bench_speed(frames: int, rounds: int) -> None:
         print(f"    MCAP logging overhead on reconstruct: {100 * overhead:+.1f} %")
 
 
-def _peak_rss_kib() -> int:
-    """Peak resident memory of this process, KiB: Linux's VmHWM, which starts afresh at exec (``ru_maxrss`` keeps the
-    forked parent's size: run after (c), every child started at the parent's ~500 MiB of decoded video)."""
-    try:
-        with open("/proc/self/status") as status:
-            for line in status:
-                if line.startswith("VmHWM:"):
-                    return int(line.split()[1])
-    except OSError:
-        pass
-    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss  # KiB on Linux
-
-
 def _memory_child(minutes: float) -> dict[str, float]:
     """Run in a fresh process: feed the tracker ``minutes`` of centroids, return peak RSS and sizes."""
     from mocap.detections import Detections
@@ -101,7 +87,7 @@ def _memory_child(minutes: float) -> dict[str, float]:
     rng = np.random.default_rng(0)
     tracker = Tracker(rig, fps)
     n_frames = int(round(minutes * 60 * fps))
-    base_rss = _peak_rss_kib()
+    base_rss = peak_rss_kib()
     t0 = time.perf_counter()
     for k in range(n_frames):
         cycle = k % (2 * period)
@@ -113,7 +99,7 @@ def _memory_child(minutes: float) -> dict[str, float]:
         tracker.step(k, dets)
     traj = tracker.finish()
     elapsed = time.perf_counter() - t0
-    peak = _peak_rss_kib()
+    peak = peak_rss_kib()
     output = traj.positions.nbytes + traj.residuals.nbytes + traj.camera_masks.nbytes
     return {"minutes": minutes, "frames": n_frames, "peak_rss_mib": peak / 1024, "start_rss_mib": base_rss / 1024,
             "output_mib": output / 2**20, "markers": traj.n_markers, "frames_per_s": n_frames / elapsed}

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import os
 import platform
+import resource
 
 import cv2
 import numpy as np
@@ -27,3 +28,16 @@ def describe() -> str:
     return (f"{platform.platform()}; {cpu_model()}; {os.cpu_count()} logical cores; load average {load:.2f}; "
             f"Python {platform.python_version()}; numpy {np.__version__}; OpenCV {cv2.__version__} "
             f"({cv2.getNumThreads()} threads)")
+
+
+def peak_rss_kib() -> int:
+    """Peak resident memory of this process, KiB: Linux's VmHWM, which starts afresh at exec (``ru_maxrss`` keeps the
+    forked parent's size), else ``ru_maxrss``."""
+    try:
+        with open("/proc/self/status") as status:
+            for line in status:
+                if line.startswith("VmHWM:"):
+                    return int(line.split()[1])
+    except OSError:
+        pass
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss  # KiB on Linux
