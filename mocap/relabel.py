@@ -371,11 +371,11 @@ def _chain_distances(P: np.ndarray, samples: np.ndarray, owner: np.ndarray, chai
     ok = (own >= 0) & (own != chain)
     if not ok.any():
         return {}
-    d = np.linalg.norm(P[frames] - P[frames, cols][:, None, :], axis=2)
     rows, where = np.nonzero(ok)  # an identity has one sample per frame at most: one entry per row and identity
     others = own[rows, where]
     order = np.argsort(others, kind="stable")  # grouped by identity, each group in time order
-    others, values = others[order], d[rows[order], where[order]]
+    rows, where, others = rows[order], where[order], others[order]
+    values = np.linalg.norm(P[frames[rows], where] - P[frames[rows], cols[rows]], axis=1)
     ends = np.append(np.flatnonzero(others[1:] != others[:-1]) + 1, len(others))
     out = {}
     for start, end in zip(np.append(0, ends[:-1]), ends, strict=True):

@@ -41,7 +41,6 @@ Only whole samples move between identity columns; positions are never changed.
 from __future__ import annotations
 
 import itertools
-import warnings
 from dataclasses import dataclass
 
 import numpy as np
@@ -117,7 +116,7 @@ class _Matcher:
         """Identity ``y`` is a real alternative to ``x``: another marker (the two were seen together), and not a
         short fragment (``fragment_ratio``) of ``x``'s life (one that held that marker for a while). Two identities
         never seen together may be pieces of one marker's track: either is right."""
-        return bool(self.together[x, y] and self.size[y] >= self.cfg.fragment_ratio * self.size[x])
+        return bool(self._rivals_of(x, np.array([y]))[0])
 
     def seeds(self) -> list[dict[int, int]]:
         """Triangle-to-triangle maps (new -> old) whose three distances agree within ``tolerance_m``."""
@@ -139,36 +138,51 @@ class _Matcher:
         ``margin_m``); returns the map and the changes of every distance it compares, m."""
         M, R, cfg = self.median, self.rigid, self.cfg
         mapping = dict(seed)
+        keys, images = list(mapping), list(mapping.values())
+        is_key, is_image = np.zeros(len(R), dtype=bool), np.zeros(len(R), dtype=bool)
+        is_key[keys], is_image[images] = True, True
+        to_keys = R[:, keys].sum(axis=1)  # (M,) rigid distances to the mapped new identities ...
+        to_images = R[:, images].sum(axis=1)  # ... and to their images
+        rigid_k, rigid_i = R[:, keys], R[:, images]  # (M, k): every identity's rigidity and distance to the keys ...
+        median_k, median_i = M[:, keys], M[:, images]  # ... and to their images, a column per mapped pair
         while True:
-            keys = np.array(list(mapping))
-            images = np.array([mapping[k] for k in keys])
-            news = np.flatnonzero(R[:, keys].sum(axis=1) >= 2)  # (rigid with two mapped ones at least)
-            news = news[~np.isin(news, keys)]
-            olds = np.flatnonzero(R[:, images].sum(axis=1) >= 2)
-            olds = olds[~np.isin(olds, images)]
+            news = np.flatnonzero((to_keys >= 2) & ~is_key)  # (rigid with two mapped ones at least)
+            olds = np.flatnonzero((to_images >= 2) & ~is_image)
             if news.size == 0 or olds.size == 0:
                 break
-            # (b, a, key): distance b-key against a-image(key), where both pairs are rigid
-            both = R[news][:, None, keys] & R[olds][None, :, images]
-            change = np.where(both, np.abs(M[news][:, None, keys] - M[olds][None, :, images]), np.nan)
-            n = both.sum(axis=2)
-            with np.errstate(invalid="ignore"), warnings.catch_warnings():
-                warnings.simplefilter("ignore", RuntimeWarning)  # (all-NaN rows: no comparison)
-                ok = (n >= 2) & (np.nanmax(change, axis=2) < cfg.tolerance_m) & self.after[np.ix_(news, olds)]
-                mean = np.nanmean(change, axis=2)
-            bi, ai = np.nonzero(ok)
-            if bi.size == 0:
+            bi, ai = np.nonzero(self.after[news][:, olds])  # (p,) the pairs b after a
+            b_of, a_of = news[bi], olds[ai]
+            # (p, key): distance b-key against a-image(key), where both pairs are rigid
+            both = rigid_k[b_of] & rigid_i[a_of]
+            change = np.abs(median_k[b_of] - median_i[a_of])
+            n = both.sum(axis=1)
+            with np.errstate(invalid="ignore"):  # (no comparison: n = 0, not ok)
+                ok = (n >= 2) & (np.where(both, change, -np.inf).max(axis=1) < cfg.tolerance_m)
+            if not ok.any():
                 break
-            options = sorted(zip((mean[bi, ai] + self.gap_cost[news[bi], olds[ai]]).tolist(), mean[bi, ai].tolist(),
-                                 news[bi].tolist(), olds[ai].tolist(), strict=True))
-            for k, (_, best, b, a) in enumerate(options):  # the best-fitting pair that no rival comes close to
-                if not any(c < best + cfg.margin_m for _, c, ob, oa in options[:k] + options[k + 1:]
-                           if (ob == b and self.rivals(a, oa)) or (oa == a and self.rivals(b, ob))):
+            mean = np.where(both[ok], change[ok], 0.0).sum(axis=1) / n[ok]  # (k,)
+            b_of, a_of = b_of[ok], a_of[ok]
+            order = np.lexsort((a_of, b_of, mean, mean + self.gap_cost[b_of, a_of]))
+            mean, b_of, a_of = mean[order], b_of[order], a_of[order]
+            for k in range(mean.size):  # the best-fitting pair that no rival comes close to
+                b, a = int(b_of[k]), int(a_of[k])
+                rival = (((b_of == b) & self._rivals_of(a, a_of)) | ((a_of == a) & self._rivals_of(b, b_of)))
+                rival[k] = False
+                if not (mean[rival] < mean[k] + cfg.margin_m).any():
                     mapping[b] = a
+                    is_key[b], is_image[a] = True, True
+                    to_keys += R[:, b]
+                    to_images += R[:, a]
+                    rigid_k, rigid_i = np.c_[rigid_k, R[:, b]], np.c_[rigid_i, R[:, a]]
+                    median_k, median_i = np.c_[median_k, M[:, b]], np.c_[median_i, M[:, a]]
                     break
             else:
                 break
         return mapping, self.changes(mapping)
+
+    def _rivals_of(self, x: int, ys: np.ndarray) -> np.ndarray:
+        """(n,) bool: :meth:`rivals` of ``x`` and each of ``ys`` (n,)."""
+        return self.together[x, ys] & (self.size[ys] >= self.cfg.fragment_ratio * self.size[x])
 
     def changes(self, mapping: dict[int, int]) -> list[float]:
         """Changes, m, of every rigid distance among the mapped new identities whose images are rigid too."""
@@ -261,9 +275,12 @@ def _matches(P: np.ndarray, fps: float, cfg: ReuniteConfig) -> list[tuple[int, i
     later_free = np.ones(P.shape[1], dtype=bool)  # identities not yet joined after another ...
     earlier_free = later_free.copy()  # ... and not yet followed by another
     found: list[tuple[dict[int, int], list[float]]] = []
+    holding: dict[tuple[int, int], set[int]] = {}  # (new, old) -> the maps found so far that hold it
     for seed in matcher.seeds():  # (a seed inside a map already grown grows into that map)
-        if not any(seed.items() <= m.items() for m, _ in found):
-            found.append(matcher.grow(seed))
+        if not set.intersection(*(holding.get(item, set()) for item in seed.items())):
+            for item in (grown := matcher.grow(seed))[0].items():
+                holding.setdefault(item, set()).add(len(found))
+            found.append(grown)
     found = [(m, c) for m, c in found if len(c) >= cfg.min_members and np.mean(c) < cfg.mean_tolerance_m]
     found.sort(key=lambda mc: (-len(mc[1]), float(np.mean(mc[1])) + np.mean([gap_cost[b, a] for b, a in
                                                                             mc[0].items()])))
