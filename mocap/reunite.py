@@ -69,6 +69,9 @@ class ReuniteConfig:
         gap_cost_m: among maps that fit alike, the one across the shorter time wins: each second between two
             identities counts as this much change, m.
         rounds: most passes; each joins identities once, so a cluster away n times needs log2(n + 1) passes.
+        max_absence_s: identities that started more than this after others ended are not mapped onto them, s (a
+            cluster away longer comes back under new identities: the maps to try grow with the square of the
+            identities that come and go, and a long take's, cut by gaps into fragments, have thousands).
         context_s: the context is measured over the new identities' first and their images' last samples (before the
             new ones start), this many seconds' worth of frames (``context_s`` x fps samples), s.
         context_reach_m: other identities within this (median) distance of a member make the context, m.
@@ -90,6 +93,7 @@ class ReuniteConfig:
     fragment_ratio: float = 0.25
     gap_cost_m: float = 0.0001
     rounds: int = 8
+    max_absence_s: float = 60.0
     context_s: float = 1.0
     context_reach_m: float = 0.4
     context_max_m: float = 0.03
@@ -269,6 +273,7 @@ def _matches(P: np.ndarray, fps: float, cfg: ReuniteConfig) -> list[tuple[int, i
     if cfg.fill_holes:  # ... or b, started later and seen less, was never seen with a (it lies in a's gaps)
         size = seen.sum(axis=0)
         after |= (count == 0) & (size[:, None] < size[None, :]) & (first[:, None] > first[None, :])
+    after &= first[:, None] - last[None, :] <= cfg.max_absence_s * fps  # ... and not too long after
     gap_cost = cfg.gap_cost_m * np.maximum(first[:, None] - last[None, :], 0) / fps
     window = max(1, int(round(cfg.context_s * fps)))
     matcher = _Matcher(median, rigid, after, seen.sum(axis=0), count > 0, gap_cost, cfg)

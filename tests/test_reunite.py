@@ -9,7 +9,7 @@ from helpers_rigid import FRAMES, PLATE, SQUARE, TRIANGLE, columns_follow, movin
 from scipy.spatial.transform import Rotation
 
 from mocap.relabel import repair_identities
-from mocap.reunite import SKIN_CLUSTERS, reunite_clusters
+from mocap.reunite import SKIN_CLUSTERS, ReuniteConfig, reunite_clusters
 from mocap.trajectories import Trajectories
 
 GONE = slice(200, 400)  # the plates leave the volume for 2 s at 100 Hz
@@ -33,6 +33,16 @@ def test_a_plate_and_a_triangle_back_after_two_seconds_get_their_identities_back
     traj = _split_at_the_gap(truth, np.arange(7))
     assert reunite_clusters(traj) == 7
     assert sorted(columns_follow(traj, truth)) == list(range(10))  # one column per marker, whole take
+
+
+def test_a_cluster_away_longer_than_max_absence_stays_new_identities():
+    """The gap is 2 s (the last marker back 2.06 s after): allowed 1.5 s, nothing is joined; 2.5 s, all of it."""
+    rng = np.random.default_rng(3)
+    truth = np.concatenate([moving(PLATE, rng, 0.0), moving(TRIANGLE, rng, 0.6), skin(3, rng)], axis=1)
+    traj = _split_at_the_gap(truth, np.arange(7))
+    assert reunite_clusters(traj, ReuniteConfig(max_absence_s=1.5)) == 0
+    assert reunite_clusters(traj, ReuniteConfig(max_absence_s=2.5)) == 7
+    assert sorted(columns_follow(traj, truth)) == list(range(10))
 
 
 def test_the_identity_repair_reunites_them_and_drops_the_emptied_columns():
