@@ -22,6 +22,7 @@ __all__ = ["PAIRS", "PERMUTATIONS", "close_pairs", "column_runs", "pair_statisti
 
 STATISTICS_FRAMES = 4096  # frames per chunk of the co-seen counts, and most frames the distances are taken over
 _SPAN_FRAMES = 256  # frames whose seen identities :func:`close_pairs` compares at once
+_JUMP_ENTRIES = 1 << 21  # frames x columns per block of :func:`jump_starts` (48 MB per temporary)
 _PAIRS_PER_BLOCK = 1 << 21  # identity pairs x frames per block of its all-pairs distances (48 MB of differences)
 
 
@@ -117,7 +118,17 @@ def placement_jumps(P: np.ndarray, rows: np.ndarray, member: np.ndarray, X: np.n
 def jump_starts(P: np.ndarray, split_acc: float, reversal_acc: float = np.inf) -> np.ndarray:
     """(F, M) bool: samples of ``P`` (F, M, 3) whose identity has a sample in the frame before too but jumped to
     them: the acceleration (second difference, m/frame^2) exceeds ``split_acc`` on both samples of the step, or
-    ``reversal_acc`` on both with opposite directions."""
+    ``reversal_acc`` on both with opposite directions. In blocks of columns (``_JUMP_ENTRIES`` frames x columns):
+    a long take's thousands of identity columns need no (F, M, 3) temporaries."""
+    out = np.zeros(P.shape[:2], dtype=bool)
+    block = max(1, _JUMP_ENTRIES // max(1, len(P)))  # columns
+    for start in range(0, P.shape[1], block):
+        out[:, start:start + block] = _jump_starts(P[:, start:start + block], split_acc, reversal_acc)
+    return out
+
+
+def _jump_starts(P: np.ndarray, split_acc: float, reversal_acc: float) -> np.ndarray:
+    """:func:`jump_starts` of one block of columns."""
     valid = np.isfinite(P[:, :, 0])
     vec = np.full(P.shape, np.nan)
     vec[1:-1] = P[2:] - 2 * P[1:-1] + P[:-2]

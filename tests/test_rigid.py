@@ -35,3 +35,17 @@ def test_close_pairs_finds_every_close_pair_of_a_long_take_with_short_lived_iden
 def test_close_pairs_of_an_empty_take_yield_nothing():
     assert sum(len(block) for block in rigid.close_pairs(np.full((300, 5, 3), np.nan), 0.1)) == 0
     assert list(rigid.close_pairs(np.zeros((0, 5, 3)), 0.1)) == []
+
+
+def test_jump_starts_in_blocks_of_columns_equal_one_block(monkeypatch):
+    """A long take's columns are judged a block at a time: the same jumps and reversals as all at once."""
+    rng = np.random.default_rng(11)
+    F, M = 400, 37
+    P = np.cumsum(rng.normal(0.0, 0.004, (F, M, 3)), axis=0)
+    hops = rng.random((F, M)) < 0.02
+    P[hops] += rng.normal(0.0, 0.05, (int(hops.sum()), 3))  # (one-frame hops: two large accelerations each)
+    P[rng.random((F, M)) < 0.05] = np.nan
+    whole = rigid.jump_starts(P, 0.03, 0.02)
+    monkeypatch.setattr(rigid, "_JUMP_ENTRIES", 3 * F)  # blocks of 3 columns
+    assert whole.sum() > 50
+    np.testing.assert_array_equal(rigid.jump_starts(P, 0.03, 0.02), whole)
