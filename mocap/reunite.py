@@ -10,11 +10,10 @@ On finished trajectories (after :mod:`mocap.relabel`), :func:`reunite_clusters`:
 1. measures every pair of identities over the frames both are seen in: the median distance and its
    robust spread (1.4826 MAD); pairs closer than ``reach_m`` that spread less than ``spread_m`` are rigid;
 2. maps identities that started later onto identities that ended before them (never seen together; at most
-   ``max_absence_s`` before): a
-   seed is a rigid triangle of later identities whose three distances equal (``tolerance_m``) those of a
-   rigid triangle of earlier ones; it grows one identity at a time, each compared on two distances or
-   more, the best-fitting first (the shorter time apart breaks near-ties, ``gap_cost_m``) unless another
-   fits within ``margin_m``;
+   ``max_absence_s`` before): a seed is a rigid triangle of later identities whose three distances equal
+   (``tolerance_m``) those of a rigid triangle of earlier ones; it grows one identity at a time, each compared
+   on two distances or more, the best-fitting first (the shorter time apart breaks near-ties, ``gap_cost_m``)
+   unless another fits within ``margin_m``;
 3. goes through the maps, largest first, then by how little their distances changed (``mean_tolerance_m``
    at most, on ``min_members`` distances at least), and takes each whose identities are still free, unless
    another map that sends one of its identities to another marker fits within ``margin_m`` (a symmetric
