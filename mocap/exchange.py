@@ -33,7 +33,6 @@ from mocap.trajectories import Trajectories
 __all__ = ["ExchangeConfig", "undo_exchanges"]
 
 
-
 @dataclass(frozen=True)
 class ExchangeConfig:
     """Settings of the exchange repair.

@@ -44,13 +44,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from mocap.rigid import PAIRS, PERMUTATIONS, pair_statistics, placement_jumps, rigid_triangles
+from mocap.rigid import PAIRS, PERMUTATIONS, pair_statistics, placement_jumps, rigid_triangles, seen_blocks
 from mocap.trajectories import Trajectories, UnconfirmedPoints
 
 __all__ = ["PlateConfig", "label_plates"]
 
 CHUNK_ENTRIES = 1 << 22  # frames x identities^2 searched at a time (the distance arrays stay near 32 MB)
-SPAN_FRAMES = 256  # frames whose seen identities are searched together
 MAX_MEMBERS = 8  # larger cliques of rigid pairs are not taken for plates
 TWIN_FRAMES = 10  # frames two structures of one shape must be seen together to be two structures
 WINDOW_SPAN = 3  # plates are also learned from stretches of this many times min_frames frames ...
@@ -408,16 +407,12 @@ def label_plates(traj: Trajectories, config: PlateConfig | None = None, extra: U
     everything = np.concatenate([P, E], axis=1)
     found = []  # (frame, column, member identity) of every vote
     reach = max(float(np.nanmax(plate.shape)) for plate in plates) + 2 * cfg.tolerance_m  # no plate edge is longer
-    for span in range(0, F, SPAN_FRAMES):  # (only the columns seen in a span: a long take has many more)
-        end = min(span + SPAN_FRAMES, F)
-        alive = np.flatnonzero(np.isfinite(everything[span:end, :, 0]).any(axis=0))
-        step = max(1, CHUNK_ENTRIES // max(1, alive.size ** 2))
-        for start in range(span, end, step):
-            D = _distances(everything[start:min(start + step, end), alive])
-            pairs = _SortedPairs(D, reach)
-            for plate in plates:
-                f, col, m = _votes(D, pairs, plate.shape, plate.triangles, plate.twins, cfg.tolerance_m)
-                found.append((f + start, alive[col], plate.members[m]))
+    for start, stop, alive in seen_blocks(np.isfinite(everything[..., 0]), CHUNK_ENTRIES):
+        D = _distances(everything[start:stop, alive])
+        pairs = _SortedPairs(D, reach)
+        for plate in plates:
+            f, col, m = _votes(D, pairs, plate.shape, plate.triangles, plate.twins, cfg.tolerance_m)
+            found.append((f + start, alive[col], plate.members[m]))
     v_frame, v_col, v_member = (np.concatenate(x) for x in zip(*found, strict=True))
     mine = v_col < M  # the identities' own samples are resolved first: an unconfirmed point never takes their votes
     vote = _resolve(v_frame[mine], v_col[mine], v_member[mine], shape=(F, M))

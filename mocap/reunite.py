@@ -145,13 +145,11 @@ class _Matcher:
         keys, images = list(mapping), list(mapping.values())
         is_key, is_image = np.zeros(len(R), dtype=bool), np.zeros(len(R), dtype=bool)
         is_key[keys], is_image[images] = True, True
-        to_keys = R[:, keys].sum(axis=1)  # (M,) rigid distances to the mapped new identities ...
-        to_images = R[:, images].sum(axis=1)  # ... and to their images
         rigid_k, rigid_i = R[:, keys], R[:, images]  # (M, k): every identity's rigidity and distance to the keys ...
         median_k, median_i = M[:, keys], M[:, images]  # ... and to their images, a column per mapped pair
         while True:
-            news = np.flatnonzero((to_keys >= 2) & ~is_key)  # (rigid with two mapped ones at least)
-            olds = np.flatnonzero((to_images >= 2) & ~is_image)
+            news = np.flatnonzero((rigid_k.sum(axis=1) >= 2) & ~is_key)  # (rigid with two mapped ones at least)
+            olds = np.flatnonzero((rigid_i.sum(axis=1) >= 2) & ~is_image)
             if news.size == 0 or olds.size == 0:
                 break
             bi, ai = np.nonzero(self.after[news][:, olds])  # (p,) the pairs b after a
@@ -175,8 +173,6 @@ class _Matcher:
                 if not (mean[rival] < mean[k] + cfg.margin_m).any():
                     mapping[b] = a
                     is_key[b], is_image[a] = True, True
-                    to_keys += R[:, b]
-                    to_images += R[:, a]
                     rigid_k, rigid_i = np.c_[rigid_k, R[:, b]], np.c_[rigid_i, R[:, a]]
                     median_k, median_i = np.c_[median_k, M[:, b]], np.c_[median_i, M[:, a]]
                     break

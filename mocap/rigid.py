@@ -18,10 +18,10 @@ import numpy as np
 from mocap import kernels
 
 __all__ = ["PAIRS", "PERMUTATIONS", "close_pairs", "column_runs", "pair_statistics", "placement_jumps", "jump_starts",
-           "rigid_triangles", "split_tracklets"]
+           "rigid_triangles", "seen_blocks", "split_tracklets"]
 
 STATISTICS_FRAMES = 4096  # frames per chunk of the co-seen counts, and most frames the distances are taken over
-_SPAN_FRAMES = 256  # frames whose seen identities :func:`close_pairs` compares at once
+_SPAN_FRAMES = 256  # frames whose seen identities :func:`seen_blocks` gives together
 _JUMP_ENTRIES = 1 << 21  # frames x columns per block of :func:`jump_starts` (48 MB per temporary)
 _PAIRS_PER_BLOCK = 1 << 21  # identity pairs x frames per block of its all-pairs distances (48 MB of differences)
 
@@ -59,22 +59,29 @@ def pair_statistics(P: np.ndarray, min_frames: int) -> tuple[np.ndarray, np.ndar
     return median, spread, count
 
 
+def seen_blocks(seen: np.ndarray, entries: int) -> Iterator[tuple[int, int, np.ndarray]]:
+    """(start, stop, columns) blocks of frames of ``seen`` (F, M) bool, in frame order, with the columns seen in
+    the span of ``_SPAN_FRAMES`` frames the block lies in, (stop - start) x columns^2 at most ``entries`` (one
+    frame at least): all-pairs work on a long take follows the identities seen at once, not all of its columns."""
+    F = len(seen)
+    for span in range(0, F, _SPAN_FRAMES):
+        end = min(span + _SPAN_FRAMES, F)
+        alive = np.flatnonzero(seen[span:end].any(axis=0))
+        block = max(1, entries // max(alive.size ** 2, 1))  # frames
+        for start in range(span, end, block):
+            yield start, min(start + block, end), alive
+
+
 def close_pairs(P: np.ndarray, near_m: float) -> Iterator[np.ndarray]:
     """Blocks of (n, 3) frame, a, b (a < b), in frame order: every frame in which identities a and b of ``P``
-    (F, M, 3) are both seen and closer than ``near_m`` (m). Only the identities seen in each span of
-    ``_SPAN_FRAMES`` frames are compared there, in blocks of at most ``_PAIRS_PER_BLOCK`` pairs x frames: time and
-    memory follow the identities seen at once, not all those of a long take."""
-    seen = np.isfinite(P[..., 0])
-    for span in range(0, len(P), _SPAN_FRAMES):
-        end = min(span + _SPAN_FRAMES, len(P))
-        alive = np.flatnonzero(seen[span:end].any(axis=0))
-        block = max(1, _PAIRS_PER_BLOCK // max(alive.size ** 2, 1))  # frames
-        for start in range(span, end, block):
-            Q = P[start:min(start + block, end), alive]
-            with np.errstate(invalid="ignore"):  # (NaN where either is missing: never near)
-                d = np.linalg.norm(Q[:, :, None] - Q[:, None, :], axis=3)  # (f, A, A)
-            f, a, b = np.nonzero(np.triu(d < near_m, 1))
-            yield np.stack([f + start, alive[a], alive[b]], axis=1)
+    (F, M, 3) are both seen and closer than ``near_m`` (m); the identities compared in blocks
+    (:func:`seen_blocks`, ``_PAIRS_PER_BLOCK`` pairs x frames at most)."""
+    for start, stop, alive in seen_blocks(np.isfinite(P[..., 0]), _PAIRS_PER_BLOCK):
+        Q = P[start:stop, alive]
+        with np.errstate(invalid="ignore"):  # (NaN where either is missing: never near)
+            d = np.linalg.norm(Q[:, :, None] - Q[:, None, :], axis=3)  # (f, A, A)
+        f, a, b = np.nonzero(np.triu(d < near_m, 1))
+        yield np.stack([f + start, alive[a], alive[b]], axis=1)
 
 
 def rigid_triangles(rigid: np.ndarray, among: np.ndarray) -> np.ndarray:
