@@ -41,7 +41,9 @@ the frames on both sides of a decision are known, and these identity errors are 
   or more that the identity moved against (``loose_refuse``: a marker of another segment). A newcomer
   whose distances changed less than that can still have taken the identity: when the marker itself comes
   back and its distances fit the identity's from before the gap clearly better (``usurp_margin_m``), it
-  takes the identity back and the newcomer becomes an identity of its own.
+  takes the identity back and the newcomer becomes an identity of its own. Below the rates where hops are clear
+  it does so even where the extrapolation had linked it elsewhere (a 50 Hz gap's gate spans half a metre: another
+  identity ended frames before fits it as well), if its distances fit within ``usurp_extrapolated_m``.
 
 A third pass, :mod:`mocap.exchange`, gives back markers two identities exchanged where the markers passed close,
 by the distances to the markers attached to them; a fourth, :mod:`mocap.scramble`, puts back jointly the tails of
@@ -127,6 +129,9 @@ class RelabelConfig:
             distance change is lower by more than this per marker, m.
         usurp_margin_m: a marker back after a gap takes its identity back from the one that continued it
             (a newcomer next to it) when its distances fit the identity's from before by this much better, m.
+        usurp_extrapolated_m: ... and, below the rates where hops are clear (:meth:`hops_clear`), a marker the
+            extrapolation alone linked to another identity (no distance fits that one) does so too when its
+            distances fit within this, m (at 50 Hz a gap's gate spans another marker's identity ended frames before).
         duplicate_m: two identities' samples of one frame closer than this are one marker (below any marker's
             diameter: two markers' centres cannot be this close), m.
         lone_gate_m: a tracklet back after a gap too long or too fast to extrapolate (over ``max_gap`` frames, or an
@@ -191,6 +196,7 @@ class RelabelConfig:
     shape_max_s: float = 10.0
     cluster_margin_m: float = 0.001
     usurp_margin_m: float = 0.003
+    usurp_extrapolated_m: float = 0.003
     duplicate_m: float = 0.003
     lone_gate_m: float = 0.003
     lone_reach_m: float = 0.12
@@ -530,10 +536,11 @@ class _Linker:
             self._assign_glimpses(start, group, open_chains, assigned, changes)
         taken = set(assigned.values())
         for g in range(len(group)):
-            if g not in assigned and heads[g]:
-                c = self._usurped(start, heads[g])
+            if heads[g] and (g not in assigned or not self.hops_clear and not self._fits(assigned[g], heads[g])):
+                c = self._usurped(start, heads[g], extrapolated=g in assigned)
                 if c is not None and c not in taken:
                     self._take_back(c)
+                    taken.discard(assigned.get(g))
                     assigned[g] = c
                     taken.add(c)
         for g, run in enumerate(group):
@@ -629,13 +636,21 @@ class _Linker:
         for g, j in _cheapest_links(cost, cfg.unlinked_cost_m):
             assigned[g] = open_chains[j]
 
-    def _usurped(self, start: int, head: dict[int, np.ndarray]) -> int | None:
+    def _fits(self, c: int, head: dict[int, np.ndarray]) -> bool:
+        """A tracklet's ``head`` distances fit identity ``c``'s memory (a link by distances, not by extrapolation
+        alone): one attached identity at least seen at both ends, weighted mean change under ``shape_gate_m``."""
+        pairs = _comparable(self.memory[c], head, c, self.cfg)
+        return bool(pairs) and _shape_misfit(pairs) < self.cfg.shape_gate_m
+
+    def _usurped(self, start: int, head: dict[int, np.ndarray], extrapolated: bool = False) -> int | None:
         """The identity a tracklet starting at ``start`` takes back, if any: one re-linked after a gap within
         ``shape_max`` frames to a continuation whose distances changed by ``usurp_margin_m`` more than this
         tracklet's ``head`` distances differ from the identity's before the gap (and those by less than
         ``shape_gate_m``), or whose distances could not be compared. A newcomer next to a marker that had just
         vanished took its identity (a hand marker 5 cm from a hidden forearm marker at 60 Hz), or one far from it
-        through the tracker's widened re-identification radius."""
+        through the tracker's widened re-identification radius. A tracklet the extrapolation already linked
+        (``extrapolated``) takes back only an identity whose distances fit within ``usurp_extrapolated_m`` and whose
+        continuation was still seen the frame before (another marker, then, than this one)."""
         cfg = self.cfg
         best, best_change = None, np.inf
         for c, (_, before, continued, frame) in self.junction.items():
@@ -645,6 +660,8 @@ class _Linker:
             if len(pairs) < cfg.shape_min:
                 continue
             change = _shape_misfit(pairs)
+            if extrapolated and (change >= cfg.usurp_extrapolated_m or self.ends[c][0] < start - 1):
+                continue
             if change < cfg.shape_gate_m and change + cfg.usurp_margin_m < continued and change < best_change:
                 best, best_change = c, change
         return best
