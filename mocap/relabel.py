@@ -24,7 +24,9 @@ the frames on both sides of a decision are known, and these identity errors are 
   much they changed, over any gap up to ``shape_max_s``: distances within a segment do not depend on
   how it moved meanwhile, and they tell apart markers a few centimetres apart that come back in turn.
   Otherwise the cost is how well the constant-velocity extrapolations of both ends agree across a
-  short gap (an identity ending on a single sample moves at its velocity from the sample before); over a longer
+  short gap (an identity ending on a single sample moves at its velocity from the sample before), unless a distance
+  the identity held to within ``shape_drift_m`` is more than ``shape_refuse_m`` (and its drift) off the tracklet's
+  (:func:`_contradicted`: at 50 Hz a gap's gate spans a neighbour on the same foot); over a longer
   one (up to ``lone_max_s``), one attached marker nearby seen at both ends is enough
   when its distance held to a few millimetres. Distances are kept per identity (not per output column), so a
   neighbour that was itself relinked still counts. A cluster that comes back in view together (a leg's markers
@@ -475,6 +477,25 @@ def _loose(memory: dict[int, np.ndarray], head: dict[int, np.ndarray], chain: in
                and memory[o].size >= cfg.shape_window and _robust_spread(memory[o]) > cfg.shape_steady_m)
 
 
+def _contradicted(memory: dict[int, np.ndarray], head: dict[int, np.ndarray], chain: int, cfg: RelabelConfig,
+                  gap: int) -> bool:
+    """Whether a tracklet's ``head`` holds steady a distance to an identity that an identity's ``memory`` held near a
+    value more than ``shape_refuse_m`` away, beyond what its spread over the last ``shape_window`` samples and that
+    drift carried across the ``gap`` (frames) allow: another marker (``chain`` itself left out)."""
+    for o, h in head.items():
+        then = memory.get(o)
+        if o == chain or then is None or then.size < cfg.shape_window or not _steady(h, cfg):
+            continue
+        recent = then[-cfg.shape_window:]
+        spread = float(np.ptp(recent))
+        if spread >= cfg.shape_drift_m:  # (not held: a wheel's marker, another segment)
+            continue
+        allowed = cfg.shape_refuse_m + spread * (1.0 + gap / (cfg.shape_window - 1))
+        if abs(quick_median(h) - quick_median(recent)) > allowed:
+            return True
+    return False
+
+
 def _robust_spread(distances: np.ndarray) -> float:
     """1.4826 x the median absolute deviation of ``distances`` (n,) m: a hop of a few samples at the end of an
     identity (onto a neighbour) leaves it at the marker's own spread."""
@@ -632,7 +653,10 @@ class _Linker:
                 elif same:
                     cost[g, j] = cfg.own_link_weight * miss if gap > cfg.max_gap or miss < gate else np.inf
                 elif gap <= cfg.max_gap and miss < gate:
-                    cost[g, j] = miss
+                    if _contradicted(self.memory[c], heads[g], c, cfg, gap):
+                        refused.add((g, c))  # (a distance the identity held, far from the tracklet's)
+                    else:
+                        cost[g, j] = miss
         for g, j in _cheapest_links(cost, cfg.unlinked_cost_m):
             assigned[g] = open_chains[j]
 

@@ -555,6 +555,23 @@ def test_a_marker_of_another_segment_does_not_keep_a_hidden_markers_identity():
     assert owner(forearm[100, 2], 100) == owner(wheel[30], 30)  # (the tracker's link, kept without the rule)
 
 
+def test_a_marker_back_at_50_hz_does_not_take_a_neighbours_identity_whose_held_distance_it_misses():
+    """A foot's markers at 50 Hz: A hidden 1.5 s while the foot steps 0.5 m, B hidden just before A is back. B's
+    extrapolation misses A by their 0.1 m spacing (a 50 Hz gap's gate is wider), but B held its distance to C at
+    0.09 m and A is 0.13 m from C: A keeps the tracker's own link and B its identity."""
+    F = 160
+    step = 0.5 * np.clip((np.arange(F) - 20) / 40, 0, 1)[:, None] * np.array([1.0, 0.0, 0.0])  # (F, 3) foot, m
+    layout = np.array([[0.0, 0.0, 0.05], [0.1, 0.0, 0.05], [0.1, 0.09, 0.05]])  # A, B, C on the foot
+    truth = step[:, None] + layout[None]
+    captured = truth.copy()
+    captured[20:95, 0] = np.nan  # A hidden, back in its own column (the tracker re-identified it)
+    captured[90:131, 1] = np.nan  # B hidden, back in its own column
+    traj = Trajectories(["A", "B", "C"], 50.0, captured)
+    relink_tracklets(traj)
+    assert traj.n_markers == 3
+    assert _same_identities(traj, truth)
+
+
 def test_a_marker_that_starts_moving_with_a_segment_keeps_its_identity():
     """The wheel marker, hidden for 3 frames, comes back moving with the forearm (the hand grips the wheel): it now
     holds its distances to the forearm markers it moved against before, but it is where its path predicts it, so the
