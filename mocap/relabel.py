@@ -25,8 +25,9 @@ the frames on both sides of a decision are known, and these identity errors are 
   how it moved meanwhile, and they tell apart markers a few centimetres apart that come back in turn.
   Otherwise the cost is how well the constant-velocity extrapolations of both ends agree across a
   short gap (an identity ending on a single sample moves at its velocity from the sample before), unless a distance
-  the identity held to within ``shape_drift_m`` is more than ``shape_refuse_m`` (and its drift) off the tracklet's
-  (:func:`_contradicted`: at 50 Hz a gap's gate spans a neighbour on the same foot); over a longer
+  the identity held to within ``shape_drift_m`` is more than ``shape_refuse_m`` (and both spreads) off the tracklet's
+  (:func:`_contradicted`; below the rates where hops are clear, where a gap's gate spans a neighbour on the same foot,
+  any of the tracklet's distances refutes, near or far, steady or not); over a longer
   one (up to ``lone_max_s``), one attached marker nearby seen at both ends is enough
   when its distance held to a few millimetres. Distances are kept per identity (not per output column), so a
   neighbour that was itself relinked still counts. A cluster that comes back in view together (a leg's markers
@@ -369,11 +370,11 @@ def _end_state(P: np.ndarray, run: np.ndarray, at_start: bool) -> tuple[int, np.
 
 
 def _chain_distances(P: np.ndarray, samples: np.ndarray, owner: np.ndarray, chain: int, cfg: RelabelConfig,
-                     keep: int) -> dict[int, np.ndarray]:
+                     keep: int, radius: float | None = None) -> dict[int, np.ndarray]:
     """Distances from a tracklet's samples (n, 2) (frame, column) to the identities (chains) seen in the same
     frames: ``{chain: (k,) distances, m}``, the last ``keep`` both were seen in, for those whose last
-    ``shape_window`` lie within ``shape_radius_m`` (``chain`` itself left out; ``owner`` (F, M) maps samples to
-    chains)."""
+    ``shape_window`` lie within ``radius`` m (default ``shape_radius_m``; ``chain`` itself left out; ``owner``
+    (F, M) maps samples to chains)."""
     frames, cols = samples[:, 0], samples[:, 1]
     own = owner[frames]
     ok = (own >= 0) & (own != chain)
@@ -388,7 +389,7 @@ def _chain_distances(P: np.ndarray, samples: np.ndarray, owner: np.ndarray, chai
     out = {}
     for start, end in zip(np.append(0, ends[:-1]), ends, strict=True):
         v = values[max(start, end - keep):end]
-        if quick_median(v[-cfg.shape_window:]) < cfg.shape_radius_m:
+        if quick_median(v[-cfg.shape_window:]) < (cfg.shape_radius_m if radius is None else radius):
             out[int(others[start])] = v
     return out
 
@@ -478,19 +479,20 @@ def _loose(memory: dict[int, np.ndarray], head: dict[int, np.ndarray], chain: in
 
 
 def _contradicted(memory: dict[int, np.ndarray], head: dict[int, np.ndarray], chain: int, cfg: RelabelConfig,
-                  gap: int) -> bool:
-    """Whether a tracklet's ``head`` holds steady a distance to an identity that an identity's ``memory`` held near a
-    value more than ``shape_refuse_m`` away, beyond what its spread over the last ``shape_window`` samples and that
-    drift carried across the ``gap`` (frames) allow: another marker (``chain`` itself left out)."""
+                  gap: int, steady_head: bool = True) -> bool:
+    """Whether a tracklet's ``head`` has a distance to an identity that an identity's ``memory`` held near a value
+    more than ``shape_refuse_m`` away, beyond what the memory's spread over its last ``shape_window`` samples (and
+    that drift carried across the ``gap``, frames) and the head's own spread allow: another marker (``chain`` itself
+    left out). With ``steady_head`` only the head's steady distances count."""
     for o, h in head.items():
         then = memory.get(o)
-        if o == chain or then is None or then.size < cfg.shape_window or not _steady(h, cfg):
+        if o == chain or then is None or then.size < cfg.shape_window or steady_head and not _steady(h, cfg):
             continue
         recent = then[-cfg.shape_window:]
         spread = float(np.ptp(recent))
         if spread >= cfg.shape_drift_m:  # (not held: a wheel's marker, another segment)
             continue
-        allowed = cfg.shape_refuse_m + spread * (1.0 + gap / (cfg.shape_window - 1))
+        allowed = cfg.shape_refuse_m + spread * (1.0 + gap / (cfg.shape_window - 1)) + float(np.ptp(h))
         if abs(quick_median(h) - quick_median(recent)) > allowed:
             return True
     return False
@@ -618,6 +620,11 @@ class _Linker:
         extrapolations of both ends across the gap agree."""
         cfg = self.cfg
         cost = np.full((len(group), len(open_chains)), np.inf)
+        # What refutes an extrapolation link: the steady distances nearby where hops are clear; below those rates,
+        # whose gates span a segment, every distance of the tracklet's first samples, steady or not, near or far.
+        refuting = heads if self.hops_clear else [
+            _chain_distances(self.P, run[: cfg.shape_window], self.owner, -1, cfg, cfg.shape_window, np.inf)
+            for run in group]
         for g, run in enumerate(group):
             _, p0, v0 = _end_state(self.P, run, at_start=True)
             for j, c in enumerate(open_chains):
@@ -653,7 +660,7 @@ class _Linker:
                 elif same:
                     cost[g, j] = cfg.own_link_weight * miss if gap > cfg.max_gap or miss < gate else np.inf
                 elif gap <= cfg.max_gap and miss < gate:
-                    if _contradicted(self.memory[c], heads[g], c, cfg, gap):
+                    if _contradicted(self.memory[c], refuting[g], c, cfg, gap, steady_head=self.hops_clear):
                         refused.add((g, c))  # (a distance the identity held, far from the tracklet's)
                     else:
                         cost[g, j] = miss

@@ -555,13 +555,15 @@ def test_a_marker_of_another_segment_does_not_keep_a_hidden_markers_identity():
     assert owner(forearm[100, 2], 100) == owner(wheel[30], 30)  # (the tracker's link, kept without the rule)
 
 
-def test_a_marker_back_at_50_hz_does_not_take_a_neighbours_identity_whose_held_distance_it_misses():
+@pytest.mark.parametrize("c_xy", [(0.1, 0.09), (0.25, 0.1)], ids=["C near both", "C beyond A's shape radius"])
+def test_a_marker_back_at_50_hz_does_not_take_a_neighbours_identity_whose_held_distance_it_misses(c_xy):
     """A foot's markers at 50 Hz: A hidden 1.5 s while the foot steps 0.5 m, B hidden just before A is back. B's
-    extrapolation misses A by their 0.1 m spacing (a 50 Hz gap's gate is wider), but B held its distance to C at
-    0.09 m and A is 0.13 m from C: A keeps the tracker's own link and B its identity."""
+    extrapolation misses A by their 0.1 m spacing (a 50 Hz gap's gate is wider), but B held its distance to C
+    (0.09 or 0.18 m) and A is 45 or 89 mm further from C (at 0.27 m beyond the radius of the distances a tracklet is
+    linked by, which below 100 Hz still refute): A keeps the tracker's own link and B its identity."""
     F = 160
     step = 0.5 * np.clip((np.arange(F) - 20) / 40, 0, 1)[:, None] * np.array([1.0, 0.0, 0.0])  # (F, 3) foot, m
-    layout = np.array([[0.0, 0.0, 0.05], [0.1, 0.0, 0.05], [0.1, 0.09, 0.05]])  # A, B, C on the foot
+    layout = np.array([[0.0, 0.0, 0.05], [0.1, 0.0, 0.05], [*c_xy, 0.05]])  # A, B, C on the foot
     truth = step[:, None] + layout[None]
     captured = truth.copy()
     captured[20:95, 0] = np.nan  # A hidden, back in its own column (the tracker re-identified it)
