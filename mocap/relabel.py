@@ -56,8 +56,10 @@ distances between their markers; a sixth, :mod:`mocap.plates`, labels the marker
 the plate's shape; a seventh, :mod:`mocap.anchors`, joins fragments of a marker's track to the identity whose rigid
 neighbours they keep the same distances to; an eighth, :mod:`mocap.fill`, gives the tracker's unconfirmed points to
 the identities whose paths they continue; :mod:`mocap.bridge` re-links the pieces of the identities across gaps in
-every view by where their neighbours carry the hidden marker; the last, :mod:`mocap.offpath`, withholds a hop of one
-to three samples onto a neighbour that the identity's own path clearly misses (at 100 Hz and more).
+every view by where their neighbours carry the hidden marker; :mod:`mocap.offpath` withholds a hop of one
+to three samples onto a neighbour that the identity's own path clearly misses (at 100 Hz and more); the last,
+:mod:`mocap.alternate`, merges two identities of one marker that take turns (never seen together, the same median
+distances to their neighbours).
 
 All passes only move whole samples between identity columns (positions, residuals and camera
 masks together), the first deletes the second copy of a point and the off-path pass empties the samples it
@@ -74,6 +76,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
+from mocap.alternate import merge_alternating
 from mocap.anchors import move_refuted_samples, rejoin_by_anchors
 from mocap.bridge import bridge_gaps
 from mocap.exchange import undo_exchanges
@@ -243,7 +246,8 @@ class RelabelStats:
     samples moved to the plate member their shape names, fragments rejoined by their anchors, samples moved to the
     identity whose anchors they fit, unconfirmed points that joined an identity's path, links made across gaps by
     where the neighbours carry a marker, exchanges undone between a skin-mounted cluster's identities, samples
-    withheld off their identity's path (hops onto a neighbour), scattered identities withdrawn."""
+    withheld off their identity's path (hops onto a neighbour), identities of one marker that took turns merged,
+    scattered identities withdrawn."""
 
     duplicates: int = 0
     swaps: int = 0
@@ -258,6 +262,7 @@ class RelabelStats:
     bridged: int = 0
     skin_exchanges: int = 0
     off_path: int = 0
+    merged: int = 0
     withdrawn: int = 0
 
 
@@ -917,8 +922,9 @@ def repair_identities(traj: Trajectories, config: RelabelConfig | None = None,
     clusters reunited where their neighbours tell a symmetric shape's markers apart (:data:`SKIN_CLUSTERS`), the
     fill from unconfirmed points (:mod:`mocap.fill`), the bridging of gaps by where the neighbours carry a
     marker (:mod:`mocap.bridge`), the exchanges between a skin-mounted cluster's identities undone by the
-    references both keep (:mod:`mocap.skin`) and, where hops are clear (:meth:`RelabelConfig.hops_clear`), samples
-    off their identity's own path withheld (:mod:`mocap.offpath`), in place; empty identity columns are dropped.
+    references both keep (:mod:`mocap.skin`), where hops are clear (:meth:`RelabelConfig.hops_clear`), samples
+    off their identity's own path withheld (:mod:`mocap.offpath`), and the identities of one marker that take turns
+    merged (:mod:`mocap.alternate`), in place; empty identity columns are dropped.
     ``unconfirmed``: the tracker's points without identity (:meth:`mocap.tracker.Tracker.unconfirmed`), which the
     plate labelling and the fill may give one.
 
@@ -950,9 +956,10 @@ def repair_identities(traj: Trajectories, config: RelabelConfig | None = None,
     stats.skin_exchanges = undo_skin_exchanges(traj, jump_acc=jump, reversal_acc=limits.reversal_acc(traj.fps))
     if limits.hops_clear(traj.fps):  # (at 50 Hz a swing's own samples leave any smooth path through their neighbours)
         stats.off_path = withhold_off_path(traj)
+    stats.merged = merge_alternating(traj)
     stats.withdrawn = withdraw_scattered(traj, limits)
     if (stats.reunited or stats.rejoined or stats.plate_samples or stats.anchor_moves or stats.bridged
-            or stats.off_path or stats.withdrawn):
+            or stats.off_path or stats.merged or stats.withdrawn):
         keep = np.isfinite(traj.positions[..., 0]).any(axis=0)
         traj.positions, traj.residuals, traj.camera_masks = (traj.positions[:, keep], traj.residuals[:, keep],
                                                              traj.camera_masks[:, keep])
