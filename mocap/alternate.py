@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from mocap.rigid import pair_statistics
 from mocap.trajectories import Trajectories
 
 
@@ -28,8 +29,7 @@ def merge_alternating(traj: Trajectories, min_shared: int = 20, min_neighbours: 
     identity's column is left empty. Returns how many pairs were merged."""
     P = traj.positions
     seen = np.isfinite(P[..., 0])  # (F, M)
-    counts = seen.astype(np.float32)  # (exact counts below 2^24 frames, and BLAS)
-    together = (counts.T @ counts).astype(np.int64)  # (M, M) frames seen together
+    median, _, together = pair_statistics(P, min_shared)  # (M, M) median distances, m, and frames seen together
     size = np.diag(together)
     F = len(seen)
     first, last = seen.argmax(axis=0), F - 1 - seen[::-1].argmax(axis=0)
@@ -38,9 +38,13 @@ def merge_alternating(traj: Trajectories, min_shared: int = 20, min_neighbours: 
                               & (first[:, None] < last[None]) & (first[None] < last[:, None]))
     found = []
     for a, b in zip(a_idx, b_idx, strict=True):
-        agreement = _profile_difference(P, seen, together, a, b, min_shared, radius_m, min_neighbours)
-        if agreement < agree_m:
-            found.append((agreement, a, b))
+        # the neighbours seen min_shared frames with both, within radius_m of one: their median distances compared
+        both = (together[a] >= min_shared) & (together[b] >= min_shared) & (
+            np.fmin(median[a], median[b]) < radius_m)
+        if np.count_nonzero(both) >= min_neighbours:
+            agreement = float(np.median(np.abs(median[a, both] - median[b, both])))
+            if agreement < agree_m:
+                found.append((agreement, a, b))
     merged = 0
     used: set[int] = set()
     for _, a, b in sorted(found):
@@ -53,19 +57,3 @@ def merge_alternating(traj: Trajectories, min_shared: int = 20, min_neighbours: 
             array[rows, b] = empty
         merged += 1
     return merged
-
-
-def _profile_difference(P: np.ndarray, seen: np.ndarray, together: np.ndarray, a: int, b: int, min_shared: int,
-                        radius_m: float, min_neighbours: int) -> float:
-    """Median over the neighbours seen ``min_shared`` frames or more with both identities ``a`` and ``b`` (and within
-    ``radius_m`` of one) of the difference of their median distances to it, m; inf with fewer than
-    ``min_neighbours`` such neighbours."""
-    differences = []
-    for o in np.flatnonzero((together[a] >= min_shared) & (together[b] >= min_shared)):
-        if o in (a, b):
-            continue
-        to_a = np.median(np.linalg.norm(P[seen[:, a] & seen[:, o], a] - P[seen[:, a] & seen[:, o], o], axis=1))
-        to_b = np.median(np.linalg.norm(P[seen[:, b] & seen[:, o], b] - P[seen[:, b] & seen[:, o], o], axis=1))
-        if min(to_a, to_b) < radius_m:
-            differences.append(abs(to_a - to_b))
-    return float(np.median(differences)) if len(differences) >= min_neighbours else np.inf
