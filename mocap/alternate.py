@@ -1,4 +1,4 @@
-"""Two identities of one marker that take turns are merged (offline).
+"""Two identities of one marker that take turns, or follow each other, are merged (offline).
 
 The re-linking decides each return of a marker in time order: where the distances at a return changed by more than
 its gate (an elbow bent meanwhile) it starts a new identity, and at a later return it may link the marker back to
@@ -13,6 +13,13 @@ or more with each (and within ``radius_m`` of one), whose median distances to th
 ``agree_m`` in the median; the best-agreeing pairs first, each identity merged once per call. Only whole samples
 move (positions, residuals and camera masks together). The thresholds: on 45 captured takes the two such pairs of
 one marker differ by 1.6 and 2.6 mm, the closest pairs of two markers (a forearm's, 40-65 mm apart) by 7 mm.
+
+A pair that follows each other (one ends, the other starts later: a marker back after a gap too long or too
+changed for the re-linking) has one junction only, so it must show more: both identities seen ``follow_s`` or
+longer, and ``min_neighbours`` of the neighbours each within ``follow_agree_m`` (not only the median). On the 45
+captures the eight such pairs of one marker under ``agree_m`` have their third-best neighbour within 5 mm and are
+seen 1.3 s and longer; the one pair of two markers under it (a forearm's near-isosceles triangle, 0.7 mm in the
+median) is a 0.24 s identity whose third neighbour differs by 12 mm.
 """
 
 from __future__ import annotations
@@ -22,29 +29,41 @@ import numpy as np
 from mocap.rigid import pair_statistics
 from mocap.trajectories import Trajectories
 
+_CHUNK = 4096  # candidate pairs compared at once (chunk x identities arrays)
+
 
 def merge_alternating(traj: Trajectories, min_shared: int = 20, min_neighbours: int = 3, radius_m: float = 0.25,
-                      agree_m: float = 0.004) -> int:
-    """Merge, in place, the identities of one marker that take turns (see the module docstring); the merged
-    identity's column is left empty. Returns how many pairs were merged."""
+                      agree_m: float = 0.004, follow_s: float = 1.0, follow_agree_m: float = 0.008) -> int:
+    """Merge, in place, the identities of one marker that take turns or follow each other (see the module
+    docstring); the merged identity's column is left empty. Returns how many pairs were merged."""
     P = traj.positions
     seen = np.isfinite(P[..., 0])  # (F, M)
     median, _, together = pair_statistics(P, min_shared)  # (M, M) median distances, m, and frames seen together
     size = np.diag(together)
     F = len(seen)
     first, last = seen.argmax(axis=0), F - 1 - seen[::-1].argmax(axis=0)
-    # Never seen together, yet their spans overlap: one has samples before and after one of the other's (two turns).
-    a_idx, b_idx = np.nonzero(np.triu(together == 0, 1) & (size[:, None] >= min_shared) & (size[None] >= min_shared)
-                              & (first[:, None] < last[None]) & (first[None] < last[:, None]))
+    apart = np.triu(together == 0, 1) & (size[:, None] >= min_shared) & (size[None] >= min_shared)
+    # Taking turns: one has samples before and after one of the other's. Following: long enough, one after the other.
+    turns = apart & (first[:, None] < last[None]) & (first[None] < last[:, None])
+    long_enough = size >= max(min_shared, follow_s * traj.fps)
+    follows = apart & ~turns & long_enough[:, None] & long_enough[None]
+    shared = (together >= min_shared).astype(np.float32)
+    common = shared @ shared.T  # (M, M) neighbours seen min_shared frames with both (a cheap first cut)
+    a_idx, b_idx = np.nonzero((turns | follows) & (common >= min_neighbours))
     found = []
-    for a, b in zip(a_idx, b_idx, strict=True):
+    for lo in range(0, a_idx.size, _CHUNK):
+        a, b = a_idx[lo:lo + _CHUNK], b_idx[lo:lo + _CHUNK]
         # the neighbours seen min_shared frames with both, within radius_m of one: their median distances compared
-        both = (together[a] >= min_shared) & (together[b] >= min_shared) & (
-            np.fmin(median[a], median[b]) < radius_m)
-        if np.count_nonzero(both) >= min_neighbours:
-            agreement = float(np.median(np.abs(median[a, both] - median[b, both])))
-            if agreement < agree_m:
-                found.append((agreement, a, b))
+        both = (together[a] >= min_shared) & (together[b] >= min_shared) & (np.fmin(median[a], median[b]) < radius_m)
+        differ = np.where(both, np.abs(median[a] - median[b]), np.inf)  # (n, M)
+        differ.sort(axis=1)
+        count = both.sum(axis=1)
+        ok = count >= min_neighbours
+        middle = np.stack([(count - 1) // 2, count // 2], axis=1).clip(0)  # the median of each row's count values
+        agreement = np.take_along_axis(differ, middle, axis=1).mean(axis=1)
+        ok &= agreement < agree_m
+        ok[ok] &= turns[a[ok], b[ok]] | (differ[ok, min_neighbours - 1] < follow_agree_m)
+        found += zip(agreement[ok].tolist(), a[ok].tolist(), b[ok].tolist(), strict=True)
     merged = 0
     used: set[int] = set()
     for _, a, b in sorted(found):

@@ -1,4 +1,4 @@
-"""Two identities of one marker that take turns are merged; two markers that take turns are not."""
+"""Two identities of one marker that take turns, or follow each other, are merged; two markers are not."""
 
 from __future__ import annotations
 
@@ -48,7 +48,48 @@ def test_two_markers_30_mm_apart_that_take_turns_are_not_merged():
     np.testing.assert_array_equal(traj.positions, before)
 
 
-def test_identities_one_after_the_other_are_left_to_the_relinking():
+def _rotated_about(p: np.ndarray, a: np.ndarray, b: np.ndarray, angle: float) -> np.ndarray:
+    """(F, 3) points ``p`` turned by ``angle`` rad about the lines through ``a`` and ``b`` (F, 3): their distances to
+    ``a`` and ``b`` kept."""
+    axis = (b - a) / np.linalg.norm(b - a, axis=1, keepdims=True)
+    v = p - a
+    return (a + v * np.cos(angle) + np.cross(axis, v) * np.sin(angle)
+            + axis * np.sum(axis * v, axis=1, keepdims=True) * (1 - np.cos(angle)))
+
+
+def _follow(second: np.ndarray, n_frames: int = 400) -> tuple[Trajectories, np.ndarray]:
+    """Truth marker 0 in column 0 on frames 0-149, ``second`` (F, 3) in column 1 on 250-399 (1.5 s each at
+    100 Hz), the neighbours 2-4 in columns 2-4 throughout (the 30 mm neighbour 1 unseen)."""
+    truth = _segment(n_frames)
+    P = np.full((n_frames, 5, 3), np.nan)
+    P[:150, 0] = truth[:150, 0]
+    P[250:, 1] = second[250:]
+    P[:, 2:] = truth[:, 2:]
+    return Trajectories([f"M{k + 1:03d}" for k in range(5)], 100.0, P), truth
+
+
+def test_a_marker_back_after_a_long_gap_under_a_new_identity_is_merged():
+    truth = _segment(400)
+    traj, _ = _follow(truth[:, 0])
+    assert merge_alternating(traj) == 1
+    rows = np.r_[0:150, 250:400]
+    np.testing.assert_array_equal(traj.positions[rows, 0], truth[rows, 0])
+    assert np.isnan(traj.positions[:, 1]).all()
+
+
+def test_a_marker_that_keeps_two_of_three_neighbour_distances_is_not_taken_for_the_one_before():
+    truth = _segment(400)
+    mirror = _rotated_about(truth[:, 0], truth[:, 2], truth[:, 3], 1.0)  # 71 mm away; 15 mm off to neighbour 4
+    traj, _ = _follow(mirror)
+    differ = [abs(np.median(np.linalg.norm(mirror - truth[:, o], axis=1))
+                  - np.median(np.linalg.norm(truth[:, 0] - truth[:, o], axis=1))) for o in (2, 3, 4)]
+    assert np.median(differ) < 0.001 and max(differ) > 0.012  # the median agrees; one neighbour refutes
+    before = traj.positions.copy()
+    assert merge_alternating(traj) == 0
+    np.testing.assert_array_equal(traj.positions, before)
+
+
+def test_identities_one_after_the_other_seen_under_a_second_each_are_left_apart():
     traj, truth = _turns(0, 0)
-    traj.positions[110:, 0] = np.nan  # column 0 before, column 1 after: one junction, not turns
+    traj.positions[110:, 0] = np.nan  # column 0 on 0-49, column 1 on 60-99 (0.5 and 0.4 s): one junction
     assert merge_alternating(traj) == 0
