@@ -241,8 +241,8 @@ def reconstruct(take: str | os.PathLike, options: ReconstructOptions | None = No
                  "plates' shapes; %d fragments joined by their distances to rigid neighbours, %d samples moved to the "
                  "identity whose neighbours they fit; %d unconfirmed points joined identities' paths; %d gaps "
                  "bridged by where the neighbours carry a marker; %d exchanges undone in skin-mounted clusters; %d "
-                 "samples withheld off their identity's path; %d pairs of identities of one marker that took turns "
-                 "merged; %d scattered identities (no %d frames running) withdrawn",
+                 "samples withheld off their identity's path; %d pairs of identities of one marker that took turns or "
+                 "followed each other merged; %d scattered identities (no %d frames running) withdrawn",
                  stats.duplicates, stats.swaps, before, traj.n_markers, stats.reunited, stats.exchanges,
                  stats.unscrambled, stats.plate_samples, stats.rejoined, stats.anchor_moves, stats.filled,
                  stats.bridged, stats.skin_exchanges, stats.off_path, stats.merged, stats.withdrawn, confirm)

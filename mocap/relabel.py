@@ -58,8 +58,8 @@ neighbours they keep the same distances to; an eighth, :mod:`mocap.fill`, gives 
 the identities whose paths they continue; :mod:`mocap.bridge` re-links the pieces of the identities across gaps in
 every view by where their neighbours carry the hidden marker; :mod:`mocap.offpath` withholds a hop of one
 to three samples onto a neighbour that the identity's own path clearly misses (at 100 Hz and more); the last,
-:mod:`mocap.alternate`, merges two identities of one marker that take turns (never seen together, the same median
-distances to their neighbours).
+:mod:`mocap.alternate`, merges two identities of one marker that take turns or follow each other (never seen
+together, the same median distances to their neighbours).
 
 All passes only move whole samples between identity columns (positions, residuals and camera
 masks together), the first deletes the second copy of a point and the off-path pass empties the samples it
@@ -246,8 +246,8 @@ class RelabelStats:
     samples moved to the plate member their shape names, fragments rejoined by their anchors, samples moved to the
     identity whose anchors they fit, unconfirmed points that joined an identity's path, links made across gaps by
     where the neighbours carry a marker, exchanges undone between a skin-mounted cluster's identities, samples
-    withheld off their identity's path (hops onto a neighbour), identities of one marker that took turns merged,
-    scattered identities withdrawn."""
+    withheld off their identity's path (hops onto a neighbour), identities of one marker that took turns or followed
+    each other merged, scattered identities withdrawn."""
 
     duplicates: int = 0
     swaps: int = 0
@@ -924,7 +924,7 @@ def repair_identities(traj: Trajectories, config: RelabelConfig | None = None,
     marker (:mod:`mocap.bridge`), the exchanges between a skin-mounted cluster's identities undone by the
     references both keep (:mod:`mocap.skin`), where hops are clear (:meth:`RelabelConfig.hops_clear`), samples
     off their identity's own path withheld (:mod:`mocap.offpath`), and the identities of one marker that take turns
-    merged (:mod:`mocap.alternate`), in place; empty identity columns are dropped.
+    or follow each other merged (:mod:`mocap.alternate`), in place; empty identity columns are dropped.
     ``unconfirmed``: the tracker's points without identity (:meth:`mocap.tracker.Tracker.unconfirmed`), which the
     plate labelling and the fill may give one.
 
