@@ -19,7 +19,9 @@ changed for the re-linking) has one junction only, so it must show more: both id
 longer, and ``min_neighbours`` of the neighbours each within ``follow_agree_m`` (not only the median). On the 45
 captures the eight such pairs of one marker under ``agree_m`` have their third-best neighbour within 5 mm and are
 seen 1.3 s and longer; the one pair of two markers under it (a forearm's near-isosceles triangle, 0.7 mm in the
-median) is a 0.24 s identity whose third neighbour differs by 12 mm.
+median) is a 0.24 s identity whose third neighbour differs by 12 mm. Two identities seen together in at most
+``max_together`` frames (the tracker gave one of them a stray sample of another marker, a swing's hop, far from
+the rest of it) are held to the following pair's test, whatever their spans.
 """
 
 from __future__ import annotations
@@ -33,18 +35,22 @@ _CHUNK = 4096  # candidate pairs compared at once (chunk x identities arrays)
 
 
 def merge_alternating(traj: Trajectories, min_shared: int = 20, min_neighbours: int = 3, radius_m: float = 0.25,
-                      agree_m: float = 0.004, follow_s: float = 1.0, follow_agree_m: float = 0.008) -> int:
+                      agree_m: float = 0.004, follow_s: float = 1.0, follow_agree_m: float = 0.008,
+                      max_together: int = 2) -> int:
     """Merge, in place, the identities of one marker that take turns or follow each other (see the module
-    docstring); the merged identity's column is left empty. Returns how many pairs were merged."""
+    docstring); the merged identity's samples move to the other's column, except in the at most ``max_together``
+    frames both are seen (a stray sample or two of another marker the tracker gave one of them), which stay.
+    Returns how many pairs were merged."""
     P = traj.positions
     seen = np.isfinite(P[..., 0])  # (F, M)
     median, _, together = pair_statistics(P, min_shared)  # (M, M) median distances, m, and frames seen together
     size = np.diag(together)
     F = len(seen)
     first, last = seen.argmax(axis=0), F - 1 - seen[::-1].argmax(axis=0)
-    apart = np.triu(together == 0, 1) & (size[:, None] >= min_shared) & (size[None] >= min_shared)
-    # Taking turns: one has samples before and after one of the other's. Following: long enough, one after the other.
-    turns = apart & (first[:, None] < last[None]) & (first[None] < last[:, None])
+    apart = np.triu(together <= max_together, 1) & (size[:, None] >= min_shared) & (size[None] >= min_shared)
+    # Taking turns: never together, one has samples before and after one of the other's. Following: the rest, long
+    # enough (one after the other, or together only in a stray frame or two).
+    turns = apart & (together == 0) & (first[:, None] < last[None]) & (first[None] < last[:, None])
     long_enough = size >= max(min_shared, follow_s * traj.fps)
     follows = apart & ~turns & long_enough[:, None] & long_enough[None]
     shared = (together >= min_shared).astype(np.float32)
@@ -70,7 +76,7 @@ def merge_alternating(traj: Trajectories, min_shared: int = 20, min_neighbours: 
         if a in used or b in used:
             continue
         used.update((a, b))
-        rows = seen[:, b]
+        rows = seen[:, b] & ~seen[:, a]
         for array, empty in ((traj.positions, np.nan), (traj.residuals, np.nan), (traj.camera_masks, 0)):
             array[rows, a] = array[rows, b]
             array[rows, b] = empty

@@ -77,6 +77,17 @@ def test_a_marker_back_after_a_long_gap_under_a_new_identity_is_merged():
     assert np.isnan(traj.positions[:, 1]).all()
 
 
+def test_a_stray_sample_of_another_marker_long_before_does_not_keep_a_marker_s_identities_apart():
+    truth = _segment(400)
+    traj, _ = _follow(truth[:, 0])
+    traj.positions[20:22, 1] = truth[20:22, 4] + 0.01  # the tracker gave the later identity two samples of a neighbour
+    assert merge_alternating(traj) == 1
+    rows = np.r_[0:150, 250:400]
+    np.testing.assert_array_equal(traj.positions[rows, 0], truth[rows, 0])
+    np.testing.assert_array_equal(traj.positions[20:22, 1], truth[20:22, 4] + 0.01)  # left where they were
+    assert np.isnan(traj.positions[250:, 1]).all()
+
+
 def test_a_marker_that_keeps_two_of_three_neighbour_distances_is_not_taken_for_the_one_before():
     truth = _segment(400)
     mirror = _rotated_about(truth[:, 0], truth[:, 2], truth[:, 3], 1.0)  # 71 mm away; 15 mm off to neighbour 4
