@@ -76,9 +76,6 @@ def merge_alternating(traj: Trajectories, min_shared: int = 20, min_neighbours: 
         if a in used or b in used:
             continue
         used.update((a, b))
-        rows = seen[:, b] & ~seen[:, a]
-        for array, empty in ((traj.positions, np.nan), (traj.residuals, np.nan), (traj.camera_masks, 0)):
-            array[rows, a] = array[rows, b]
-            array[rows, b] = empty
+        traj.move_samples(seen[:, b] & ~seen[:, a], b, a)
         merged += 1
     return merged

@@ -311,9 +311,7 @@ def drop_duplicates(traj: Trajectories, config: RelabelConfig | None = None) -> 
                 while 0 <= k < F and np.isfinite(P[k, thief, 0]) and not np.isfinite(P[k, owner, 0]):
                     if not _continues(P, k, owner, thief, -side, split):
                         break
-                    for array, empty in columns:
-                        array[k, owner] = array[k, thief]
-                        array[k, thief] = empty
+                    traj.move_samples(k, thief, owner)
                     k += side
     return dropped
 
@@ -391,10 +389,11 @@ def _chain_distances(P: np.ndarray, samples: np.ndarray, owner: np.ndarray, chai
     rows, where, others = rows[order], where[order], others[order]
     values = np.linalg.norm(P[frames[rows], where] - P[frames[rows], cols[rows]], axis=1)
     ends = np.append(np.flatnonzero(others[1:] != others[:-1]) + 1, len(others))
+    limit = cfg.shape_radius_m if radius is None else radius
     out = {}
     for start, end in zip(np.append(0, ends[:-1]), ends, strict=True):
         v = values[max(start, end - keep):end]
-        if quick_median(v[-cfg.shape_window:]) < (cfg.shape_radius_m if radius is None else radius):
+        if quick_median(v[-cfg.shape_window:]) < limit:
             out[int(others[start])] = v
     return out
 
@@ -553,13 +552,15 @@ class _Linker:
         open_chains = [c for c, (e, _, _) in enumerate(self.ends)
                        if 0 < start - e and (start - e <= cfg.max_gap or self._column(c) in columns
                                              or (start - e <= self.shape_max and self._attached(c)))]
-        heads = [_chain_distances(self.P, run[: cfg.shape_window], self.owner, -1, cfg, cfg.shape_window)
-                 for run in group]
+        # every identity's distances to each tracklet's first samples; the heads: those within shape_radius_m
+        firsts = [_chain_distances(self.P, run[: cfg.shape_window], self.owner, -1, cfg, cfg.shape_window, np.inf)
+                  for run in group]
+        heads = [{o: v for o, v in d.items() if quick_median(v) < cfg.shape_radius_m} for d in firsts]
         assigned: dict[int, int] = {}
         refused: set[tuple[int, int]] = set()  # (group index, chain): the distances disagree
         changes: dict[tuple[int, int], float] = {}  # (group index, chain): measured distance change, m
         if open_chains:
-            self._assign(start, group, heads, open_chains, assigned, refused, changes)
+            self._assign(start, group, heads, firsts, open_chains, assigned, refused, changes)
             self._assign_cluster(start, group, heads, open_chains, assigned, refused)
             self._assign_glimpses(start, group, open_chains, assigned, changes)
         taken = set(assigned.values())
@@ -616,20 +617,19 @@ class _Linker:
         """Identity ``c`` had an identity attached to it (a steady distance) when last seen with it."""
         return any(_steady(d, self.cfg) for d in self.memory[c].values())
 
-    def _assign(self, start: int, group: list[np.ndarray], heads: list[dict], open_chains: list[int],
-                assigned: dict[int, int], refused: set[tuple[int, int]], changes: dict[tuple[int, int], float]
-                ) -> None:
+    def _assign(self, start: int, group: list[np.ndarray], heads: list[dict], firsts: list[dict],
+                open_chains: list[int], assigned: dict[int, int], refused: set[tuple[int, int]],
+                changes: dict[tuple[int, int], float]) -> None:
         """Marker by marker (Hungarian): by the change of the distances to attached identities where they
         can be compared (over a gap beyond ``max_gap``, or one whose extrapolation cannot tell the two markers apart,
         one near attached identity is enough if its distance held within ``lone_gate_m``), else by how the
-        extrapolations of both ends across the gap agree."""
+        extrapolations of both ends across the gap agree. ``heads``: each tracklet's distances within
+        ``shape_radius_m``; ``firsts``: all of them."""
         cfg = self.cfg
         cost = np.full((len(group), len(open_chains)), np.inf)
         # What refutes an extrapolation link: the steady distances nearby where hops are clear; below those rates,
         # whose gates span a segment, every distance of the tracklet's first samples, steady or not, near or far.
-        refuting = heads if self.hops_clear else [
-            _chain_distances(self.P, run[: cfg.shape_window], self.owner, -1, cfg, cfg.shape_window, np.inf)
-            for run in group]
+        refuting = heads if self.hops_clear else firsts
         for g, run in enumerate(group):
             _, p0, v0 = _end_state(self.P, run, at_start=True)
             for j, c in enumerate(open_chains):

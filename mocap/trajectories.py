@@ -72,6 +72,13 @@ class Trajectories:
         """(F,) capture time of each frame, seconds from the take's first frame."""
         return (np.arange(self.n_frames) + self.first_frame) / self.fps
 
+    def move_samples(self, rows: np.ndarray | int, source: int, target: int) -> None:
+        """Column ``source``'s samples in frames ``rows`` (index, bool mask or one frame) go to column ``target``
+        (positions, residuals and camera masks together) and leave ``source`` missing there, in place."""
+        for array in (self.positions, self.residuals, self.camera_masks):
+            array[rows, target] = array[rows, source]
+            array[rows, source] = MISSING[array.dtype.kind]
+
     def permute_tails(self, start: int, order: np.ndarray | list[int], columns: np.ndarray | list[int]) -> None:
         """From frame ``start`` on, column ``columns[k]`` receives what column ``order[k]`` held (positions,
         residuals and camera masks together), in place."""
