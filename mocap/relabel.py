@@ -81,6 +81,7 @@ from mocap.anchors import move_refuted_samples, rejoin_by_anchors
 from mocap.bridge import bridge_gaps
 from mocap.exchange import undo_exchanges
 from mocap.fill import fill_from_unconfirmed
+from mocap.gap_exchange import undo_gap_exchanges
 from mocap.offpath import withhold_off_path
 from mocap.plates import label_plates
 from mocap.quickstats import quick_median
@@ -247,7 +248,8 @@ class RelabelStats:
     identity whose anchors they fit, unconfirmed points that joined an identity's path, links made across gaps by
     where the neighbours carry a marker, exchanges undone between a skin-mounted cluster's identities, samples
     withheld off their identity's path (hops onto a neighbour), identities of one marker that took turns or followed
-    each other merged, scattered identities withdrawn."""
+    each other merged, exchanges undone where two markers came back from a shared gap each under the other's
+    identity, scattered identities withdrawn."""
 
     duplicates: int = 0
     swaps: int = 0
@@ -263,6 +265,7 @@ class RelabelStats:
     skin_exchanges: int = 0
     off_path: int = 0
     merged: int = 0
+    gap_exchanges: int = 0
     withdrawn: int = 0
 
 
@@ -923,8 +926,10 @@ def repair_identities(traj: Trajectories, config: RelabelConfig | None = None,
     fill from unconfirmed points (:mod:`mocap.fill`), the bridging of gaps by where the neighbours carry a
     marker (:mod:`mocap.bridge`), the exchanges between a skin-mounted cluster's identities undone by the
     references both keep (:mod:`mocap.skin`), where hops are clear (:meth:`RelabelConfig.hops_clear`), samples
-    off their identity's own path withheld (:mod:`mocap.offpath`), and the identities of one marker that take turns
-    or follow each other merged (:mod:`mocap.alternate`), in place; empty identity columns are dropped.
+    off their identity's own path withheld (:mod:`mocap.offpath`), the identities of one marker that take turns or
+    follow each other merged (:mod:`mocap.alternate`), and two markers' identities given back where they came back
+    from a shared gap each under the other's (:mod:`mocap.gap_exchange`), in place; empty identity columns are
+    dropped.
     ``unconfirmed``: the tracker's points without identity (:meth:`mocap.tracker.Tracker.unconfirmed`), which the
     plate labelling and the fill may give one.
 
@@ -957,6 +962,7 @@ def repair_identities(traj: Trajectories, config: RelabelConfig | None = None,
     if limits.hops_clear(traj.fps):  # (at 50 Hz a swing's own samples leave any smooth path through their neighbours)
         stats.off_path = withhold_off_path(traj)
     stats.merged = merge_alternating(traj)
+    stats.gap_exchanges = undo_gap_exchanges(traj)
     stats.withdrawn = withdraw_scattered(traj, limits)
     if (stats.reunited or stats.rejoined or stats.plate_samples or stats.anchor_moves or stats.bridged
             or stats.off_path or stats.merged or stats.withdrawn):

@@ -1,0 +1,92 @@
+"""Two markers that came back from a shared gap each under the other's identity are given theirs back."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from mocap.gap_exchange import undo_gap_exchanges
+from mocap.trajectories import Trajectories
+
+FPS = 100.0
+
+
+def _segment(layout: np.ndarray, n_frames: int = 700, noise_m: float = 0.0003) -> np.ndarray:
+    """(F, M, 3) markers of one segment (``layout`` (M, 3) or (F, M, 3) m in its frame) that turns about z and walks
+    along x, with seeded noise, m."""
+    layout = np.broadcast_to(layout, (n_frames, *layout.shape[-2:]))
+    t = np.arange(n_frames) / FPS
+    angle = 0.6 * np.sin(2 * np.pi * 0.4 * t)
+    c, s, zero = np.cos(angle), np.sin(angle), np.zeros_like(angle)
+    R = np.stack([np.stack([c, -s, zero], -1), np.stack([s, c, zero], -1), np.stack([zero, zero, zero + 1], -1)],
+                 axis=1)  # (F, 3, 3)
+    centre = np.stack([1.2 * t, 0.1 * np.sin(2 * np.pi * 0.9 * t), 0.5 + 0.02 * np.sin(2 * np.pi * 1.8 * t)], axis=1)
+    rng = np.random.default_rng(3)
+    return centre[:, None] + np.einsum("fij,fmj->fmi", R, layout) + rng.normal(0, noise_m, layout.shape)
+
+
+# A shank: the two markers 36 mm apart (0, 1) and four more (2-5); their distances to 0 and 1 differ by 10-30 mm.
+SHANK = np.array([[0.0, 0.0, 0.0], [0.0, 0.036, 0.0], [0.17, 0.02, 0.05], [0.12, -0.09, 0.03],
+                  [-0.05, 0.1, -0.12], [0.02, -0.05, 0.2]])
+
+
+def _exchanged_take(truth: np.ndarray, hidden0: tuple[int, int], hidden1: tuple[int, int], back: int,
+                    piece: tuple[int, int] | None = None) -> Trajectories:
+    """Identities 0 and 1 hold markers 0 and 1, both hidden over the frame ranges ``hidden0`` / ``hidden1``; from
+    frame ``back`` on each holds the other's marker (identity 1 also its own marker over ``piece``, inside its
+    gap). The others hold their own throughout."""
+    P = truth.copy()
+    P[hidden0[0]:hidden0[1], 0] = np.nan
+    P[hidden1[0]:hidden1[1], 1] = np.nan
+    if piece is not None:
+        P[piece[0]:piece[1], 1] = truth[piece[0]:piece[1], 1]
+    P[back:, [0, 1]] = P[back:, [1, 0]]
+    return Trajectories([f"M{k + 1:03d}" for k in range(truth.shape[1])], FPS, P)
+
+
+def test_two_markers_back_from_a_shared_gap_each_under_the_other_s_identity_get_theirs_back():
+    truth = _segment(SHANK)
+    traj = _exchanged_take(truth, (300, 362), (300, 362), 362)
+    assert undo_gap_exchanges(traj) == 1
+    seen = np.isfinite(traj.positions[..., 0])
+    np.testing.assert_array_equal(traj.positions[seen], truth[seen])
+    assert seen.sum() == truth.shape[0] * truth.shape[1] - 2 * 62  # no sample lost
+
+
+def test_identities_right_across_a_shared_gap_are_left_alone():
+    truth = _segment(SHANK)
+    traj = _exchanged_take(truth, (300, 362), (310, 350), 700)  # (no exchange: "back" past the end)
+    before = traj.positions.copy()
+    assert undo_gap_exchanges(traj) == 0
+    np.testing.assert_array_equal(traj.positions, before)
+
+
+def test_distances_that_differ_by_less_than_a_millimetre_are_not_evidence():
+    """Markers 0 and 1, 36 mm apart, with neighbours near the plane between them: each neighbour's distances to the
+    two differ by 0.6-1.3 mm, under the spread a distance is scored with (1.5 mm)."""
+    near_plane = np.array([[0.15, 0.003, 0.0], [-0.1, 0.004, 0.05], [0.05, 0.003, 0.18], [0.0, 0.003, -0.14]])
+    truth = _segment(np.concatenate([[[0.0, 0.018, 0.0], [0.0, -0.018, 0.0]], near_plane]))
+    traj = _exchanged_take(truth, (300, 362), (300, 362), 362)
+    assert undo_gap_exchanges(traj) == 0
+
+
+def test_a_segment_that_bent_in_the_gap_is_not_relabelled_by_one_neighbour_that_fits_the_exchange():
+    """Over the gap neighbours 2, 4 and 5 move a quarter farther out (no distance fits either way) and neighbour 3
+    moves to its mirror image across the plane between markers 0 and 1 (its distances, 23 mm apart, fit the
+    exchange): one neighbour of four is not enough."""
+    middle = np.array([0.0, 0.018, 0.0])
+    bent = SHANK.copy()
+    bent[[2, 4, 5]] = middle + 1.25 * (SHANK[[2, 4, 5]] - middle)
+    bent[3, 1] = 2 * middle[1] - SHANK[3, 1]
+    truth = _segment(np.where(np.arange(700)[:, None, None] < 331, SHANK, bent))
+    traj = _exchanged_take(truth, (300, 362), (300, 362), 700)
+    assert undo_gap_exchanges(traj) == 0
+
+
+def test_a_short_piece_of_a_marker_between_two_shared_gaps_stays_with_its_identity():
+    """Identity 1 holds its own marker for 7 frames inside the gap; the exchange starts after that piece."""
+    truth = _segment(SHANK)
+    traj = _exchanged_take(truth, (300, 355), (300, 362), 355, piece=(320, 327))
+    assert undo_gap_exchanges(traj) == 1
+    seen = np.isfinite(traj.positions[..., 0])
+    np.testing.assert_array_equal(traj.positions[seen], truth[seen])
+    assert seen[320:327, 1].all()
