@@ -76,27 +76,35 @@ class GapExchangeConfig:
 
 
 def _gaps(seen: np.ndarray, max_len: int) -> np.ndarray:
-    """(K, 3) int: (column, first, last frame) of every run of unseen frames inside a column's span of ``seen``
-    (F, M) bool, ``max_len`` frames long at most; sorted by first frame."""
-    out = []
+    """(K, 4) int: (column, first, last frame, open) of every run of unseen frames inside a column's span of
+    ``seen`` (F, M) bool, ``max_len`` frames long at most (open 0), and of the ``max_len`` frames after its last
+    sample and before its first (open 1: the identity ended, or started); sorted by first frame."""
+    F = seen.shape[0]
+    out = [np.zeros((0, 4), dtype=np.intp)]
     for col in range(seen.shape[1]):
         frames = np.flatnonzero(seen[:, col])
+        if frames.size == 0:
+            continue
         step = np.diff(frames)
         k = np.flatnonzero((step > 1) & (step - 1 <= max_len))
-        out.append(np.stack([np.full(k.size, col), frames[k] + 1, frames[k + 1] - 1], axis=1))
-    gaps = np.concatenate(out) if out else np.zeros((0, 3), dtype=np.intp)
+        out.append(np.stack([np.full(k.size, col), frames[k] + 1, frames[k + 1] - 1, np.zeros(k.size, int)], axis=1))
+        if frames[-1] < F - 1:
+            out.append(np.array([[col, frames[-1] + 1, min(F - 1, frames[-1] + max_len), 1]]))
+        if frames[0] > 0:
+            out.append(np.array([[col, max(0, frames[0] - max_len), frames[0] - 1, 1]]))
+    gaps = np.concatenate(out)
     return gaps[np.argsort(gaps[:, 1], kind="stable")]
 
 
 def _shared_gaps(gaps: np.ndarray) -> np.ndarray:
-    """(L, 4) int: (first frame both are unseen, last, column a, column b) of every two overlapping ``gaps`` (K, 3)
-    (sorted by first frame) of two columns, a < b; sorted by first frame."""
+    """(L, 4) int: (first frame both are unseen, last, column a, column b) of every two overlapping ``gaps`` (K, 4)
+    (sorted by first frame) of two columns, one of them inside its column's span, a < b; sorted by first frame."""
     first, last = gaps[:, 1], gaps[:, 2]
     upto = np.searchsorted(first, last, side="right")  # gaps j > i with first[j] <= last[i] overlap gap i
     count = upto - np.arange(len(gaps)) - 1
     i = np.repeat(np.arange(len(gaps)), count)
     j = i + 1 + np.arange(count.sum()) - np.repeat(np.cumsum(count) - count, count)
-    keep = gaps[i, 0] != gaps[j, 0]
+    keep = (gaps[i, 0] != gaps[j, 0]) & ~(gaps[i, 3].astype(bool) & gaps[j, 3].astype(bool))
     i, j = i[keep], j[keep]
     a, b = np.minimum(gaps[i, 0], gaps[j, 0]), np.maximum(gaps[i, 0], gaps[j, 0])
     shared = np.stack([first[j], np.minimum(last[i], last[j]), a, b], axis=1)
@@ -127,9 +135,6 @@ class _Windows:
                            for key, d in self.d.items()}
         self.count = {key: np.isfinite(d).sum(axis=0) for key, d in self.d.items()}
 
-    def long_enough(self, n: int) -> bool:
-        return min(rows.size for rows in self.frames.values()) >= n
-
     def references(self, key: tuple[int, bool], others: list[tuple[int, bool]], cfg: GapExchangeConfig
                    ) -> np.ndarray:
         """(R,) bool: window ``key``'s references (step 2 of the module docstring), seen in both ``others``."""
@@ -146,26 +151,38 @@ class _Windows:
         spread = np.maximum(self.spread[key][ok], cfg.floor_m)
         return np.minimum(((d[:, ok] - self.median[key][ok]) / spread) ** 2, cfg.clip)
 
-    def fits(self, cfg: GapExchangeConfig) -> tuple[float, float]:
-        """(kept, exchanged) fits of the pair (step 3 of the module docstring)."""
-        kept = exchanged = 0.0
+    def fits(self, cfg: GapExchangeConfig) -> tuple[float, float] | None:
+        """(kept, exchanged) fits of the pair (step 3 of the module docstring); None where the two hypotheses do
+        not link as many windows, or a link is not scored both ways."""
         a, b = self.pair
+        have = {key: rows.size >= cfg.min_samples for key, rows in self.frames.items()}
+        links = {True: [(a, a), (b, b)], False: [(a, b), (b, a)]}  # (before, after) identities, kept / exchanged
+        links = {kept: [link for link in pairs if have[link[0], True] and have[link[1], False]]
+                 for kept, pairs in links.items()}
+        if not links[True] or len(links[True]) != len(links[False]):
+            return None
+        scores = []  # (kept, sum, mean, references) of each scored direction of each link
         for before in (True, False):
-            others = [(a, not before), (b, not before)]
-            for col in (a, b):
-                key = (col, before)
+            others = [(c, not before) for c in (a, b) if have[c, not before]]
+            for key in [(c, before) for c in (a, b) if have[c, before]]:
                 ok = self.references(key, others, cfg)
                 if not ok.any():
                     continue
                 for other in others:
                     with warnings.catch_warnings():
                         warnings.simplefilter("ignore", RuntimeWarning)  # (a reference unseen throughout: NaN)
-                        fit = np.nansum(np.nanmean(self.misfit(key, self.d[other], ok, cfg), axis=0))
-                    if other[0] == col:
-                        kept += fit
-                    else:
-                        exchanged += fit
-        return kept, exchanged
+                        per_reference = np.nanmean(self.misfit(key, self.d[other], ok, cfg), axis=0)
+                    scores.append((other[0] == key[0], np.nansum(per_reference), np.nanmean(per_reference), ok.sum()))
+        if len(links[True]) == 2:  # every window scores both hypotheses with the same references
+            return (sum(total for kept, total, _, _ in scores if kept),
+                    sum(total for kept, total, _, _ in scores if not kept))
+        # One identity ended or started: the two hypotheses are scored by different windows, each direction by its
+        # mean over references times the fewest any direction has.
+        fewest = min((n for *_, n in scores), default=0)
+        if len(scores) < 4 or fewest < 2:
+            return None
+        return (sum(mean for kept, _, mean, _ in scores if kept) * fewest,
+                sum(mean for kept, _, mean, _ in scores if not kept) * fewest)
 
 
 def _sample_fit(win: _Windows, key: tuple[int, bool], P: np.ndarray, rows: np.ndarray, col: int,
@@ -223,12 +240,10 @@ def undo_gap_exchanges(traj: Trajectories, config: GapExchangeConfig | None = No
             if not near.any():
                 continue
             win = _Windows(P, seen, a, b, t, n)
-            if not win.long_enough(cfg.min_samples):
+            fits = win.fits(cfg)
+            if fits is None or fits[1] > cfg.ratio * fits[0] or fits[0] - fits[1] < cfg.margin:
                 continue
-            kept, swapped = win.fits(cfg)
-            if swapped > cfg.ratio * kept or kept - swapped < cfg.margin:
-                continue
-            after = max(win.frames[a, False][-1], win.frames[b, False][-1])
+            after = max(rows[-1] for (_, before), rows in win.frames.items() if not before and rows.size)
             mine = (shared[:, 2] == a) & (shared[:, 3] == b) & (shared[:, 0] >= t) & (shared[:, 0] <= after)
             start = _best_start(win, P, seen, a, b, np.unique(shared[mine, 0]), cfg)
             traj.permute_tails(start, [b, a], [a, b])

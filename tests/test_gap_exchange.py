@@ -90,3 +90,17 @@ def test_a_short_piece_of_a_marker_between_two_shared_gaps_stays_with_its_identi
     seen = np.isfinite(traj.positions[..., 0])
     np.testing.assert_array_equal(traj.positions[seen], truth[seen])
     assert seen[320:327, 1].all()
+
+
+def test_a_marker_back_under_the_identity_of_a_neighbour_whose_own_ended_returns_to_its_own():
+    """Marker 0's identity ends where both markers are hidden; marker 1's identity comes back holding marker 0, and
+    marker 1 comes back under a new identity (column 6). Marker 0's samples after the gap go back to its own."""
+    truth = _segment(SHANK)
+    P = np.concatenate([truth, np.full((len(truth), 1, 3), np.nan)], axis=1)
+    P[300:, 0] = np.nan
+    P[300:362, 1] = np.nan
+    P[362:, 1], P[362:, 6] = truth[362:, 0], truth[362:, 1]
+    traj = Trajectories([f"M{k + 1:03d}" for k in range(7)], FPS, P)
+    assert undo_gap_exchanges(traj) == 1
+    np.testing.assert_array_equal(traj.positions[362:, 0], truth[362:, 0])
+    assert np.isnan(traj.positions[300:, 1]).all()
