@@ -10,24 +10,28 @@ statistics only blur.
 
 Around the gap the two windows tell it: over a second before and a second after, a marker's distances to the
 neighbours on its own segment hold within millimetres, so the identity whose distances after the gap are those
-the other one had before holds the other's marker. :func:`undo_gap_exchanges`, for every pair of identities
-whose gaps (unseen runs inside their spans, ``max_gap_s`` at most) overlap and which come within ``near_m`` of
-each other around it, in time order:
+the other one had before holds the other's marker. :func:`undo_gap_exchanges` runs right after the bridge, and,
+for every pair of identities whose gaps overlap (unseen runs inside their spans, ``max_gap_s`` at most; for one of
+the two also the ``max_gap_s`` after its last sample or before its first) and which come within ``near_m`` of each
+other around it, in time order:
 
-1. takes the windows: each identity's last ``window_s`` of samples before the shared gap and first after it;
+1. takes the windows: each identity's last ``window_s`` of samples before the shared gap and first after it (none
+   after for an identity that ended, none before for one that started);
 2. takes each window's references: identities (not the pair) seen with it ``min_samples`` times or more, within
-   ``reach_m`` (median) and steady (1.4826 MAD under ``spread_m``), and seen ``min_samples`` times in both
-   windows on the gap's other side;
+   ``reach_m`` (median) and steady (1.4826 MAD under ``spread_m``), and seen ``min_samples`` times in every
+   window on the gap's other side;
 3. scores how well each window on the other side fits them: the mean over its samples of the squared difference
    to the reference window's median distance, in its spread (at least ``floor_m``), clipped at ``clip``, summed
    over the references; ``kept`` sums the fits of each identity to itself, ``exchanged`` of each to the other,
-   both ways in time;
+   both ways in time. Where one identity ended (or started), the two hypotheses link different windows (the marker
+   back after the gap continues one identity or the other): each direction counts its mean over references times
+   the fewest references any direction has (two at least), so a window with more references weighs no more;
 4. exchanges the two identities from the gap on (to the end of the take) where ``exchanged`` is at most
    ``ratio`` times ``kept`` and below it by ``margin`` or more; where the pair has more shared gaps within the
    window after it (a short piece of one marker between them) the exchange starts at the one that best sorts
    the pieces between them, by their fit to the windows before.
 
-On the 55 captured takes of the repair's replays (the tennis takes with 5 % of samples hidden, the walking and
+On the 59 captured takes of the repair's replays (the tennis takes with 5 % of samples hidden, the walking and
 sprint takes), where the pass runs, the exchanges the truth calls right score 0.12-0.86 times ``kept`` (those over
 ``ratio`` are left), and where two markers' identities were right the closest is 0.93 (the serve's 5 %-hidden
 seed 6: a hand's markers), 0.88 where both identities held one marker (the whole sprint). Only whole samples

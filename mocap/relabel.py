@@ -246,10 +246,10 @@ class RelabelStats:
     joins), exchanges undone where two markers passed close, bursts of hops unscrambled, cluster members reunited,
     samples moved to the plate member their shape names, fragments rejoined by their anchors, samples moved to the
     identity whose anchors they fit, unconfirmed points that joined an identity's path, links made across gaps by
-    where the neighbours carry a marker, exchanges undone between a skin-mounted cluster's identities, samples
-    withheld off their identity's path (hops onto a neighbour), identities of one marker that took turns or followed
-    each other merged, exchanges undone where two markers came back from a shared gap each under the other's
-    identity, scattered identities withdrawn."""
+    where the neighbours carry a marker, exchanges undone where two markers came back from a shared gap each under
+    the other's identity, exchanges undone between a skin-mounted cluster's identities, samples withheld off their
+    identity's path (hops onto a neighbour), identities of one marker that took turns or followed each other merged,
+    scattered identities withdrawn."""
 
     duplicates: int = 0
     swaps: int = 0
@@ -262,10 +262,10 @@ class RelabelStats:
     anchor_moves: int = 0
     filled: int = 0
     bridged: int = 0
+    gap_exchanges: int = 0
     skin_exchanges: int = 0
     off_path: int = 0
     merged: int = 0
-    gap_exchanges: int = 0
     withdrawn: int = 0
 
 
@@ -924,12 +924,11 @@ def repair_identities(traj: Trajectories, config: RelabelConfig | None = None,
     identity whose neighbours they fit (:mod:`mocap.anchors`, in turns: ``ANCHOR_ROUNDS`` at most), skin-mounted
     clusters reunited where their neighbours tell a symmetric shape's markers apart (:data:`SKIN_CLUSTERS`), the
     fill from unconfirmed points (:mod:`mocap.fill`), the bridging of gaps by where the neighbours carry a
-    marker (:mod:`mocap.bridge`), the exchanges between a skin-mounted cluster's identities undone by the
-    references both keep (:mod:`mocap.skin`), where hops are clear (:meth:`RelabelConfig.hops_clear`), samples
-    off their identity's own path withheld (:mod:`mocap.offpath`), the identities of one marker that take turns or
-    follow each other merged (:mod:`mocap.alternate`), and two markers' identities given back where they came back
-    from a shared gap each under the other's (:mod:`mocap.gap_exchange`), in place; empty identity columns are
-    dropped.
+    marker (:mod:`mocap.bridge`), two markers' identities given back where they came back from a shared gap each
+    under the other's (:mod:`mocap.gap_exchange`), the exchanges between a skin-mounted cluster's identities undone
+    by the references both keep (:mod:`mocap.skin`), where hops are clear (:meth:`RelabelConfig.hops_clear`),
+    samples off their identity's own path withheld (:mod:`mocap.offpath`), and the identities of one marker that
+    take turns or follow each other merged (:mod:`mocap.alternate`), in place; empty identity columns are dropped.
     ``unconfirmed``: the tracker's points without identity (:meth:`mocap.tracker.Tracker.unconfirmed`), which the
     plate labelling and the fill may give one.
 
@@ -958,11 +957,11 @@ def repair_identities(traj: Trajectories, config: RelabelConfig | None = None,
     if unconfirmed is not None:
         stats.filled = fill_from_unconfirmed(traj, unconfirmed)
     stats.bridged = bridge_gaps(traj, jump_acc=jump, reversal_acc=limits.reversal_acc(traj.fps))
+    stats.gap_exchanges = undo_gap_exchanges(traj)
     stats.skin_exchanges = undo_skin_exchanges(traj, jump_acc=jump, reversal_acc=limits.reversal_acc(traj.fps))
     if limits.hops_clear(traj.fps):  # (at 50 Hz a swing's own samples leave any smooth path through their neighbours)
         stats.off_path = withhold_off_path(traj)
     stats.merged = merge_alternating(traj)
-    stats.gap_exchanges = undo_gap_exchanges(traj)
     stats.withdrawn = withdraw_scattered(traj, limits)
     if (stats.reunited or stats.rejoined or stats.plate_samples or stats.anchor_moves or stats.bridged
             or stats.off_path or stats.merged or stats.withdrawn):
