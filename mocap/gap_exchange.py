@@ -45,6 +45,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from mocap.quickstats import nanmedian_columns
 from mocap.trajectories import Trajectories
 
 __all__ = ["GapExchangeConfig", "undo_gap_exchanges"]
@@ -132,11 +133,8 @@ class _Windows:
         self.frames = {(c, before): _window(seen[:, c], t, n, before) for c in (a, b) for before in (True, False)}
         self.d = {key: np.linalg.norm(P[rows][:, self.refs] - P[rows, key[0]][:, None], axis=2)
                   for key, rows in self.frames.items()}  # (n, R) m, NaN where the reference is unseen
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", RuntimeWarning)  # (a reference never seen with the window: NaN)
-            self.median = {key: np.nanmedian(d, axis=0) for key, d in self.d.items()}
-            self.spread = {key: 1.4826 * np.nanmedian(np.abs(d - self.median[key]), axis=0)
-                           for key, d in self.d.items()}
+        self.median = {key: nanmedian_columns(d) for key, d in self.d.items()}  # NaN: a reference never seen
+        self.spread = {key: 1.4826 * nanmedian_columns(np.abs(d - self.median[key])) for key, d in self.d.items()}
         self.count = {key: np.isfinite(d).sum(axis=0) for key, d in self.d.items()}
 
     def references(self, key: tuple[int, bool], others: list[tuple[int, bool]], cfg: GapExchangeConfig
