@@ -76,7 +76,7 @@ class GapExchangeConfig:
     spread_m: float = 0.005
     floor_m: float = 0.0015
     clip: float = 16.0
-    ratio: float = 0.7
+    ratio: float = 0.8
     margin: float = 16.0
 
 

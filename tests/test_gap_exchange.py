@@ -70,14 +70,15 @@ def test_distances_that_differ_by_less_than_a_millimetre_are_not_evidence():
 
 
 def test_a_segment_that_bent_in_the_gap_is_not_relabelled_by_one_neighbour_that_fits_the_exchange():
-    """Over the gap neighbours 2, 4 and 5 move a quarter farther out (no distance fits either way) and neighbour 3
+    """Over the gap neighbours 2 and 4-7 move a quarter farther out (no distance fits either way) and neighbour 3
     moves to its mirror image across the plane between markers 0 and 1 (its distances, 23 mm apart, fit the
-    exchange): one neighbour of four is not enough."""
+    exchange): one neighbour of six is not enough."""
+    layout = np.concatenate([SHANK, [[-0.08, -0.06, 0.1], [0.1, 0.1, -0.05]]])
     middle = np.array([0.0, 0.018, 0.0])
-    bent = SHANK.copy()
-    bent[[2, 4, 5]] = middle + 1.25 * (SHANK[[2, 4, 5]] - middle)
-    bent[3, 1] = 2 * middle[1] - SHANK[3, 1]
-    truth = _segment(np.where(np.arange(700)[:, None, None] < 331, SHANK, bent))
+    bent = layout.copy()
+    bent[[2, 4, 5, 6, 7]] = middle + 1.25 * (layout[[2, 4, 5, 6, 7]] - middle)
+    bent[3, 1] = 2 * middle[1] - layout[3, 1]
+    truth = _segment(np.where(np.arange(700)[:, None, None] < 331, layout, bent))
     traj = _exchanged_take(truth, (300, 362), (300, 362), 700)
     assert undo_gap_exchanges(traj) == 0
 
