@@ -13,10 +13,12 @@ neighbours on its own segment hold within millimetres, so the identity whose dis
 the other one had before holds the other's marker. :func:`undo_gap_exchanges` runs right after the bridge, and,
 for every pair of identities whose gaps overlap (unseen runs inside their spans, ``max_gap_s`` at most; for one of
 the two also the ``max_gap_s`` after its last sample or before its first) and which come within ``near_m`` of each
-other around it, in time order:
+other around it, and for every jump of an identity (the repair's jump rule) onto a sample nearer another
+identity's sample the frame before than its own (a 50 Hz serve's wrist and finger markers, 43-98 mm apart, taking
+each other's identities between two frames), in time order (shared gaps before jumps in a frame):
 
-1. takes the windows: each identity's last ``window_s`` of samples before the shared gap and first after it (none
-   after for an identity that ended, none before for one that started);
+1. takes the windows: each identity's last ``window_s`` of samples before the shared gap (or the jump) and first
+   after it (none after for an identity that ended, none before for one that started);
 2. takes each window's references: identities (not the pair) seen with it ``min_samples`` times or more, within
    ``reach_m`` (median) and steady (1.4826 MAD under ``spread_m``), and seen ``min_samples`` times in every
    window on the gap's other side;
@@ -46,6 +48,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from mocap.quickstats import nanmedian_columns
+from mocap.rigid import jump_starts
 from mocap.trajectories import Trajectories
 
 __all__ = ["GapExchangeConfig", "undo_gap_exchanges"]
@@ -218,25 +221,55 @@ def _best_start(win: _Windows, P: np.ndarray, seen: np.ndarray, a: int, b: int, 
     return int(starts[int(np.argmax(gain))])
 
 
-def undo_gap_exchanges(traj: Trajectories, config: GapExchangeConfig | None = None) -> int:
+def _jump_pairs(P: np.ndarray, jump_acc: float, reversal_acc: float) -> np.ndarray:
+    """(L, 4) int: (frame, frame before, column a, column b), a < b, for every jump of an identity of ``P`` (F, M,
+    3) (:func:`mocap.rigid.jump_starts`) onto a sample nearer another identity's sample the frame before than its
+    own: that one (the nearest)."""
+    frames, cols = np.nonzero(jump_starts(P, jump_acc, reversal_acc))
+    if frames.size == 0:
+        return np.zeros((0, 4), dtype=np.intp)
+    d = np.linalg.norm(P[frames - 1] - P[frames, cols][:, None], axis=2)  # (K, M) m
+    d[np.arange(frames.size), cols] = np.inf
+    d = np.where(np.isfinite(d), d, np.inf)
+    other = d.argmin(axis=1)
+    own = np.linalg.norm(P[frames, cols] - P[frames - 1, cols], axis=1)
+    keep = d[np.arange(frames.size), other] < own
+    frames, cols, other = frames[keep], cols[keep], other[keep]
+    return np.stack([frames, frames - 1, np.minimum(cols, other), np.maximum(cols, other)], axis=1)
+
+
+def _candidates(P: np.ndarray, max_len: int, jump: tuple[float, float]) -> list[tuple[int, int, int, int, int]]:
+    """(first frame, kind, column a, column b, last frame) of every shared gap (kind 0) and jump onto another's
+    path (kind 1) of ``P`` (F, M, 3), in time order, shared gaps first in a frame."""
+    shared = _shared_gaps(_gaps(np.isfinite(P[..., 0]), max_len))
+    jumps = _jump_pairs(P, *jump) if np.isfinite(jump).any() else np.zeros((0, 4), dtype=np.intp)
+    rows = np.concatenate([shared, jumps])
+    kind = np.r_[np.zeros(len(shared), dtype=np.intp), np.ones(len(jumps), dtype=np.intp)]
+    order = np.lexsort((rows[:, 3], rows[:, 2], kind, rows[:, 0]))
+    return [(int(r[0]), int(k), int(r[2]), int(r[3]), int(r[1])) for r, k in zip(rows[order], kind[order], strict=True)]
+
+
+def undo_gap_exchanges(traj: Trajectories, config: GapExchangeConfig | None = None, jump_acc: float = np.inf,
+                       reversal_acc: float = np.inf) -> int:
     """Exchange back, in place, the identities of two markers that came back from a shared gap each under the
-    other's (see the module docstring). Returns the number of exchanges undone."""
+    other's, or that one jumped onto the other's path (see the module docstring). ``jump_acc`` and
+    ``reversal_acc``: the repair's jump rule (:func:`mocap.rigid.jump_starts`), m/frame^2 (inf: gaps only).
+    Returns the number of exchanges undone."""
     cfg = config or GapExchangeConfig()
     P = traj.positions
     F = traj.n_frames
     n = max(cfg.min_samples, int(round(cfg.window_s * traj.fps)))
     undone = 0
-    done_upto = (-1, -1, -1)  # (frame, a, b) of the last shared gap looked at
+    done_upto = (-1, -1, -1, -1)  # (frame, kind, a, b) of the last candidate looked at
     while True:
         seen = np.isfinite(P[..., 0])
-        shared = _shared_gaps(_gaps(seen, int(round(cfg.max_gap_s * traj.fps))))
-        order = [tuple(row) for row in shared[:, [0, 2, 3]].tolist()]
+        candidates = _candidates(P, int(round(cfg.max_gap_s * traj.fps)), (jump_acc, reversal_acc))
         exchanged = False
-        for k, (t, a, b) in enumerate(order):
-            if (t, a, b) <= done_upto:
+        for t, kind, a, b, last in candidates:
+            if (t, kind, a, b) <= done_upto:
                 continue
-            done_upto = (t, a, b)
-            lo, hi = max(0, t - n), min(F, int(shared[k, 1]) + n + 1)
+            done_upto = (t, kind, a, b)
+            lo, hi = max(0, t - n), min(F, max(t, last) + n + 1)
             with np.errstate(invalid="ignore"):
                 near = np.linalg.norm(P[lo:hi, a] - P[lo:hi, b], axis=1) < cfg.near_m
             if not near.any():
@@ -246,8 +279,8 @@ def undo_gap_exchanges(traj: Trajectories, config: GapExchangeConfig | None = No
             if fits is None or fits[1] > cfg.ratio * fits[0] or fits[0] - fits[1] < cfg.margin:
                 continue
             after = max(rows[-1] for (_, before), rows in win.frames.items() if not before and rows.size)
-            mine = (shared[:, 2] == a) & (shared[:, 3] == b) & (shared[:, 0] >= t) & (shared[:, 0] <= after)
-            start = _best_start(win, P, seen, a, b, np.unique(shared[mine, 0]), cfg)
+            starts = np.unique([c[0] for c in candidates if c[2:4] == (a, b) and t <= c[0] <= after])
+            start = _best_start(win, P, seen, a, b, starts, cfg)
             traj.permute_tails(start, [b, a], [a, b])
             undone += 1
             exchanged = True

@@ -957,7 +957,7 @@ def repair_identities(traj: Trajectories, config: RelabelConfig | None = None,
     if unconfirmed is not None:
         stats.filled = fill_from_unconfirmed(traj, unconfirmed)
     stats.bridged = bridge_gaps(traj, jump_acc=jump, reversal_acc=limits.reversal_acc(traj.fps))
-    stats.gap_exchanges = undo_gap_exchanges(traj)
+    stats.gap_exchanges = undo_gap_exchanges(traj, jump_acc=jump, reversal_acc=limits.reversal_acc(traj.fps))
     stats.skin_exchanges = undo_skin_exchanges(traj, jump_acc=jump, reversal_acc=limits.reversal_acc(traj.fps))
     if limits.hops_clear(traj.fps):  # (at 50 Hz a swing's own samples leave any smooth path through their neighbours)
         stats.off_path = withhold_off_path(traj)

@@ -105,3 +105,12 @@ def test_a_marker_back_under_the_identity_of_a_neighbour_whose_own_ended_returns
     assert undo_gap_exchanges(traj) == 1
     np.testing.assert_array_equal(traj.positions[362:, 0], truth[362:, 0])
     assert np.isnan(traj.positions[300:, 1]).all()
+
+
+def test_two_markers_exchanged_between_consecutive_frames_by_a_jump_get_theirs_back():
+    """No gap: from frame 362 each identity holds the other's marker (a 36 mm step, a jump at 20 mm/frame^2)."""
+    truth = _segment(SHANK)
+    traj = _exchanged_take(truth, (0, 0), (0, 0), 362)
+    assert undo_gap_exchanges(traj) == 0  # (gaps only)
+    assert undo_gap_exchanges(traj, jump_acc=0.02) == 1
+    np.testing.assert_array_equal(traj.positions, truth)
