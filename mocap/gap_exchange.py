@@ -194,10 +194,9 @@ class _Windows:
 def _sample_fit(win: _Windows, key: tuple[int, bool], P: np.ndarray, rows: np.ndarray, col: int,
                 cfg: GapExchangeConfig) -> np.ndarray:
     """(n,) mean clipped squared error, in spreads, of column ``col``'s samples in frames ``rows`` against window
-    ``key``'s references; 0 where none is seen."""
-    ok = win.references(key, [], cfg)
-    d = np.linalg.norm(P[rows][:, win.refs[ok]] - P[rows, col][:, None], axis=2)
-    err = np.minimum(((d - win.median[key][ok]) / np.maximum(win.spread[key][ok], cfg.floor_m)) ** 2, cfg.clip)
+    ``key``'s references (:meth:`_Windows.misfit`); 0 where none is seen."""
+    d = np.linalg.norm(P[rows][:, win.refs] - P[rows, col][:, None], axis=2)  # (n, R) m
+    err = win.misfit(key, d, win.references(key, [], cfg), cfg)
     seen = np.isfinite(err)
     return np.where(seen, err, 0.0).sum(axis=1) / np.maximum(seen.sum(axis=1), 1)
 
