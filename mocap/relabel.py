@@ -82,6 +82,7 @@ from mocap.bridge import bridge_gaps
 from mocap.exchange import undo_exchanges
 from mocap.fill import fill_from_unconfirmed
 from mocap.gap_exchange import undo_gap_exchanges
+from mocap.junction import undo_junctions
 from mocap.offpath import withhold_off_path
 from mocap.plates import label_plates
 from mocap.quickstats import quick_median
@@ -263,6 +264,7 @@ class RelabelStats:
     filled: int = 0
     bridged: int = 0
     gap_exchanges: int = 0
+    junctions: int = 0
     skin_exchanges: int = 0
     off_path: int = 0
     merged: int = 0
@@ -958,13 +960,14 @@ def repair_identities(traj: Trajectories, config: RelabelConfig | None = None,
         stats.filled = fill_from_unconfirmed(traj, unconfirmed)
     stats.bridged = bridge_gaps(traj, jump_acc=jump, reversal_acc=limits.reversal_acc(traj.fps))
     stats.gap_exchanges = undo_gap_exchanges(traj, jump_acc=jump, reversal_acc=limits.reversal_acc(traj.fps))
+    stats.junctions = undo_junctions(traj, jump_acc=jump, reversal_acc=limits.reversal_acc(traj.fps))
     stats.skin_exchanges = undo_skin_exchanges(traj, jump_acc=jump, reversal_acc=limits.reversal_acc(traj.fps))
     if limits.hops_clear(traj.fps):  # (at 50 Hz a swing's own samples leave any smooth path through their neighbours)
         stats.off_path = withhold_off_path(traj)
     stats.merged = merge_alternating(traj)
     stats.withdrawn = withdraw_scattered(traj, limits)
     if (stats.reunited or stats.rejoined or stats.plate_samples or stats.anchor_moves or stats.bridged
-            or stats.off_path or stats.merged or stats.withdrawn):
+            or stats.junctions or stats.off_path or stats.merged or stats.withdrawn):
         keep = np.isfinite(traj.positions[..., 0]).any(axis=0)
         traj.positions, traj.residuals, traj.camera_masks = (traj.positions[:, keep], traj.residuals[:, keep],
                                                              traj.camera_masks[:, keep])

@@ -79,11 +79,12 @@ class Trajectories:
             array[rows, target] = array[rows, source]
             array[rows, source] = MISSING[array.dtype.kind]
 
-    def permute_tails(self, start: int, order: np.ndarray | list[int], columns: np.ndarray | list[int]) -> None:
-        """From frame ``start`` on, column ``columns[k]`` receives what column ``order[k]`` held (positions,
-        residuals and camera masks together), in place."""
+    def permute_tails(self, start: int, order: np.ndarray | list[int], columns: np.ndarray | list[int],
+                      stop: int | None = None) -> None:
+        """From frame ``start`` on (up to ``stop``, exclusive; default: the end), column ``columns[k]`` receives what
+        column ``order[k]`` held (positions, residuals and camera masks together), in place."""
         for array in (self.positions, self.residuals, self.camera_masks):
-            array[start:, columns] = array[start:, order]
+            array[start:stop, columns] = array[start:stop, order]
 
 
 @dataclass

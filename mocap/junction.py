@@ -1,0 +1,245 @@
+"""Three or more identities that came out of a junction with each other's markers get them back (offline).
+
+A 50 Hz serve's racket hand moves 100 mm a frame: for two or three frames its wrist and finger markers are
+half-seen, one identity ends, another starts, a third jumps, and the tracker comes out of it with the three
+markers' identities rotated (RWRA's under RWRB's, RWRB's under a new one, RFIN's under an identity last seen on
+another marker). :mod:`mocap.gap_exchange` scores two identities by the neighbours their windows keep, but here
+each marker's best neighbours are the other two, which moved with it: the windows only tell the markers apart
+when every member's tail is mapped at once, the references among them included.
+
+:func:`undo_junctions`, right after :mod:`mocap.gap_exchange`:
+
+1. finds the junctions: ends (the first unseen frame after a sample), starts and jumps (the repair's jump rule)
+   of ``min_members`` identities or more within ``span_s`` of the first one, each within ``near_m`` of it (at
+   the sample at, or nearest before, its event); ``max_members`` at most, the nearest;
+2. takes each member's window before the junction (its samples in the ``window_s`` before the first event)
+   and after it (in the ``window_s`` from the last event on);
+3. scores every way of matching the windows before to the windows after (as many links as the fewer side
+   has): each linked pair's fit both ways in time, as in :mod:`mocap.gap_exchange`, over the references of the
+   scoring window, a member's reference read through the matching (the identity it continues, or that
+   continues it); a link's direction counts its mean over references, and a matching is scored only where every
+   direction has two references or more;
+4. where the best matching breaks a link the tracker made (an identity that continues itself) and scores at most
+   ``ratio`` times the best that keeps every such link, and below it by ``margin`` (in the fewest references'
+   units), gives each matched after-window's identity, from the last event on, to the identity its window
+   before belongs to.
+
+Only whole samples move between identity columns; positions are never changed, and no sample is dropped.
+"""
+
+from __future__ import annotations
+
+import itertools
+import warnings
+from dataclasses import dataclass
+
+import numpy as np
+
+from mocap.gap_exchange import GapExchangeConfig
+from mocap.quickstats import nanmedian_columns
+from mocap.rigid import jump_starts
+from mocap.trajectories import Trajectories
+
+__all__ = ["JunctionConfig", "undo_junctions"]
+
+
+@dataclass(frozen=True)
+class JunctionConfig:
+    """Settings of the junction repair; ``fit`` scores windows as the gap exchanges do.
+
+    Attributes:
+        span_s: a junction's events lie within this of its first, s.
+        near_m: a member's event is within this of the first event's identity, m.
+        min_members: fewest identities a junction has.
+        max_members: most identities a junction has (the nearest to the first event's).
+        worst_fit: each direction of a link the decision makes fits within this (mean over references of the
+            clipped squared error, in spreads): 3 spreads, on average.
+        fit: windows, references and the decision's ratio and margin.
+    """
+
+    span_s: float = 0.1
+    near_m: float = 0.3
+    min_members: int = 3
+    max_members: int = 6
+    worst_fit: float = 9.0
+    fit: GapExchangeConfig = GapExchangeConfig()
+
+
+def _events(P: np.ndarray, seen: np.ndarray, jump: tuple[float, float]) -> tuple[np.ndarray, np.ndarray]:
+    """(E, 2) int (frame, column) of every end (first unseen frame after a sample), start and jump of ``P`` (F, M,
+    3), sorted by frame, and (E, 3) where each one is, m: the sample at it, or the one before it for an end."""
+    marks = np.zeros(seen.shape, dtype=bool)
+    marks[1:] |= seen[:-1] & ~seen[1:]  # ends
+    marks[1:] |= ~seen[:-1] & seen[1:]  # starts
+    if np.isfinite(jump).any():
+        marks |= jump_starts(P, *jump)
+    frames, cols = np.nonzero(marks)
+    at = np.where(seen[frames, cols], frames, frames - 1)
+    return np.stack([frames, cols], axis=1), P[at, cols]
+
+
+def _junctions(events: np.ndarray, where: np.ndarray, cfg: JunctionConfig, fps: float
+               ) -> list[tuple[int, int, tuple[int, ...]]]:
+    """(first event frame, last, members) of every junction (step 1 of the module docstring) among ``events``
+    (E, 2) at ``where`` (E, 3) m, in time order."""
+    span = max(1, int(round(cfg.span_s * fps)))
+    upto = np.searchsorted(events[:, 0], events[:, 0] + span, side="right")
+    out = []
+    for i in np.flatnonzero(upto - np.arange(len(events)) >= cfg.min_members):
+        cols, first = np.unique(events[i:upto[i], 1], return_index=True)
+        if cols.size < cfg.min_members:
+            continue
+        with np.errstate(invalid="ignore"):
+            dist = np.linalg.norm(where[i + first] - where[i], axis=1)
+        keep = np.flatnonzero(dist < cfg.near_m)
+        keep = keep[np.argsort(dist[keep], kind="stable")][: cfg.max_members]
+        if keep.size < cfg.min_members:
+            continue
+        members = tuple(int(c) for c in np.sort(cols[keep]))
+        inside = events[i:upto[i]]
+        out.append((int(events[i, 0]), int(inside[np.isin(inside[:, 1], members), 0].max()), members))
+    return out
+
+
+class _Profiles:
+    """Windows before and after a junction (frames ``t0``, ``t1``) of its members in ``P`` (F, M, 3): distances
+    (n, M) to every identity, and each window's median, spread and samples per identity (M,)."""
+
+    def __init__(self, P: np.ndarray, seen: np.ndarray, members: tuple[int, ...], t0: int, t1: int, n: int,
+                 cfg: GapExchangeConfig):
+        self.d, self.median, self.spread, self.count, self.refs = {}, {}, {}, {}, {}
+        for c in members:
+            frames = np.flatnonzero(seen[:, c])
+            for before, rows in ((True, frames[(frames < t0) & (frames >= t0 - n)]),
+                                 (False, frames[(frames >= t1) & (frames < t1 + n)])):
+                if rows.size < cfg.min_samples:
+                    continue
+                key = (c, before)
+                d = np.linalg.norm(P[rows] - P[rows, c][:, None], axis=2)  # (n, M) m
+                d[:, c] = np.nan
+                self.d[key] = d
+                self.median[key] = nanmedian_columns(d)
+                self.spread[key] = 1.4826 * nanmedian_columns(np.abs(d - self.median[key]))
+                self.count[key] = np.isfinite(d).sum(axis=0)
+                with np.errstate(invalid="ignore"):
+                    self.refs[key] = ((self.count[key] >= cfg.min_samples) & (self.median[key] <= cfg.reach_m)
+                                      & (self.spread[key] < cfg.spread_m))
+        self.before = [c for c in members if (c, True) in self.d]
+        self.after = [c for c in members if (c, False) in self.d]
+
+    def direction(self, key: tuple[int, bool], other: tuple[int, bool], to_other: np.ndarray,
+                  cfg: GapExchangeConfig) -> tuple[float, int]:
+        """(mean over references, references) of window ``other``'s fit to window ``key``'s references, a
+        reference column r of ``key`` read as column ``to_other[r]`` of ``other`` (-1: not read)."""
+        refs = np.flatnonzero(self.refs[key] & (to_other >= 0))
+        cols = to_other[refs]
+        refs, cols = refs[self.count[other][cols] >= cfg.min_samples], cols[self.count[other][cols] >= cfg.min_samples]
+        if refs.size == 0:
+            return 0.0, 0
+        spread = np.maximum(self.spread[key][refs], cfg.floor_m)
+        err = np.minimum(((self.d[other][:, cols] - self.median[key][refs]) / spread) ** 2, cfg.clip)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)
+            return float(np.nanmean(np.nanmean(err, axis=0))), int(refs.size)
+
+
+def _score(prof: _Profiles, links: list[tuple[int, int]], members: tuple[int, ...], M: int,
+           cfg: GapExchangeConfig) -> tuple[float, int, float] | None:
+    """(sum of the links' direction means, fewest references of a direction, worst direction mean of a link
+    between two identities) of the matching ``links`` ((before identity, after identity) pairs); None where a
+    direction has fewer than two references."""
+    after_to_before = np.arange(M)
+    after_to_before[list(members)] = -1
+    for b, a in links:
+        after_to_before[a] = b
+    before_to_after = np.full(M, -1)
+    mapped = after_to_before >= 0
+    before_to_after[after_to_before[mapped]] = np.flatnonzero(mapped)
+    total, fewest, worst = 0.0, np.iinfo(int).max, 0.0
+    for b, a in links:
+        for key, other, to_other in (((b, True), (a, False), before_to_after),
+                                     ((a, False), (b, True), after_to_before)):
+            mean, refs = prof.direction(key, other, to_other, cfg)
+            if refs < 2:
+                return None
+            total, fewest = total + mean, min(fewest, refs)
+            if a != b:
+                worst = max(worst, mean)
+    return total, fewest, worst
+
+
+def _matchings(before: list[int], after: list[int]):
+    """Every matching of as many links as the fewer side has: lists of (before, after) pairs."""
+    if len(before) >= len(after):
+        for chosen in itertools.permutations(before, len(after)):
+            yield list(zip(chosen, after, strict=True))
+    else:
+        for chosen in itertools.permutations(after, len(before)):
+            yield list(zip(before, chosen, strict=True))
+
+
+def _decide(prof: _Profiles, members: tuple[int, ...], M: int, cfg: JunctionConfig) -> list[tuple[int, int]] | None:
+    """The links to make (step 4 of the module docstring), or None."""
+    tracked = set(prof.before) & set(prof.after)  # identities the tracker continued through the junction
+    if not tracked or len(prof.before) < 2 or len(prof.after) < 2:
+        return None
+    best: dict[bool, tuple[tuple[float, int, float], list[tuple[int, int]]]] = {}  # keeps the tracker's links?
+    for links in _matchings(prof.before, prof.after):
+        scored = _score(prof, links, members, M, cfg.fit)
+        if scored is None:
+            continue
+        keeps = all((c, c) in links for c in tracked if any(c in link for link in links))
+        if keeps not in best or scored[0] < best[keeps][0][0]:
+            best[keeps] = (scored, links)
+    if len(best) < 2:
+        return None
+    (kept, n_kept, _), ((other, n_other, worst), links) = best[True][0], best[False]
+    if (other > cfg.fit.ratio * kept or (kept - other) * min(n_kept, n_other) < cfg.fit.margin
+            or worst > cfg.worst_fit):
+        return None
+    return links
+
+
+def _stop(seen: np.ndarray, cols: list[int], t: int, n: int) -> int:
+    """First frame after ``t`` from which none of ``cols`` is seen for ``n`` frames (the junction's markers all
+    hidden: what comes after was linked by other evidence); the take's length where there is none."""
+    hidden = ~seen[t:, cols].any(axis=1)
+    run = np.convolve(hidden, np.ones(n, dtype=int), mode="valid") if hidden.size >= n else np.zeros(0)
+    starts = np.flatnonzero(run == n)
+    return t + int(starts[0]) if starts.size else seen.shape[0]
+
+
+def undo_junctions(traj: Trajectories, config: JunctionConfig | None = None, jump_acc: float = np.inf,
+                   reversal_acc: float = np.inf) -> int:
+    """Give back, in place, the markers three or more identities exchanged at a junction (see the module
+    docstring). ``jump_acc`` and ``reversal_acc``: the repair's jump rule (:func:`mocap.rigid.jump_starts`),
+    m/frame^2. Returns the number of junctions undone."""
+    cfg = config or JunctionConfig()
+    fit = cfg.fit
+    P = traj.positions
+    M = traj.n_markers
+    n = max(fit.min_samples, int(round(fit.window_s * traj.fps)))
+    undone = 0
+    done_upto = (-1, ())
+    while True:
+        seen = np.isfinite(P[..., 0])
+        changed = False
+        for t0, t1, members in _junctions(*_events(P, seen, (jump_acc, reversal_acc)), cfg, traj.fps):
+            if (t0, members) <= done_upto:
+                continue
+            done_upto = (t0, members)
+            prof = _Profiles(P, seen, members, t0, t1, n, fit)
+            links = _decide(prof, members, M, cfg)
+            if links is None:
+                continue
+            moved = [(b, a) for b, a in links if b != a]
+            sources = [a for _, a in moved]
+            targets = [b for b, _ in moved]
+            rest = sorted(set(targets) - set(sources))  # identities whose tails make room
+            free = sorted(set(sources) - set(targets))
+            traj.permute_tails(t1, sources + rest, targets + free, _stop(seen, sources, t1, n))
+            undone += 1
+            changed = True
+            break
+        if not changed:
+            return undone
