@@ -10,8 +10,9 @@ when every member's tail is mapped at once, the references among them included.
 :func:`undo_junctions`, right after :mod:`mocap.gap_exchange`:
 
 1. finds the junctions: ends (the first unseen frame after a sample), starts and jumps (the repair's jump rule)
-   of ``min_members`` identities or more within ``span_s`` of the first one, each within ``near_m`` of it (at
-   the sample at, or nearest before, its event); ``max_members`` at most, the nearest;
+   of ``min_members`` identities or more within ``span_s`` of the first one and linked to it through events
+   within ``near_m`` of each other (where each is: the sample at it, or before it for an end); ``max_members``
+   at most, the first reached;
 2. takes each member's window before the junction (its samples in the ``window_s`` before the first event)
    and after it (in the ``window_s`` from the last event on);
 3. scores every way of matching the windows before to the windows after (as many links as the fewer side
@@ -19,10 +20,14 @@ when every member's tail is mapped at once, the references among them included.
    scoring window, a member's reference read through the matching (the identity it continues, or that
    continues it); a link's direction counts its mean over references, and a matching is scored only where every
    direction has two references or more;
-4. where the best matching breaks a link the tracker made (an identity that continues itself) and scores at most
-   ``ratio`` times the best that keeps every such link, and below it by ``margin`` (in the fewest references'
-   units), gives each matched after-window's identity, from the last event on, to the identity its window
-   before belongs to.
+4. takes the best matching where it makes new links and wins by ``ratio`` (at most that times the rival's
+   score) and ``margin`` (below it by that, in the fewest references' units), each new link fitting within
+   ``worst_fit``: where it breaks a link the tracker made (an identity that continues itself), the rival is the
+   best matching that keeps every such link; where it only joins identities that ended to identities that
+   started (the serving hand's markers out of a swing under new identities), the best without those joins;
+5. gives each matched after-window's identity, from the last event on, to the identity its window before
+   belongs to, up to where all the moved identities are hidden for ``window_s`` (what comes after was linked by
+   other evidence).
 
 Only whole samples move between identity columns; positions are never changed, and no sample is dropped.
 """
@@ -86,18 +91,23 @@ def _junctions(events: np.ndarray, where: np.ndarray, cfg: JunctionConfig, fps: 
     upto = np.searchsorted(events[:, 0], events[:, 0] + span, side="right")
     out = []
     for i in np.flatnonzero(upto - np.arange(len(events)) >= cfg.min_members):
-        cols, first = np.unique(events[i:upto[i], 1], return_index=True)
-        if cols.size < cfg.min_members:
+        inside, at = events[i:upto[i]], where[i:upto[i]]
+        if np.unique(inside[:, 1]).size < cfg.min_members:
             continue
         with np.errstate(invalid="ignore"):
-            dist = np.linalg.norm(where[i + first] - where[i], axis=1)
-        keep = np.flatnonzero(dist < cfg.near_m)
-        keep = keep[np.argsort(dist[keep], kind="stable")][: cfg.max_members]
-        if keep.size < cfg.min_members:
+            near = np.linalg.norm(at[:, None] - at[None], axis=2) < cfg.near_m  # (e, e)
+        members: list[int] = []
+        reached = near[0].copy()
+        while len(members) < cfg.max_members:  # events linked to the first one through near events, nearest first
+            fresh = np.flatnonzero(reached & ~np.isin(inside[:, 1], members))
+            if fresh.size == 0:
+                break
+            members.append(int(inside[fresh[0], 1]))
+            reached |= near[np.isin(inside[:, 1], members)].any(axis=0)
+        if len(members) < cfg.min_members:
             continue
-        members = tuple(int(c) for c in np.sort(cols[keep]))
-        inside = events[i:upto[i]]
-        out.append((int(events[i, 0]), int(inside[np.isin(inside[:, 1], members), 0].max()), members))
+        members.sort()
+        out.append((int(events[i, 0]), int(inside[np.isin(inside[:, 1], members), 0].max()), tuple(members)))
     return out
 
 
@@ -181,23 +191,30 @@ def _matchings(before: list[int], after: list[int]):
 def _decide(prof: _Profiles, members: tuple[int, ...], M: int, cfg: JunctionConfig) -> list[tuple[int, int]] | None:
     """The links to make (step 4 of the module docstring), or None."""
     tracked = set(prof.before) & set(prof.after)  # identities the tracker continued through the junction
-    if not tracked or len(prof.before) < 2 or len(prof.after) < 2:
+    if len(prof.before) < 2 or len(prof.after) < 2:
         return None
-    best: dict[bool, tuple[tuple[float, int, float], list[tuple[int, int]]]] = {}  # keeps the tracker's links?
+    scored = []  # (score, fewest references, worst new link, links, keeps the tracker's links)
     for links in _matchings(prof.before, prof.after):
-        scored = _score(prof, links, members, M, cfg.fit)
-        if scored is None:
-            continue
-        keeps = all((c, c) in links for c in tracked if any(c in link for link in links))
-        if keeps not in best or scored[0] < best[keeps][0][0]:
-            best[keeps] = (scored, links)
-    if len(best) < 2:
+        score = _score(prof, links, members, M, cfg.fit)
+        if score is not None:
+            keeps = all((c, c) in links for c in tracked if any(c in link for link in links))
+            scored.append((*score, links, keeps))
+    if not scored:
         return None
-    (kept, n_kept, _), ((other, n_other, worst), links) = best[True][0], best[False]
-    if (other > cfg.fit.ratio * kept or (kept - other) * min(n_kept, n_other) < cfg.fit.margin
-            or worst > cfg.worst_fit):
+    best = min(scored, key=lambda s: s[0])
+    new = {link for link in best[3] if link[0] != link[1]}
+    if not new:
         return None
-    return links
+    # Breaking a tracker's link is weighed against the best matching that keeps them all; joining identities that
+    # ended to ones that started, against the best matching without those joins.
+    rivals = [s for s in scored if (s[4] if not best[4] else not new & set(s[3]))]
+    if not rivals:
+        return None
+    rival = min(rivals, key=lambda s: s[0])
+    if (best[0] > cfg.fit.ratio * rival[0] or (rival[0] - best[0]) * min(best[1], rival[1]) < cfg.fit.margin
+            or best[2] > cfg.worst_fit):
+        return None
+    return best[3]
 
 
 def _stop(seen: np.ndarray, cols: list[int], t: int, n: int) -> int:

@@ -39,12 +39,24 @@ def test_three_identities_rotated_at_a_junction_get_their_markers_back():
     assert np.isfinite(traj.positions[..., 0]).sum() == samples  # no sample lost
 
 
-def test_identities_the_tracker_kept_through_a_junction_are_left_alone():
+def test_identities_ended_and_started_at_a_junction_are_joined():
+    """Identity 1 keeps its marker; markers 0 and 2 come back under new identities (columns 6 and 7)."""
     truth = moving(HAND, np.random.default_rng(5), 0.0)
     traj = _junction_take(truth, rotated=False)
-    before = traj.positions.copy()
+    assert undo_junctions(traj, jump_acc=JUMP_ACC) == 1
+    np.testing.assert_array_equal(traj.positions[302:, :6], truth[302:])
+    assert np.isnan(traj.positions[302:, 6:]).all()
+
+
+def test_identities_the_tracker_kept_through_a_junction_are_left_alone():
+    """The three hand markers hidden for a frame or two at once, each back under its own identity."""
+    truth = moving(HAND, np.random.default_rng(5), 0.0)
+    P = truth.copy()
+    P[300:302, [0, 2]] = np.nan
+    P[301, 1] = np.nan
+    traj = Trajectories([f"M{k + 1:03d}" for k in range(6)], 100.0, P)
     assert undo_junctions(traj, jump_acc=JUMP_ACC) == 0
-    np.testing.assert_array_equal(traj.positions, before)
+    np.testing.assert_array_equal(traj.positions, P)
 
 
 def test_a_junction_no_matching_fits_is_left_alone():
