@@ -136,21 +136,47 @@ class _Profiles:
                                       & (self.spread[key] < cfg.spread_m))
         self.before = [c for c in members if (c, True) in self.d]
         self.after = [c for c in members if (c, False) in self.d]
+        self.members = np.array(members)
+        self.tables: dict[tuple[tuple[int, bool], tuple[int, bool]], tuple] = {}  # by (key, other) window
 
     def direction(self, key: tuple[int, bool], other: tuple[int, bool], to_other: np.ndarray,
                   cfg: GapExchangeConfig) -> tuple[float, int]:
         """(mean over references, references) of window ``other``'s fit to window ``key``'s references, a
-        reference column r of ``key`` read as column ``to_other[r]`` of ``other`` (-1: not read)."""
-        refs = np.flatnonzero(self.refs[key] & (to_other >= 0))
-        cols = to_other[refs]
-        refs, cols = refs[self.count[other][cols] >= cfg.min_samples], cols[self.count[other][cols] >= cfg.min_samples]
-        if refs.size == 0:
-            return 0.0, 0
-        spread = np.maximum(self.spread[key][refs], cfg.floor_m)
-        err = np.minimum(((self.d[other][:, cols] - self.median[key][refs]) / spread) ** 2, cfg.clip)
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", RuntimeWarning)
-            return float(np.nanmean(np.nanmean(err, axis=0))), int(refs.size)
+        reference column r of ``key`` read as column ``to_other[r]`` of ``other`` (-1: not read; an identity
+        outside the junction is always read as itself)."""
+        if (key, other) not in self.tables:
+            self.tables[key, other] = self._table(key, other, cfg)
+        fixed_sum, fixed_count, member_refs, table = self.tables[key, other]
+        read = to_other[member_refs]  # (R,) the member each member reference is read as, -1: none
+        slot = np.searchsorted(self.members, read)
+        value = table[np.arange(read.size), np.minimum(slot, self.members.size - 1)]
+        value = value[(read >= 0) & np.isfinite(value)]
+        count = fixed_count + value.size
+        return ((fixed_sum + float(value.sum())) / count if count else 0.0), count
+
+    def _table(self, key: tuple[int, bool], other: tuple[int, bool], cfg: GapExchangeConfig
+               ) -> tuple[float, int, np.ndarray, np.ndarray]:
+        """(summed fit of the references outside the junction, their number, (R,) the references that are members,
+        (R, members) the fit of each read as each member, NaN where that member is not seen enough): the fit of one
+        reference is the mean over ``other``'s samples of the clipped squared error in ``key``'s spreads."""
+        refs = np.flatnonzero(self.refs[key])
+        inside = np.isin(refs, self.members)
+        fixed = refs[~inside]
+        fixed = fixed[self.count[other][fixed] >= cfg.min_samples]
+        member_refs = refs[inside]
+
+        def fit(rows: np.ndarray, columns: np.ndarray) -> np.ndarray:
+            """(R, C) mean clipped squared error of ``other``'s distances to ``columns`` (R, C) under the profile
+            of ``key``'s references ``rows`` (R,)."""
+            spread = np.maximum(self.spread[key][rows], cfg.floor_m)[:, None]
+            err = np.minimum(((self.d[other][:, columns] - self.median[key][rows][:, None]) / spread) ** 2, cfg.clip)
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore", RuntimeWarning)  # (a member never seen with the window: NaN)
+                return np.nanmean(err, axis=0)
+
+        table = fit(member_refs, np.broadcast_to(self.members, (member_refs.size, self.members.size)))
+        table[:, self.count[other][self.members] < cfg.min_samples] = np.nan
+        return float(fit(fixed, fixed[:, None]).sum()), int(fixed.size), member_refs, table
 
 
 def _score(prof: _Profiles, links: list[tuple[int, int]], members: tuple[int, ...], M: int,
