@@ -52,7 +52,7 @@ from mocap.quickstats import nanmedian_columns
 from mocap.rigid import jump_starts
 from mocap.trajectories import Trajectories
 
-__all__ = ["GapExchangeConfig", "undo_gap_exchanges"]
+__all__ = ["GapExchangeConfig", "WindowProfile", "undo_gap_exchanges"]
 
 
 @dataclass(frozen=True)
@@ -127,6 +127,35 @@ def _window(seen_col: np.ndarray, t: int, n: int, before: bool) -> np.ndarray:
     return frames[frames < t][-n:] if before else frames[frames >= t][:n]
 
 
+@dataclass(frozen=True)
+class WindowProfile:
+    """One identity's distances over a window to R others, m: ``d`` (n, R), NaN where unseen, and per other
+    identity the median, the robust spread (1.4826 MAD) and the samples seen (R,)."""
+
+    d: np.ndarray
+    median: np.ndarray
+    spread: np.ndarray
+    count: np.ndarray
+
+    @classmethod
+    def of(cls, d: np.ndarray) -> WindowProfile:
+        """The profile of distances ``d`` (n, R) m."""
+        median = nanmedian_columns(d)  # NaN: never seen
+        return cls(d, median, 1.4826 * nanmedian_columns(np.abs(d - median)), np.isfinite(d).sum(axis=0))
+
+    def steady(self, cfg: GapExchangeConfig) -> np.ndarray:
+        """(R,) bool: the references a window keeps (step 2 of the module docstring, before the other side)."""
+        with np.errstate(invalid="ignore"):
+            return (self.count >= cfg.min_samples) & (self.median <= cfg.reach_m) & (self.spread < cfg.spread_m)
+
+    def misfit(self, refs: np.ndarray, d: np.ndarray, cfg: GapExchangeConfig) -> np.ndarray:
+        """Clipped squared errors, in spreads (``floor_m`` at least), of distances ``d`` (n, R', ...) to the
+        references ``refs`` (R',) (an index or a mask of R) under this profile; NaN where unseen."""
+        shape = (-1,) + (1,) * (d.ndim - 2)
+        spread = np.maximum(self.spread[refs], cfg.floor_m).reshape(shape)
+        return np.minimum(((d - self.median[refs].reshape(shape)) / spread) ** 2, cfg.clip)
+
+
 class _Windows:
     """The four windows of a pair ``a``, ``b`` of ``P`` (F, M, 3) around frame ``t``: distances to every other
     identity, and each window's profile (median, spread, samples per reference)."""
@@ -135,27 +164,16 @@ class _Windows:
         self.pair = (a, b)
         self.refs = np.setdiff1d(np.arange(P.shape[1]), [a, b])
         self.frames = {(c, before): _window(seen[:, c], t, n, before) for c in (a, b) for before in (True, False)}
-        self.d = {key: np.linalg.norm(P[rows][:, self.refs] - P[rows, key[0]][:, None], axis=2)
-                  for key, rows in self.frames.items()}  # (n, R) m, NaN where the reference is unseen
-        self.median = {key: nanmedian_columns(d) for key, d in self.d.items()}  # NaN: a reference never seen
-        self.spread = {key: 1.4826 * nanmedian_columns(np.abs(d - self.median[key])) for key, d in self.d.items()}
-        self.count = {key: np.isfinite(d).sum(axis=0) for key, d in self.d.items()}
+        self.profile = {key: WindowProfile.of(np.linalg.norm(P[rows][:, self.refs] - P[rows, key[0]][:, None], axis=2))
+                        for key, rows in self.frames.items()}  # distances (n, R) to the references
 
     def references(self, key: tuple[int, bool], others: list[tuple[int, bool]], cfg: GapExchangeConfig
                    ) -> np.ndarray:
         """(R,) bool: window ``key``'s references (step 2 of the module docstring), seen in both ``others``."""
-        with np.errstate(invalid="ignore"):
-            ok = ((self.count[key] >= cfg.min_samples) & (self.median[key] <= cfg.reach_m)
-                  & (self.spread[key] < cfg.spread_m))
+        ok = self.profile[key].steady(cfg)
         for other in others:
-            ok &= self.count[other] >= cfg.min_samples
+            ok &= self.profile[other].count >= cfg.min_samples
         return ok
-
-    def misfit(self, key: tuple[int, bool], d: np.ndarray, ok: np.ndarray, cfg: GapExchangeConfig) -> np.ndarray:
-        """(n, R') clipped squared errors, in spreads, of distances ``d`` (n, R) to the references ``ok`` (R,) bool
-        under window ``key``'s profile; NaN where unseen."""
-        spread = np.maximum(self.spread[key][ok], cfg.floor_m)
-        return np.minimum(((d[:, ok] - self.median[key][ok]) / spread) ** 2, cfg.clip)
 
     def fits(self, cfg: GapExchangeConfig) -> tuple[float, float] | None:
         """(kept, exchanged) fits of the pair (step 3 of the module docstring); None where the two hypotheses do
@@ -177,7 +195,8 @@ class _Windows:
                 for other in others:
                     with warnings.catch_warnings():
                         warnings.simplefilter("ignore", RuntimeWarning)  # (a reference unseen throughout: NaN)
-                        per_reference = np.nanmean(self.misfit(key, self.d[other], ok, cfg), axis=0)
+                        per_reference = np.nanmean(self.profile[key].misfit(ok, self.profile[other].d[:, ok], cfg),
+                                                    axis=0)
                     scores.append((other[0] == key[0], np.nansum(per_reference), np.nanmean(per_reference), ok.sum()))
         if len(links[True]) == 2:  # every window scores both hypotheses with the same references
             return (sum(total for kept, total, _, _ in scores if kept),
@@ -194,9 +213,10 @@ class _Windows:
 def _sample_fit(win: _Windows, key: tuple[int, bool], P: np.ndarray, rows: np.ndarray, col: int,
                 cfg: GapExchangeConfig) -> np.ndarray:
     """(n,) mean clipped squared error, in spreads, of column ``col``'s samples in frames ``rows`` against window
-    ``key``'s references (:meth:`_Windows.misfit`); 0 where none is seen."""
+    ``key``'s references (:meth:`WindowProfile.misfit`); 0 where none is seen."""
     d = np.linalg.norm(P[rows][:, win.refs] - P[rows, col][:, None], axis=2)  # (n, R) m
-    err = win.misfit(key, d, win.references(key, [], cfg), cfg)
+    ok = win.references(key, [], cfg)
+    err = win.profile[key].misfit(ok, d[:, ok], cfg)
     seen = np.isfinite(err)
     return np.where(seen, err, 0.0).sum(axis=1) / np.maximum(seen.sum(axis=1), 1)
 

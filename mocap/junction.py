@@ -40,8 +40,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from mocap.gap_exchange import GapExchangeConfig
-from mocap.quickstats import nanmedian_columns
+from mocap.gap_exchange import GapExchangeConfig, WindowProfile
 from mocap.rigid import jump_starts
 from mocap.trajectories import Trajectories
 
@@ -112,30 +111,25 @@ def _junctions(events: np.ndarray, where: np.ndarray, cfg: JunctionConfig, fps: 
 
 
 class _Profiles:
-    """Windows before and after a junction (frames ``t0``, ``t1``) of its members in ``P`` (F, M, 3): distances
-    (n, M) to every identity, and each window's median, spread and samples per identity (M,)."""
+    """Windows before and after a junction (frames ``t0``, ``t1``) of its members in ``P`` (F, M, 3): each one's
+    profile of distances (n, M) to every identity (its own NaN) and its references (M,) bool."""
 
     def __init__(self, P: np.ndarray, seen: np.ndarray, members: tuple[int, ...], t0: int, t1: int, n: int,
                  cfg: GapExchangeConfig):
-        self.d, self.median, self.spread, self.count, self.refs = {}, {}, {}, {}, {}
+        self.profile: dict[tuple[int, bool], WindowProfile] = {}
+        self.refs: dict[tuple[int, bool], np.ndarray] = {}
         for c in members:
             frames = np.flatnonzero(seen[:, c])
             for before, rows in ((True, frames[(frames < t0) & (frames >= t0 - n)]),
                                  (False, frames[(frames >= t1) & (frames < t1 + n)])):
                 if rows.size < cfg.min_samples:
                     continue
-                key = (c, before)
                 d = np.linalg.norm(P[rows] - P[rows, c][:, None], axis=2)  # (n, M) m
                 d[:, c] = np.nan
-                self.d[key] = d
-                self.median[key] = nanmedian_columns(d)
-                self.spread[key] = 1.4826 * nanmedian_columns(np.abs(d - self.median[key]))
-                self.count[key] = np.isfinite(d).sum(axis=0)
-                with np.errstate(invalid="ignore"):
-                    self.refs[key] = ((self.count[key] >= cfg.min_samples) & (self.median[key] <= cfg.reach_m)
-                                      & (self.spread[key] < cfg.spread_m))
-        self.before = [c for c in members if (c, True) in self.d]
-        self.after = [c for c in members if (c, False) in self.d]
+                self.profile[c, before] = WindowProfile.of(d)
+                self.refs[c, before] = self.profile[c, before].steady(cfg)
+        self.before = [c for c in members if (c, True) in self.profile]
+        self.after = [c for c in members if (c, False) in self.profile]
         self.members = np.array(members)
         self.tables: dict[tuple[tuple[int, bool], tuple[int, bool]], tuple] = {}  # by (key, other) window
 
@@ -162,20 +156,20 @@ class _Profiles:
         refs = np.flatnonzero(self.refs[key])
         inside = np.isin(refs, self.members)
         fixed = refs[~inside]
-        fixed = fixed[self.count[other][fixed] >= cfg.min_samples]
+        seen_enough = self.profile[other].count >= cfg.min_samples  # (M,)
+        fixed = fixed[seen_enough[fixed]]
         member_refs = refs[inside]
 
         def fit(rows: np.ndarray, columns: np.ndarray) -> np.ndarray:
             """(R, C) mean clipped squared error of ``other``'s distances to ``columns`` (R, C) under the profile
             of ``key``'s references ``rows`` (R,)."""
-            spread = np.maximum(self.spread[key][rows], cfg.floor_m)[:, None]
-            err = np.minimum(((self.d[other][:, columns] - self.median[key][rows][:, None]) / spread) ** 2, cfg.clip)
+            err = self.profile[key].misfit(rows, self.profile[other].d[:, columns], cfg)
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore", RuntimeWarning)  # (a member never seen with the window: NaN)
                 return np.nanmean(err, axis=0)
 
         table = fit(member_refs, np.broadcast_to(self.members, (member_refs.size, self.members.size)))
-        table[:, self.count[other][self.members] < cfg.min_samples] = np.nan
+        table[:, ~seen_enough[self.members]] = np.nan
         return float(fit(fixed, fixed[:, None]).sum()), int(fixed.size), member_refs, table
 
 
