@@ -15,7 +15,10 @@ for every pair of identities whose gaps overlap (unseen runs inside their spans,
 the two also the ``max_gap_s`` after its last sample or before its first) and which come within ``near_m`` of each
 other around it, and for every jump of an identity (the repair's jump rule) onto a sample nearer another
 identity's sample the frame before than its own (a 50 Hz serve's wrist and finger markers, 43-98 mm apart, taking
-each other's identities between two frames), in time order (shared gaps before jumps in a frame):
+each other's identities between two frames), and for every jump of an identity in a frame where another one is in
+such a gap, near or not (a clavicle marker back from 0.9 s hidden, taken by the identity of the finger marker that
+swung past it and was lost: the two never seen within 0.5 m), in time order (shared gaps, jumps onto another's
+path, jumps into a gap in a frame):
 
 1. takes the windows: each identity's last ``window_s`` of samples before the shared gap (or the jump) and first
    after it (none after for an identity that ended, none before for one that started);
@@ -30,8 +33,9 @@ each other's identities between two frames), in time order (shared gaps before j
    the fewest references any direction has (two at least), so a window with more references weighs no more;
 4. exchanges the two identities from the gap on (to the end of the take) where ``exchanged`` is at most
    ``ratio`` times ``kept`` and below it by ``margin`` or more; where the pair has more shared gaps within the
-   window after it (a short piece of one marker between them) the exchange starts at the one that best sorts
-   the pieces between them, by their fit to the windows before.
+   window after it (a short piece of one marker between them; for an exchange found at a jump into a gap, also
+   its later such jumps) the exchange starts at the one that best sorts the pieces between them, by their fit
+   to the windows before (a piece fits no window of an identity that started at the gap: it stays).
 
 On the 61 captured takes of the repair's replays (the tennis takes with 5 % of samples hidden, the walking and
 sprint takes), where the pass runs, the exchanges the truth calls right score 0.12-0.86 times ``kept`` (those over
@@ -61,7 +65,8 @@ class GapExchangeConfig:
 
     Attributes:
         max_gap_s: gaps longer than this are not looked at, s.
-        near_m: the pair must come this near each other within a window of the shared gap, m.
+        near_m: the pair must come this near each other within a window of the shared gap (or jump onto
+            another's path), m.
         window_s: samples each window takes (at most), s of the take's frames.
         min_samples: fewest samples a window, and a reference seen with it, must have.
         reach_m: a reference is within this of its window's identity (median), m.
@@ -233,9 +238,11 @@ def _best_start(win: _Windows, P: np.ndarray, seen: np.ndarray, a: int, b: int, 
         rows = np.flatnonzero(seen[starts[0]:starts[-1], col]) + starts[0]
         if rows.size == 0:
             continue
-        # Kept before the exchange's start: fits its own window; exchanged: the other's.
+        # Kept before the exchange's start: fits its own window; exchanged: the other's (none where that identity
+        # started at the gap: the worst fit).
         own = _sample_fit(win, (col, True), P, rows, col, cfg)
-        swapped = _sample_fit(win, (other, True), P, rows, col, cfg)
+        swapped = (_sample_fit(win, (other, True), P, rows, col, cfg)
+                   if win.frames[other, True].size >= cfg.min_samples else np.full(rows.size, cfg.clip))
         piece = np.searchsorted(starts, rows, side="right")  # samples before starts[j] for j >= piece
         gain += np.array([(swapped - own)[piece <= j].sum() for j in range(starts.size)])
     return int(starts[int(np.argmax(gain))])
@@ -258,13 +265,30 @@ def _jump_pairs(P: np.ndarray, jump_acc: float, reversal_acc: float) -> np.ndarr
     return np.stack([frames, frames - 1, np.minimum(cols, other), np.maximum(cols, other)], axis=1)
 
 
+def _jumps_into_gaps(P: np.ndarray, gaps: np.ndarray, jump_acc: float, reversal_acc: float) -> np.ndarray:
+    """(L, 4) int: (frame, frame, column a, column b), a < b, for every jump of an identity of ``P`` (F, M, 3)
+    (:func:`mocap.rigid.jump_starts`) in a frame where another identity is in one of its ``gaps`` (K, 4) (a
+    marker back from a gap, or out of a swing, taken by an identity that jumped to it, where its own had ended)."""
+    frames, cols = np.nonzero(jump_starts(P, jump_acc, reversal_acc))
+    if frames.size == 0 or gaps.size == 0:
+        return np.zeros((0, 4), dtype=np.intp)
+    inside = (gaps[None, :, 1] <= frames[:, None]) & (frames[:, None] <= gaps[None, :, 2])  # (J, K)
+    j, k = np.nonzero(inside & (gaps[None, :, 0] != cols[:, None]))
+    a, b = np.minimum(cols[j], gaps[k, 0]), np.maximum(cols[j], gaps[k, 0])
+    return np.unique(np.stack([frames[j], frames[j], a, b], axis=1), axis=0)
+
+
 def _candidates(P: np.ndarray, max_len: int, jump: tuple[float, float]) -> list[tuple[int, int, int, int, int]]:
-    """(first frame, kind, column a, column b, last frame) of every shared gap (kind 0) and jump onto another's
-    path (kind 1) of ``P`` (F, M, 3), in time order, shared gaps first in a frame."""
-    shared = _shared_gaps(_gaps(np.isfinite(P[..., 0]), max_len))
-    jumps = _jump_pairs(P, *jump) if np.isfinite(jump).any() else np.zeros((0, 4), dtype=np.intp)
-    rows = np.concatenate([shared, jumps])
-    kind = np.r_[np.zeros(len(shared), dtype=np.intp), np.ones(len(jumps), dtype=np.intp)]
+    """(first frame, kind, column a, column b, last frame) of every shared gap (kind 0), jump onto another's
+    path (kind 1) and jump while another is in a gap (kind 2) of ``P`` (F, M, 3), in time order, by kind in a
+    frame."""
+    gaps = _gaps(np.isfinite(P[..., 0]), max_len)
+    shared = _shared_gaps(gaps)
+    none = np.zeros((0, 4), dtype=np.intp)
+    jumps = _jump_pairs(P, *jump) if np.isfinite(jump).any() else none
+    into = _jumps_into_gaps(P, gaps, *jump) if np.isfinite(jump).any() else none
+    rows = np.concatenate([shared, jumps, into]).astype(np.intp)
+    kind = np.repeat(np.arange(3), [len(shared), len(jumps), len(into)])
     order = np.lexsort((rows[:, 3], rows[:, 2], kind, rows[:, 0]))
     return [(int(r[0]), int(k), int(r[2]), int(r[3]), int(r[1])) for r, k in zip(rows[order], kind[order], strict=True)]
 
@@ -292,14 +316,15 @@ def undo_gap_exchanges(traj: Trajectories, config: GapExchangeConfig | None = No
             lo, hi = max(0, t - n), min(F, max(t, last) + n + 1)
             with np.errstate(invalid="ignore"):
                 near = np.linalg.norm(P[lo:hi, a] - P[lo:hi, b], axis=1) < cfg.near_m
-            if not near.any():
+            if kind != 2 and not near.any():
                 continue
             win = _Windows(P, seen, a, b, t, n)
             fits = win.fits(cfg)
             if fits is None or fits[1] > cfg.ratio * fits[0] or fits[0] - fits[1] < cfg.margin:
                 continue
             after = max(rows[-1] for (_, before), rows in win.frames.items() if not before and rows.size)
-            starts = np.unique([c[0] for c in candidates if c[2:4] == (a, b) and t <= c[0] <= after])
+            starts = np.unique([c[0] for c in candidates  # (jumps into a gap: only for an exchange of one)
+                                if c[2:4] == (a, b) and (c[1] != 2 or kind == 2) and t <= c[0] <= after])
             start = _best_start(win, P, seen, a, b, starts, cfg)
             traj.permute_tails(start, [b, a], [a, b])
             undone += 1

@@ -114,3 +114,19 @@ def test_two_markers_exchanged_between_consecutive_frames_by_a_jump_get_theirs_b
     assert undo_gap_exchanges(traj) == 0  # (gaps only)
     assert undo_gap_exchanges(traj, jump_acc=0.02) == 1
     np.testing.assert_array_equal(traj.positions, truth)
+
+
+def test_a_marker_taken_by_a_far_identity_that_jumped_to_it_returns_to_its_own_ended_identity():
+    """Marker 0's identity ends at frame 300 (marker 0 hidden to 339); at 340 marker 6, 0.6 m away on the same body
+    with its own neighbours 7 and 8, is hidden and its identity jumps onto marker 0. The two were never seen near
+    each other: the jump, with marker 0's identity in its gap, makes them a pair."""
+    far = np.array([[0.6, 0.0, 0.0], [0.65, 0.05, 0.02], [0.58, -0.06, 0.05]])
+    truth = _segment(np.concatenate([SHANK, far]))
+    P = truth.copy()
+    P[300:, 0] = np.nan
+    P[340:, 6] = truth[340:, 0]
+    traj = Trajectories([f"M{k + 1:03d}" for k in range(truth.shape[1])], FPS, P)
+    assert undo_gap_exchanges(traj) == 0  # (gaps only)
+    assert undo_gap_exchanges(traj, jump_acc=0.02) == 1
+    np.testing.assert_array_equal(traj.positions[340:, 0], truth[340:, 0])
+    assert np.isnan(traj.positions[340:, 6]).all() and np.isnan(traj.positions[300:340, 0]).all()
