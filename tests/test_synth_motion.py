@@ -10,7 +10,7 @@ from mocap.export.c3d import read_c3d, write_c3d
 from mocap.export.csv import write_csv
 from mocap.export.trc import read_trc, write_trc
 from mocap.synth.body import MARKERS, marching_body, marching_motion
-from mocap.synth.motion import UP_AXES, detect_up_axis, load_motion, motion_from_file
+from mocap.synth.motion import FOOT_LABEL, UP_AXES, detect_up_axis, load_motion, motion_from_file
 from mocap.synth.occlusion import Capsules, capsules_from_markers, occluded, segment_distance
 from mocap.trajectories import Trajectories
 from tests.conftest import require_shared_data
@@ -55,6 +55,20 @@ def test_up_axis_is_detected_for_every_orientation(up):
     assert detect_up_axis(body.positions @ UP_AXES[up], body.labels) == up
 
 
+def test_a_treadmill_walker_whose_feet_move_more_than_the_head_stands_upright():
+    """On a treadmill the belt moves the foot in stance while the head stays put: the floor-at-rest cue says the
+    feet are up (unlabelled markers), the labels (head, shoulders, feet) say otherwise, for every file axis."""
+    body = marching_motion(240, seed=4)
+    feet = [i for i, label in enumerate(body.labels) if FOOT_LABEL.match(label)]
+    assert len(feet) >= 4
+    treadmill = body.positions.copy()
+    t = np.arange(240) / body.fps
+    treadmill[:, feet, 0] += (0.6 * (t % 1.0))[:, None]  # the belt pulls the feet back at 0.6 m/s
+    assert detect_up_axis(treadmill) == "-z"  # (no labels: the moving end is taken for the top)
+    for up in ("z", "-y", "x"):
+        assert detect_up_axis(treadmill @ UP_AXES[up], body.labels) == up
+
+
 def test_y_up_millimetre_file_with_gaps_round_trips(tmp_path):
     labels, fps, z_up = marching_body(200, fps=100, n_markers=30, seed=2)
     z_up = z_up + [1.5, -2.0, 0.0]
@@ -69,6 +83,33 @@ def test_y_up_millimetre_file_with_gaps_round_trips(tmp_path):
     assert offset[2] == pytest.approx(0.0, abs=1e-6)  # the floor was already at z = 0
     forced = motion_from_file(tmp_path / "yup.c3d", up="y")
     assert forced.info["up_axis"] == "y" and forced.info["up_axis_from"] == "--up"
+
+
+def test_points_a_c3d_names_as_model_outputs_are_not_filmed(tmp_path, caplog):
+    """A Vicon Nexus C3D stores joint angles and forces as points (degrees and newtons read as millimetres) and
+    lists them in POINT:ANGLES, POINT:FORCES, ... (and any group POINT:TYPE_GROUPS names): only the markers are
+    filmed."""
+    ezc3d = pytest.importorskip("ezc3d")
+    labels, fps, markers = marching_body(120, fps=100, n_markers=12, seed=4)
+    extra = ["LHipAngles", "LGroundReactionForce", "PELO"]
+    points = np.concatenate([markers * 1000.0, np.tile([[[16.0, -1.0, 3.0]]], (120, 3, 1))], axis=1)  # (F, M, 3) mm
+    c3d = ezc3d.c3d()
+    c3d["parameters"]["POINT"]["RATE"]["value"] = [fps]
+    c3d["parameters"]["POINT"]["LABELS"]["value"] = labels + extra
+    c3d["parameters"]["POINT"]["UNITS"]["value"] = ["mm"]
+    c3d.add_parameter("POINT", "ANGLES", ["LHipAngles"])
+    c3d.add_parameter("POINT", "FORCES", ["LGroundReactionForce"])
+    c3d.add_parameter("POINT", "TYPE_GROUPS", ["ANGLES", "ANGLE", "FORCES", "FORCE", "BONES", "BONE"])
+    c3d.add_parameter("POINT", "BONES", ["PELO"])
+    data = np.ones((4, points.shape[1], points.shape[0]))
+    data[:3] = np.transpose(points, (2, 1, 0))
+    c3d["data"]["points"] = data
+    c3d.write(str(tmp_path / "nexus.c3d"))
+    assert read_c3d(tmp_path / "nexus.c3d").metadata["not_markers"] == extra
+    with caplog.at_level("INFO"):
+        motion = motion_from_file(tmp_path / "nexus.c3d", up="z")
+    assert motion.labels == labels and motion.positions.shape == (120, 12, 3)
+    assert motion.info["points_dropped_not_markers"] == 3 and "model outputs" in caplog.text
 
 
 @pytest.mark.parametrize(("suffix", "writer"), [(".trc", write_trc), (".csv", write_csv)])

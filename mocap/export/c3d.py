@@ -221,5 +221,20 @@ def read_c3d(path: str | os.PathLike) -> Trajectories:
     residuals = np.where(invalid, np.nan, residuals)
     masks[invalid] = 0
     cameras = params.get("CAMERAS", {}).get("value", [])
-    return Trajectories(labels, fps, positions, residuals, masks, [str(c) for c in cameras], first,
-                        {"units": units})
+    metadata = {"units": units, "not_markers": _not_markers(params, labels)}
+    return Trajectories(labels, fps, positions, residuals, masks, [str(c) for c in cameras], first, metadata)
+
+
+# POINT parameters that name the points a modelling package stored that are not markers (Vicon Nexus writes joint
+# angles, forces, moments and powers as points, and its model's copies of markers as modelled markers).
+NOT_MARKER_GROUPS = ("ANGLES", "FORCES", "MOMENTS", "POWERS", "SCALARS", "REACTIONS", "MODELED_MARKERS")
+
+
+def _not_markers(params: dict, labels: list[str]) -> list[str]:
+    """Labels (of ``labels``) that the POINT parameters ``params`` name as model outputs, not markers: those listed
+    by the parameters of :data:`NOT_MARKER_GROUPS` and of POINT:TYPE_GROUPS (name, type pairs)."""
+    groups = set(NOT_MARKER_GROUPS)
+    type_groups = [str(v).strip().upper() for v in params.get("TYPE_GROUPS", {}).get("value", [])]
+    groups.update(type_groups[0::2])
+    named = {str(v).strip() for group in groups for v in params.get(group, {}).get("value", [])}
+    return [label for label in labels if label in named]

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import logging
 import os
+import re
 import warnings
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -143,9 +144,13 @@ def detect_up_axis(positions: np.ndarray, labels: list[str] | None = None) -> st
     Axis: people are taller than they are wide, and a take's samples hug the floor. Per subject
     (``Subject:`` label prefixes, so two people far apart do not count as one wide body) and frame,
     the extent of the markers along each axis is measured; the up axis has the largest median
-    extent. Sign: the floor is where things rest. The marker lowest along the up axis in each
+    extent. Sign: where the labels name head or shoulder markers and foot markers (LFHD, C7,
+    AcromionL; LHEE, RTOE, LMT5: :data:`UPPER_LABEL`, :data:`FOOT_LABEL`), the head is up if the
+    two groups' mean heights differ by a quarter of the body's extent. Else the floor is where
+    things rest. The marker lowest along the up axis in each
     frame (a foot in stance, a wheelchair frame) moves much less than the highest one (head,
-    hands): the median speeds of the two ends decide if they differ by 30 %. Else the floor is
+    hands): the median speeds of the two ends decide if they differ by 30 % (not on a treadmill,
+    whose belt moves the foot in stance: hence the labels first). Else the floor is
     a hard edge: the lowest 5 % of the samples span a shorter distance than the highest 5 % (by
     50 % or more). Else the side of the origin where the samples lie decides (labs put the origin
     on the floor).
@@ -172,13 +177,37 @@ def detect_up_axis(positions: np.ndarray, labels: list[str] | None = None) -> st
         if not np.isfinite(extent).all():
             raise MocapError("too few marker samples to tell which axis is up; pass --up")
         axis = int(np.argmax(extent))
-        sign = _floor_side(positions, axis)
+        sign = _label_side(positions, labels, axis, extent[axis]) or _floor_side(positions, axis)
     up = ("" if sign > 0 else "-") + "xyz"[axis]
     second = np.sort(extent)[-2]
     if extent[axis] < UNSURE_EXTENT_RATIO * second:  # an upper-body marker set reaching forward: as wide as tall
         log.warning("the up axis is a guess: the markers span %s m along x, y, z (the tallest axis is taken as up, "
                     "%s); pass --up if the rendered subject lies on its side", np.round(extent, 2).tolist(), up)
     return up
+
+
+# Marker names (after any "Subject:" prefix, any case) of the head and shoulders, and of the feet, in the usual
+# marker sets (Plug-in Gait, ISB, OptiTrack's skeletons): LFHD, C7, CLAV, AcromionL, EarL; LHEE, RTOE, LMT5, LLM.
+UPPER_LABEL = re.compile(r"^([LR]?(FHD|BHD|HEAD|EAR|TEMPLE|ACR[A-Z]*|SHO)|C7|CLAV|STRN|JN|FOREHEAD)[LR]?$")
+FOOT_LABEL = re.compile(r"^([LR]?(HEE[A-Z]*|TOE|ANK[A-Z]*|MT[1-5]|MTP[1-5]?|LM|MM|CAL[A-Z]*)|FOOT[A-Z_0-9]*)[LR]?$")
+
+
+def _label_side(positions: np.ndarray, labels: list[str], axis: int, extent: float) -> float | None:
+    """+1 if the markers ``labels`` (M,) names as head or shoulders lie above those it names as feet along
+    ``axis`` of (F, M, 3) ``positions`` by a quarter of ``extent`` (median over frames), -1 if below; None where
+    the labels name no two such groups or their heights do not tell."""
+    names = [label.rsplit(":", 1)[-1].strip().upper() for label in labels]
+    upper = [i for i, name in enumerate(names) if UPPER_LABEL.match(name)]
+    feet = [i for i, name in enumerate(names) if FOOT_LABEL.match(name)]
+    if not upper or not feet:
+        return None
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # (frames with either group hidden: NaN)
+        heights = positions[..., axis]
+        above = np.nanmedian(np.nanmean(heights[:, upper], axis=1) - np.nanmean(heights[:, feet], axis=1))
+    if not np.isfinite(above) or abs(above) < 0.25 * extent:
+        return None
+    return 1.0 if above > 0 else -1.0
 
 
 def _floor_side(positions: np.ndarray, axis: int) -> float:
@@ -252,7 +281,14 @@ def motion_from_file(path: str | os.PathLike, up: str | None = None) -> Motion:
     valid = traj.valid
     if not valid.any():
         raise MocapError(f"{path}: every marker sample is missing (all gaps); nothing to render")
-    keep = valid.any(axis=0)
+    not_markers = np.isin(traj.labels, traj.metadata.get("not_markers", []))
+    if not_markers.any():
+        log.info("%s: %d of its %d points are model outputs (angles, forces, moments, powers, modelled markers), "
+                 "not markers: not filmed", path, int(not_markers.sum()), traj.n_markers)
+        if not_markers.all():
+            raise MocapError(f"{path}: every point of the file is a model output (angles, forces, ...), none a "
+                             "marker; give the file with the markers' trajectories")
+    keep = valid.any(axis=0) & ~not_markers
     labels = [label for label, k in zip(traj.labels, keep, strict=True) if k]
     raw = traj.positions[:, keep]
     source = "--up"
@@ -264,6 +300,7 @@ def motion_from_file(path: str | os.PathLike, up: str | None = None) -> Motion:
         source = "detected"
     positions, shift = _centre(to_z_up(raw, up))
     info = {"source": str(path), "source_fps": traj.fps, "up_axis": up, "up_axis_from": source,
-            "shift_m": shift.tolist(), "markers_dropped_never_seen": int((~keep).sum()),
+            "shift_m": shift.tolist(), "markers_dropped_never_seen": int((~valid.any(axis=0) & ~not_markers).sum()),
+            "points_dropped_not_markers": int(not_markers.sum()),
             "missing_fraction": float(1 - valid[:, keep].mean())}
     return Motion(labels, traj.fps, positions, None, info)
