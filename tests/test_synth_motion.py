@@ -55,6 +55,22 @@ def test_up_axis_is_detected_for_every_orientation(up):
     assert detect_up_axis(body.positions @ UP_AXES[up], body.labels) == up
 
 
+def test_a_point_that_copies_another_in_every_frame_is_filmed_once(tmp_path, caplog):
+    """Two labels of one point (markers.trc's STER and STERr; a Nexus model's LFOO and LTOP) would be two truth
+    markers in one blob: the copy is dropped; a point 5 mm from another, or with it in some frames only, is not."""
+    labels, fps, markers = marching_body(100, fps=100, n_markers=12, seed=5)
+    near = markers[:, 3] + [0.005, 0.0, 0.0]
+    partly = markers[:, 4].copy()
+    partly[50:] += [0.0, 0.03, 0.0]
+    points = np.concatenate([markers, markers[:, [2]], near[:, None], partly[:, None]], axis=1)
+    points[:20, 12] = np.nan  # (a gap in the copy: it still copies where it is seen)
+    write_c3d(Trajectories(labels + ["copy2", "near3", "partly4"], fps, points), tmp_path / "copies.c3d")
+    with caplog.at_level("INFO"):
+        motion = motion_from_file(tmp_path / "copies.c3d", up="z")
+    assert motion.labels == labels + ["near3", "partly4"] and motion.info["points_dropped_copies"] == 1
+    assert "copy2" in caplog.text
+
+
 def test_a_treadmill_walker_whose_feet_move_more_than_the_head_stands_upright():
     """On a treadmill the belt moves the foot in stance while the head stays put: the floor-at-rest cue says the
     feet are up (unlabelled markers), the labels (head, shoulders, feet) say otherwise, for every file axis."""
@@ -133,7 +149,8 @@ def test_real_trc_file_loads_and_an_unsure_up_axis_is_reported(caplog):
         motion_from_file(path)
     assert "the up axis is a guess" in caplog.text
     motion = motion_from_file(path, up="z")
-    assert motion.labels == raw.labels and motion.fps == 100.0 and motion.n_frames == raw.n_frames
+    assert motion.labels == [label for label in raw.labels if label != "STERr"]  # (STER's copy in the file)
+    assert motion.fps == 100.0 and motion.n_frames == raw.n_frames
     sternum, hip = (motion.positions[:, motion.labels.index(n), 2] for n in ("STER", "ASISl"))
     assert np.median(sternum - hip) > 0.3  # the sternum 40 cm above the pelvis
 

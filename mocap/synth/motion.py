@@ -35,6 +35,7 @@ UP_AXES: dict[str, np.ndarray] = {
 }
 UNSURE_EXTENT_RATIO = 1.25  # up is a guess when no axis spans this many times the next one
 FLOOR_SNAP_M = 0.15  # a detected floor further than this from z = 0 is moved to z = 0
+COPY_M = 0.001  # a point this near another in every frame is a copy of it (a marker named twice)
 
 
 @dataclass(eq=False)
@@ -253,6 +254,27 @@ def _centre(positions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return positions + shift, shift
 
 
+def _copies(positions: np.ndarray, keep: np.ndarray, within_m: float = COPY_M, probe_frames: int = 200
+            ) -> np.ndarray:
+    """(M,) bool: the points of ``positions`` (F, M, 3) m among ``keep`` (M,) that lie within ``within_m`` of an
+    earlier kept point in every frame both are seen (one or more): copies, not markers. Candidates come from
+    ``probe_frames`` frames spread over the take, each one is then checked on every frame."""
+    cols = np.flatnonzero(keep)
+    rows = np.unique(np.linspace(0, len(positions) - 1, min(len(positions), probe_frames)).astype(int))
+    probe = positions[rows][:, cols]
+    with warnings.catch_warnings(), np.errstate(invalid="ignore"):
+        warnings.simplefilter("ignore", RuntimeWarning)  # (pairs never seen together: NaN)
+        worst = np.nanmax(np.linalg.norm(probe[:, :, None] - probe[:, None], axis=3), axis=0)  # (K, K)
+    copies = np.zeros(len(keep), dtype=bool)
+    for a, b in zip(*np.nonzero(np.triu(worst < within_m, 1)), strict=True):
+        if copies[cols[a]]:
+            continue
+        gap = np.linalg.norm(positions[:, cols[a]] - positions[:, cols[b]], axis=1)
+        both = np.isfinite(gap)
+        copies[cols[b]] |= bool(both.any() and gap[both].max() < within_m)
+    return copies
+
+
 def load_motion(path: str | os.PathLike, up: str | None = None) -> tuple[list[str], float, np.ndarray]:
     """Marker motion from a C3D, TRC or Motive CSV file, in the synthetic world frame.
 
@@ -289,6 +311,11 @@ def motion_from_file(path: str | os.PathLike, up: str | None = None) -> Motion:
             raise MocapError(f"{path}: every point of the file is a model output (angles, forces, ...), none a "
                              "marker; give the file with the markers' trajectories")
     keep = valid.any(axis=0) & ~not_markers
+    copies = _copies(traj.positions, keep)
+    if copies.any():
+        log.info("%s: %d point(s) coincide with another in every frame (a marker named twice), not filmed twice: %s",
+                 path, int(copies.sum()), ", ".join(label for label, c in zip(traj.labels, copies, strict=True) if c))
+    keep &= ~copies
     labels = [label for label, k in zip(traj.labels, keep, strict=True) if k]
     raw = traj.positions[:, keep]
     source = "--up"
@@ -301,6 +328,6 @@ def motion_from_file(path: str | os.PathLike, up: str | None = None) -> Motion:
     positions, shift = _centre(to_z_up(raw, up))
     info = {"source": str(path), "source_fps": traj.fps, "up_axis": up, "up_axis_from": source,
             "shift_m": shift.tolist(), "markers_dropped_never_seen": int((~valid.any(axis=0) & ~not_markers).sum()),
-            "points_dropped_not_markers": int(not_markers.sum()),
+            "points_dropped_not_markers": int(not_markers.sum()), "points_dropped_copies": int(copies.sum()),
             "missing_fraction": float(1 - valid[:, keep].mean())}
     return Motion(labels, traj.fps, positions, None, info)
