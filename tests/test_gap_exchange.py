@@ -130,3 +130,17 @@ def test_a_marker_taken_by_a_far_identity_that_jumped_to_it_returns_to_its_own_e
     assert undo_gap_exchanges(traj, jump_acc=0.02) == 1
     np.testing.assert_array_equal(traj.positions[340:, 0], truth[340:, 0])
     assert np.isnan(traj.positions[340:, 6]).all() and np.isnan(traj.positions[300:340, 0]).all()
+
+
+def test_two_markers_0_6_m_apart_back_from_a_shared_gap_exchanged_get_theirs_back():
+    """A wrist and a shoulder marker 0.6 m apart (as a 50 Hz serving arm's, which moves a metre in a gap), each with
+    its own neighbours, both hidden over frames 300-329 and back each under the other's identity."""
+    far = np.array([[0.6, 0.0, 0.0], [0.65, 0.05, 0.02], [0.58, -0.06, 0.05]])
+    truth = _segment(np.concatenate([SHANK, far]))
+    P = truth.copy()
+    P[300:330, [0, 6]] = np.nan
+    P[330:, [0, 6]] = P[330:, [6, 0]]
+    traj = Trajectories([f"M{k + 1:03d}" for k in range(truth.shape[1])], FPS, P)
+    assert undo_gap_exchanges(traj) == 1
+    seen = np.isfinite(traj.positions[..., 0])
+    np.testing.assert_array_equal(traj.positions[seen], truth[seen])
