@@ -221,7 +221,10 @@ def read_c3d(path: str | os.PathLike) -> Trajectories:
     residuals = np.where(invalid, np.nan, residuals)
     masks[invalid] = 0
     cameras = params.get("CAMERAS", {}).get("value", [])
-    metadata = {"units": units, "not_markers": _not_markers(params, labels)}
+    metadata: dict = {"units": units}
+    not_markers = _not_markers(params, labels)
+    if not_markers:  # (model outputs stored as points: mocap synth does not film them)
+        metadata["not_markers"] = not_markers
     return Trajectories(labels, fps, positions, residuals, masks, [str(c) for c in cameras], first, metadata)
 
 
