@@ -48,6 +48,16 @@ def test_two_markers_30_mm_apart_that_take_turns_are_not_merged():
     np.testing.assert_array_equal(traj.positions, before)
 
 
+def test_a_marker_with_two_neighbours_under_two_identities_taking_turns_is_merged():
+    """A knee marker has two neighbours within 0.25 m (the thigh's and the shin's): taking turns (A, B, A) is
+    evidence enough with two; two markers 30 mm apart with the same two neighbours are still told apart."""
+    for first, second, merged in ((0, 0, 1), (0, 1, 0)):
+        traj, truth = _turns(first, second)
+        traj.positions[:, 4] = np.nan
+        assert merge_alternating(traj, turn_neighbours=3) == 0
+        assert merge_alternating(traj) == merged
+
+
 def _rotated_about(p: np.ndarray, a: np.ndarray, b: np.ndarray, angle: float) -> np.ndarray:
     """(F, 3) points ``p`` turned by ``angle`` rad about the lines through ``a`` and ``b`` (F, 3): their distances to
     ``a`` and ``b`` kept."""
