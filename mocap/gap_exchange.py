@@ -17,8 +17,7 @@ other around it, and for every jump of an identity (the repair's jump rule) onto
 identity's sample the frame before than its own (a 50 Hz serve's wrist and finger markers, 43-98 mm apart, taking
 each other's identities between two frames), and for every jump of an identity in a frame where another one is in
 such a gap, near or not (a clavicle marker back from 0.9 s hidden, taken by the identity of the finger marker that
-swung past it and was lost), in time order (shared gaps, jumps onto another's
-path, jumps into a gap in a frame):
+swung past it and was lost), in time order (shared gaps, jumps onto another's path, jumps into a gap in a frame):
 
 1. takes the windows: each identity's last ``window_s`` of samples before the shared gap (or the jump) and first
    after it (none after for an identity that ended, none before for one that started);
@@ -249,11 +248,10 @@ def _best_start(win: _Windows, P: np.ndarray, seen: np.ndarray, a: int, b: int, 
     return int(starts[int(np.argmax(gain))])
 
 
-def _jump_pairs(P: np.ndarray, jump_acc: float, reversal_acc: float) -> np.ndarray:
-    """(L, 4) int: (frame, frame before, column a, column b), a < b, for every jump of an identity of ``P`` (F, M,
-    3) (:func:`mocap.rigid.jump_starts`) onto a sample nearer another identity's sample the frame before than its
-    own: that one (the nearest)."""
-    frames, cols = np.nonzero(jump_starts(P, jump_acc, reversal_acc))
+def _jump_pairs(P: np.ndarray, frames: np.ndarray, cols: np.ndarray) -> np.ndarray:
+    """(L, 4) int: (frame, frame before, column a, column b), a < b, for every jump (``frames``, ``cols``: the
+    samples :func:`mocap.rigid.jump_starts` marks) of an identity of ``P`` (F, M, 3) onto a sample nearer another
+    identity's sample the frame before than its own: that one (the nearest)."""
     if frames.size == 0:
         return np.zeros((0, 4), dtype=np.intp)
     d = np.linalg.norm(P[frames - 1] - P[frames, cols][:, None], axis=2)  # (K, M) m
@@ -266,11 +264,10 @@ def _jump_pairs(P: np.ndarray, jump_acc: float, reversal_acc: float) -> np.ndarr
     return np.stack([frames, frames - 1, np.minimum(cols, other), np.maximum(cols, other)], axis=1)
 
 
-def _jumps_into_gaps(P: np.ndarray, gaps: np.ndarray, jump_acc: float, reversal_acc: float) -> np.ndarray:
-    """(L, 4) int: (frame, frame, column a, column b), a < b, for every jump of an identity of ``P`` (F, M, 3)
-    (:func:`mocap.rigid.jump_starts`) in a frame where another identity is in one of its ``gaps`` (K, 4) (a
-    marker back from a gap, or out of a swing, taken by an identity that jumped to it, where its own had ended)."""
-    frames, cols = np.nonzero(jump_starts(P, jump_acc, reversal_acc))
+def _jumps_into_gaps(frames: np.ndarray, cols: np.ndarray, gaps: np.ndarray) -> np.ndarray:
+    """(L, 4) int: (frame, frame, column a, column b), a < b, for every jump (``frames``, ``cols``) of an identity
+    in a frame where another identity is in one of its ``gaps`` (K, 4) (a marker back from a gap, or out of a
+    swing, taken by an identity that jumped to it, where its own had ended)."""
     if frames.size == 0 or gaps.size == 0:
         return np.zeros((0, 4), dtype=np.intp)
     inside = (gaps[None, :, 1] <= frames[:, None]) & (frames[:, None] <= gaps[None, :, 2])  # (J, K)
@@ -282,12 +279,12 @@ def _jumps_into_gaps(P: np.ndarray, gaps: np.ndarray, jump_acc: float, reversal_
 def _candidates(P: np.ndarray, max_len: int, jump: tuple[float, float]) -> list[tuple[int, int, int, int, int]]:
     """(first frame, kind, column a, column b, last frame) of every shared gap (kind 0), jump onto another's
     path (kind 1) and jump while another is in a gap (kind 2) of ``P`` (F, M, 3), in time order, by kind in a
-    frame."""
+    frame; ``jump``: the jump rule's accelerations (inf: gaps only)."""
     gaps = _gaps(np.isfinite(P[..., 0]), max_len)
     shared = _shared_gaps(gaps)
-    none = np.zeros((0, 4), dtype=np.intp)
-    jumps = _jump_pairs(P, *jump) if np.isfinite(jump).any() else none
-    into = _jumps_into_gaps(P, gaps, *jump) if np.isfinite(jump).any() else none
+    frames, cols = np.nonzero(jump_starts(P, *jump)) if np.isfinite(jump).any() else (np.zeros(0, np.intp),) * 2
+    jumps = _jump_pairs(P, frames, cols)
+    into = _jumps_into_gaps(frames, cols, gaps)
     rows = np.concatenate([shared, jumps, into]).astype(np.intp)
     kind = np.repeat(np.arange(3), [len(shared), len(jumps), len(into)])
     order = np.lexsort((rows[:, 3], rows[:, 2], kind, rows[:, 0]))
@@ -314,11 +311,11 @@ def undo_gap_exchanges(traj: Trajectories, config: GapExchangeConfig | None = No
             if (t, kind, a, b) <= done_upto:
                 continue
             done_upto = (t, kind, a, b)
-            lo, hi = max(0, t - n), min(F, max(t, last) + n + 1)
-            with np.errstate(invalid="ignore"):
-                near = np.linalg.norm(P[lo:hi, a] - P[lo:hi, b], axis=1) < cfg.near_m
-            if kind != 2 and not near.any():
-                continue
+            if kind != 2:  # (a jump into a gap pairs the two however far apart)
+                lo, hi = max(0, t - n), min(F, max(t, last) + n + 1)
+                with np.errstate(invalid="ignore"):
+                    if not (np.linalg.norm(P[lo:hi, a] - P[lo:hi, b], axis=1) < cfg.near_m).any():
+                        continue
             win = _Windows(P, seen, a, b, t, n)
             fits = win.fits(cfg)
             if fits is None or fits[1] > cfg.ratio * fits[0] or fits[0] - fits[1] < cfg.margin:

@@ -310,7 +310,8 @@ def motion_from_file(path: str | os.PathLike, up: str | None = None) -> Motion:
         if not_markers.all():
             raise MocapError(f"{path}: every point of the file is a model output (angles, forces, ...), none a "
                              "marker; give the file with the markers' trajectories")
-    keep = valid.any(axis=0) & ~not_markers
+    seen_ever = valid.any(axis=0)
+    keep = seen_ever & ~not_markers
     copies = _copies(traj.positions, keep)
     if copies.any():
         log.info("%s: %d point(s) coincide with another in every frame (a marker named twice), not filmed twice: %s",
@@ -327,7 +328,7 @@ def motion_from_file(path: str | os.PathLike, up: str | None = None) -> Motion:
         source = "detected"
     positions, shift = _centre(to_z_up(raw, up))
     info = {"source": str(path), "source_fps": traj.fps, "up_axis": up, "up_axis_from": source,
-            "shift_m": shift.tolist(), "markers_dropped_never_seen": int((~valid.any(axis=0) & ~not_markers).sum()),
+            "shift_m": shift.tolist(), "markers_dropped_never_seen": int((~seen_ever & ~not_markers).sum()),
             "points_dropped_not_markers": int(not_markers.sum()), "points_dropped_copies": int(copies.sum()),
             "missing_fraction": float(1 - valid[:, keep].mean())}
     return Motion(labels, traj.fps, positions, None, info)
