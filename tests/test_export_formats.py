@@ -85,6 +85,18 @@ def test_trc_reader_takes_the_comma_separated_pyomeca_file():
     np.testing.assert_array_equal(traj.positions[0, 0], np.array([float(v) for v in first[2:5]]) * 1e-3)
 
 
+def test_trc_header_with_two_tabs_between_values_is_read_by_name(traj, tmp_path):
+    """OpenSim's example files (Moco's markers_walk.trc) space the header's values with two tabs and pad them, where
+    the names have one: the values pair with the names by order, not by column."""
+    write_trc(traj, tmp_path / "a.trc", units="cm")
+    lines = (tmp_path / "a.trc").read_text().splitlines()
+    lines[2] = "\t\t".join(f"  {v}" for v in lines[2].split("\t"))
+    (tmp_path / "b.trc").write_text("\n".join(lines) + "\n")
+    back = read_trc(tmp_path / "b.trc")
+    assert back.metadata["units"] == "cm"
+    assert_same_samples(back, traj, rtol=5e-16)
+
+
 @pytest.mark.parametrize("y_up", [False, True])
 def test_csv_round_trip_and_motive_layout(traj, tmp_path, y_up):
     write_csv(traj, tmp_path / "a.csv", units="Meters", y_up=y_up)

@@ -89,9 +89,7 @@ def read_trc(path: str | os.PathLike, y_up: bool = False) -> Trajectories:
         raise MocapError(f"{path}: not a TRC file (the first line should start with 'PathFileType' and the "
                          f"header has 5 lines)")
     delimiter = "\t" if "\t" in lines[0] else ","
-    keys = [k.strip() for k in lines[1].split(delimiter)]
-    values = [v.strip() for v in lines[2].split(delimiter)]
-    header = dict(zip(keys, values, strict=False))
+    header = _header(lines[1], lines[2], delimiter)
     try:
         fps = float(header.get("DataRate") or header["CameraRate"])
     except (KeyError, ValueError):
@@ -123,6 +121,24 @@ def read_trc(path: str | os.PathLike, y_up: bool = False) -> Trajectories:
         log.info("%s: header says NumFrames %s, the file holds %d rows; using the rows", path,
                  header.get("NumFrames"), len(rows))
     return Trajectories(labels, fps, positions, first_frame=first - 1, metadata={"units": units})
+
+
+def _header(keys_line: str, values_line: str, delimiter: str) -> dict[str, str]:
+    """The header's names (line 2) mapped to their values (line 3). Field by field where both lines have as many
+    fields (trailing empty ones aside); otherwise their non-empty fields, where those pair up (OpenSim's files
+    put two tabs between values and one between names)."""
+    def fields(line: str) -> list[str]:
+        out = [field.strip() for field in line.split(delimiter)]
+        while out and not out[-1]:
+            out.pop()
+        return out
+
+    keys, values = fields(keys_line), fields(values_line)
+    if len(keys) != len(values):
+        filled_keys, filled_values = [k for k in keys if k], [v for v in values if v]
+        if len(filled_keys) == len(filled_values):
+            keys, values = filled_keys, filled_values
+    return dict(zip(keys, values, strict=False))
 
 
 def _frame_numbers(column: np.ndarray, path: Path) -> np.ndarray:
