@@ -56,8 +56,8 @@ def test_up_axis_is_detected_for_every_orientation(up):
 
 
 def test_a_point_that_copies_another_in_every_frame_is_filmed_once(tmp_path, caplog):
-    """Two labels of one point (markers.trc's STER and STERr; a Nexus model's LFOO and LTOP) would be two truth
-    markers in one blob: the copy is dropped; a point 5 mm from another, or with it in some frames only, is not."""
+    """Two labels of one point (markers.trc's STER and STERr) would be two truth markers in one blob: the copy is
+    dropped; a point 5 mm from another, or with it in some frames only, is not."""
     labels, fps, markers = marching_body(100, fps=100, n_markers=12, seed=5)
     near = markers[:, 3] + [0.005, 0.0, 0.0]
     partly = markers[:, 4].copy()
@@ -69,6 +69,36 @@ def test_a_point_that_copies_another_in_every_frame_is_filmed_once(tmp_path, cap
         motion = motion_from_file(tmp_path / "copies.c3d", up="z")
     assert motion.labels == labels + ["near3", "partly4"] and motion.info["points_dropped_copies"] == 1
     assert "copy2" in caplog.text
+
+
+def _axes(markers: np.ndarray, length_m: float) -> np.ndarray:
+    """(F, 4, 3) a segment's origin (the mean of three markers (F, 3, 3)) and a point ``length_m`` along each of its
+    three axes (Gram-Schmidt on the markers' directions), as Plug-in Gait writes its bones."""
+    origin = markers.mean(axis=1)
+    x = markers[:, 0] - origin
+    x /= np.linalg.norm(x, axis=1, keepdims=True)
+    y = markers[:, 1] - origin
+    y -= (y * x).sum(axis=1, keepdims=True) * x
+    y /= np.linalg.norm(y, axis=1, keepdims=True)
+    z = np.cross(x, y)
+    return np.stack([origin, origin + length_m * x, origin + length_m * y, origin + length_m * z], axis=1)
+
+
+def test_segment_axes_a_model_wrote_are_not_filmed(tmp_path, caplog):
+    """Plug-in Gait writes each segment as four points, PELO (origin), PELA, PELL and PELP, 0.14 m along three
+    perpendicular axes: not markers. Four markers named so that stand otherwise (THIO, THIA, THIL, THIP: not
+    perpendicular) are markers."""
+    labels, fps, markers = marching_body(120, fps=100, n_markers=12, seed=6)
+    pelvis = _axes(markers[:, [0, 1, 2]], 0.139)
+    pelvis[30:40] = np.nan  # (a gap: the axes hold wherever they are seen)
+    thigh = markers[:, [3, 4, 5, 6]] + [0.0, 0.0, 0.01]
+    names = ["PELO", "PELA", "PELL", "PELP", "THIO", "THIA", "THIL", "THIP"]
+    points = np.concatenate([markers, pelvis, thigh], axis=1)
+    write_c3d(Trajectories(labels + names, fps, points), tmp_path / "pig.c3d")
+    with caplog.at_level("INFO"):
+        motion = motion_from_file(tmp_path / "pig.c3d", up="z")
+    assert motion.labels == labels + names[4:]
+    assert motion.info["points_dropped_segment_axes"] == 4 and "segments' axes" in caplog.text
 
 
 def test_a_treadmill_walker_whose_feet_move_more_than_the_head_stands_upright():

@@ -36,6 +36,8 @@ UP_AXES: dict[str, np.ndarray] = {
 UNSURE_EXTENT_RATIO = 1.25  # up is a guess when no axis spans this many times the next one
 FLOOR_SNAP_M = 0.15  # a detected floor further than this from z = 0 is moved to z = 0
 COPY_M = 0.001  # a point this near another in every frame is a copy of it (a marker named twice)
+AXES_LENGTH_TOLERANCE = 1e-3  # segment axes: the three axis points' distances from the origin agree to this part
+AXES_MAX_COSINE = 0.01  # ... and their directions from it are this near perpendicular (0.6 degrees)
 
 
 @dataclass(eq=False)
@@ -275,6 +277,36 @@ def _copies(positions: np.ndarray, keep: np.ndarray, within_m: float = COPY_M, p
     return copies
 
 
+def _segment_axes(positions: np.ndarray, labels: list[str], keep: np.ndarray) -> np.ndarray:
+    """(M,) bool: the points among ``keep`` (M,) that a model wrote as a segment's axes, not markers: four labels
+    that differ only in a last letter O, A, L, P (Plug-in Gait's PELO, PELA, PELL, PELP: the origin and a point
+    along each of the anterior, lateral and proximal axes), the three axis points at one distance from the origin
+    (``AXES_LENGTH_TOLERANCE``) along perpendicular directions (``AXES_MAX_COSINE``) in every frame all four are
+    seen (``positions`` (F, M, 3) m; one such frame at least). No marker set stands so."""
+    index = {label: i for i, label in enumerate(labels) if keep[i]}
+    axes = np.zeros(len(labels), dtype=bool)
+    for label, origin in index.items():
+        if not label.endswith("O"):
+            continue
+        quad = [index.get(label[:-1] + letter) for letter in "ALP"]
+        if None in quad:
+            continue
+        arms = positions[:, quad] - positions[:, [origin]]  # (F, 3, 3) m
+        both = np.isfinite(arms).all(axis=(1, 2))
+        if not both.any():
+            continue
+        arms = arms[both]
+        length = np.linalg.norm(arms, axis=2)  # (n, 3)
+        if (length.min(axis=1) <= 0).any():
+            continue
+        unit = arms / length[..., None]
+        cosine = np.abs(np.einsum("nij,nkj->nik", unit, unit)[:, [0, 0, 1], [1, 2, 2]])  # (n, 3) pairs
+        if ((length.max(axis=1) - length.min(axis=1)) <= AXES_LENGTH_TOLERANCE * length.max(axis=1)).all() and (
+                cosine < AXES_MAX_COSINE).all():
+            axes[[origin, *quad]] = True
+    return axes
+
+
 def load_motion(path: str | os.PathLike, up: str | None = None) -> tuple[list[str], float, np.ndarray]:
     """Marker motion from a C3D, TRC or Motive CSV file, in the synthetic world frame.
 
@@ -312,6 +344,14 @@ def motion_from_file(path: str | os.PathLike, up: str | None = None) -> Motion:
                              "marker; give the file with the markers' trajectories")
     seen_ever = valid.any(axis=0)
     keep = seen_ever & ~not_markers
+    axes = _segment_axes(traj.positions, traj.labels, keep)
+    if axes.any():
+        log.info("%s: %d points are segments' axes a model wrote (origin and three axis points, e.g. Plug-in Gait's "
+                 "bones), not markers: not filmed", path, int(axes.sum()))
+        keep &= ~axes
+        if not keep.any():
+            raise MocapError(f"{path}: every point of the file is a model output (segment axes), none a marker; "
+                             "give the file with the markers' trajectories")
     copies = _copies(traj.positions, keep)
     if copies.any():
         log.info("%s: %d point(s) coincide with another in every frame (a marker named twice), not filmed twice: %s",
@@ -329,6 +369,7 @@ def motion_from_file(path: str | os.PathLike, up: str | None = None) -> Motion:
     positions, shift = _centre(to_z_up(raw, up))
     info = {"source": str(path), "source_fps": traj.fps, "up_axis": up, "up_axis_from": source,
             "shift_m": shift.tolist(), "markers_dropped_never_seen": int((~seen_ever & ~not_markers).sum()),
-            "points_dropped_not_markers": int(not_markers.sum()), "points_dropped_copies": int(copies.sum()),
+            "points_dropped_not_markers": int(not_markers.sum()), "points_dropped_segment_axes": int(axes.sum()),
+            "points_dropped_copies": int(copies.sum()),
             "missing_fraction": float(1 - valid[:, keep].mean())}
     return Motion(labels, traj.fps, positions, None, info)
