@@ -101,6 +101,23 @@ def test_segment_axes_a_model_wrote_are_not_filmed(tmp_path, caplog):
     assert motion.info["points_dropped_segment_axes"] == 4 and "segments' axes" in caplog.text
 
 
+def test_joint_centres_halfway_between_two_markers_are_not_filmed(tmp_path, caplog):
+    """OpenSim's test_walking.c3d holds RKJC, RAJC ... halfway between the condyles or the malleoli (to 1e-4 mm): a
+    model's points, filmed they sat 7 px from both markers in every image. A marker near a midpoint that wobbles by
+    a millimetre or two (skin) is filmed."""
+    labels, fps, markers = marching_body(150, fps=100, n_markers=12, seed=7)
+    centre = (markers[:, 2] + markers[:, 5]) / 2
+    centre[:15] = np.nan
+    rng = np.random.default_rng(7)
+    skin = (markers[:, 3] + markers[:, 8]) / 2 + rng.normal(0.0, 0.001, (150, 3))
+    write_c3d(Trajectories(labels + ["RKJC", "SKIN"], fps, np.concatenate([markers, centre[:, None], skin[:, None]],
+                                                                         axis=1)), tmp_path / "jc.c3d")
+    with caplog.at_level("INFO"):
+        motion = motion_from_file(tmp_path / "jc.c3d", up="z")
+    assert motion.labels == labels + ["SKIN"] and motion.info["points_dropped_joint_centres"] == 1
+    assert "RKJC" in caplog.text
+
+
 def test_a_treadmill_walker_whose_feet_move_more_than_the_head_stands_upright():
     """On a treadmill the belt moves the foot in stance while the head stays put: the floor-at-rest cue says the
     feet are up (unlabelled markers), the labels (head, shoulders, feet) say otherwise, for every file axis."""

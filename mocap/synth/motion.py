@@ -38,6 +38,7 @@ FLOOR_SNAP_M = 0.15  # a detected floor further than this from z = 0 is moved to
 COPY_M = 0.001  # a point this near another in every frame is a copy of it (a marker named twice)
 AXES_LENGTH_TOLERANCE = 1e-3  # segment axes: the three axis points' distances from the origin agree to this part
 AXES_MAX_COSINE = 0.01  # ... and their directions from it are this near perpendicular (0.6 degrees)
+MIDPOINT_M = 0.0002  # a point this near the midpoint of two others in every frame is a joint centre a model wrote
 
 
 @dataclass(eq=False)
@@ -307,6 +308,35 @@ def _segment_axes(positions: np.ndarray, labels: list[str], keep: np.ndarray) ->
     return axes
 
 
+def _midpoints(positions: np.ndarray, keep: np.ndarray, within_m: float = MIDPOINT_M, probe_frames: int = 50,
+               min_frames: int = 10) -> np.ndarray:
+    """(M,) bool: the points of ``positions`` (F, M, 3) m among ``keep`` (M,) that lie within ``within_m`` of the
+    midpoint of two other kept points in every frame the three are seen (``min_frames`` at least): joint centres a
+    model wrote (OpenSim's and Plug-in Gait's KJC and AJC, halfway between the condyles or the malleoli), not
+    markers; a skin marker wobbles by millimetres. Candidates come from ``probe_frames`` frames spread over the
+    take, each then checked on every frame."""
+    cols = np.flatnonzero(keep)
+    out = np.zeros(len(keep), dtype=bool)
+    if cols.size < 3:
+        return out
+    rows = np.unique(np.linspace(0, len(positions) - 1, min(len(positions), probe_frames)).astype(int))
+    probe = positions[rows][:, cols]  # (R, K, 3)
+    a, b = np.triu_indices(cols.size, 1)
+    middle = (probe[:, a] + probe[:, b]) / 2  # (R, P, 3)
+    for k in range(cols.size):
+        with warnings.catch_warnings(), np.errstate(invalid="ignore"):
+            warnings.simplefilter("ignore", RuntimeWarning)  # (never seen together: NaN)
+            worst = np.nanmax(np.linalg.norm(middle - probe[:, [k]], axis=2), axis=0)  # (P,)
+        for pair in np.flatnonzero((worst < within_m) & (a != k) & (b != k)):
+            i, j = cols[a[pair]], cols[b[pair]]
+            off = np.linalg.norm(positions[:, cols[k]] - (positions[:, i] + positions[:, j]) / 2, axis=1)
+            seen = np.isfinite(off)
+            if seen.sum() >= min_frames and off[seen].max() < within_m:
+                out[cols[k]] = True
+                break
+    return out
+
+
 def load_motion(path: str | os.PathLike, up: str | None = None) -> tuple[list[str], float, np.ndarray]:
     """Marker motion from a C3D, TRC or Motive CSV file, in the synthetic world frame.
 
@@ -352,6 +382,12 @@ def motion_from_file(path: str | os.PathLike, up: str | None = None) -> Motion:
         if not keep.any():
             raise MocapError(f"{path}: every point of the file is a model output (segment axes), none a marker; "
                              "give the file with the markers' trajectories")
+    centres = _midpoints(traj.positions, keep)
+    if centres.any():
+        log.info("%s: %d point(s) stay halfway between two others in every frame (joint centres a model wrote), not "
+                 "markers: not filmed: %s", path, int(centres.sum()),
+                 ", ".join(label for label, c in zip(traj.labels, centres, strict=True) if c))
+        keep &= ~centres
     copies = _copies(traj.positions, keep)
     if copies.any():
         log.info("%s: %d point(s) coincide with another in every frame (a marker named twice), not filmed twice: %s",
@@ -370,6 +406,7 @@ def motion_from_file(path: str | os.PathLike, up: str | None = None) -> Motion:
     info = {"source": str(path), "source_fps": traj.fps, "up_axis": up, "up_axis_from": source,
             "shift_m": shift.tolist(), "markers_dropped_never_seen": int((~seen_ever & ~not_markers).sum()),
             "points_dropped_not_markers": int(not_markers.sum()), "points_dropped_segment_axes": int(axes.sum()),
+            "points_dropped_joint_centres": int(centres.sum()),
             "points_dropped_copies": int(copies.sum()),
             "missing_fraction": float(1 - valid[:, keep].mean())}
     return Motion(labels, traj.fps, positions, None, info)
