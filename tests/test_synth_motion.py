@@ -10,7 +10,7 @@ from mocap.export.c3d import read_c3d, write_c3d
 from mocap.export.csv import write_csv
 from mocap.export.trc import read_trc, write_trc
 from mocap.synth.body import MARKERS, marching_body, marching_motion
-from mocap.synth.motion import FOOT_LABEL, UP_AXES, detect_up_axis, load_motion, motion_from_file
+from mocap.synth.motion import DUPLICATE_M, FOOT_LABEL, UP_AXES, detect_up_axis, load_motion, motion_from_file
 from mocap.synth.occlusion import Capsules, capsules_from_markers, occluded, segment_distance
 from mocap.trajectories import Trajectories
 from tests.conftest import require_shared_data
@@ -28,12 +28,18 @@ def test_real_c3d_loads_upright_centred_with_gaps_kept(name):
     assert positions.shape == (raw.n_frames, len(labels), 3)
     seen = raw.valid.any(axis=0)
     assert labels == [label for label, s in zip(raw.labels, seen, strict=True) if s]
-    np.testing.assert_array_equal(np.isnan(positions[..., 0]), ~raw.valid[:, seen])  # gaps stay gaps
+    missing = np.isnan(positions[..., 0])
+    assert missing[~raw.valid[:, seen]].all()  # gaps stay gaps ...
+    dropped = missing & raw.valid[:, seen]  # ... and a sample is dropped only where it lies on another marker
+    assert dropped.sum() <= 2  # (the tennis files' LWRB on LWRA for a frame: the recording's labelling)
+    for f, k in zip(*np.nonzero(dropped), strict=True):
+        others = np.delete(raw.positions[f, seen], k, axis=0)
+        assert np.nanmin(np.linalg.norm(others - raw.positions[f, seen][k], axis=1)) < DUPLICATE_M
     z = positions[..., 2]
     assert np.nanpercentile(z, 1) > -0.05  # on or above the floor
     assert np.nanpercentile(z, 99) < 2.3
     # each file is z-up already (the shared README says y-up for tennis; the data say z): z is kept as is
-    np.testing.assert_allclose(z, raw.positions[:, seen, 2], atol=1e-12, equal_nan=True)
+    np.testing.assert_allclose(z[~missing], raw.positions[:, seen, 2][~missing], atol=1e-12)
     mid = (np.nanpercentile(positions[..., :2].reshape(-1, 2), 0.5, axis=0)
            + np.nanpercentile(positions[..., :2].reshape(-1, 2), 99.5, axis=0)) / 2
     np.testing.assert_allclose(mid, 0.0, atol=1e-9)
@@ -116,6 +122,24 @@ def test_joint_centres_halfway_between_two_markers_are_not_filmed(tmp_path, capl
         motion = motion_from_file(tmp_path / "jc.c3d", up="z")
     assert motion.labels == labels + ["SKIN"] and motion.info["points_dropped_joint_centres"] == 1
     assert "RKJC" in caplog.text
+
+
+def test_a_second_reconstruction_of_a_marker_is_not_filmed_where_it_lies_on_the_marker(tmp_path, caplog):
+    """A Vicon file's unlabelled trajectory *20 lies 2-7 mm from RASI for 800 frames, then wanders off: its samples
+    within 10 mm of a marker seen longer are dropped, the others kept; two markers 12 mm apart are both filmed."""
+    labels, fps, markers = marching_body(120, fps=100, n_markers=12, seed=8)
+    twin = markers[:, 4] + [0.004, 0.0, 0.003]
+    twin[:30] = np.nan
+    twin[90:] = markers[90:, 4] + [0.0, 0.05, 0.0]  # (off the marker: kept)
+    neighbour = markers[:, 6] + [0.012, 0.0, 0.0]
+    write_c3d(Trajectories(labels + ["*20", "N12"], fps, np.concatenate([markers, twin[:, None], neighbour[:, None]],
+                                                                         axis=1)), tmp_path / "twice.c3d")
+    with caplog.at_level("INFO"):
+        motion = motion_from_file(tmp_path / "twice.c3d", up="z")
+    assert motion.labels == labels + ["*20", "N12"] and motion.info["samples_dropped_duplicates"] == 60
+    seen = np.isfinite(motion.positions[..., 0])
+    assert not seen[:90, 12].any() and seen[90:, 12].all() and seen[:, 4].all() and seen[:, 13].all()
+    assert "*20 (60)" in caplog.text
 
 
 def test_a_treadmill_walker_whose_feet_move_more_than_the_head_stands_upright():

@@ -39,6 +39,8 @@ COPY_M = 0.001  # a point this near another in every frame is a copy of it (a ma
 AXES_LENGTH_TOLERANCE = 1e-3  # segment axes: the three axis points' distances from the origin agree to this part
 AXES_MAX_COSINE = 0.01  # ... and their directions from it are this near perpendicular (0.6 degrees)
 MIDPOINT_M = 0.0002  # a point this near the midpoint of two others in every frame is a joint centre a model wrote
+DUPLICATE_M = 0.010  # two samples this near in a frame are one marker reconstructed twice (no two markers' centres
+# are: their spheres would overlap)
 
 
 @dataclass(eq=False)
@@ -337,6 +339,27 @@ def _midpoints(positions: np.ndarray, keep: np.ndarray, within_m: float = MIDPOI
     return out
 
 
+def _duplicate_samples(positions: np.ndarray, keep: np.ndarray, within_m: float = DUPLICATE_M,
+                       chunk_entries: int = 1 << 22) -> np.ndarray:
+    """(F, M) bool: samples of ``positions`` (F, M, 3) m among ``keep`` (M,) within ``within_m`` of another kept
+    point's sample in their frame, of the two the one whose point is seen in fewer frames (the later on a tie): a
+    reconstruction's second copy of a marker (a Vicon file's unlabelled trajectory *20 beside RASI, 2-7 mm away for
+    800 frames), not a second marker. Frames are searched ``chunk_entries`` (frames x points^2) at a time."""
+    cols = np.flatnonzero(keep)
+    out = np.zeros(positions.shape[:2], dtype=bool)
+    if cols.size < 2:
+        return out
+    count = np.isfinite(positions[:, cols, 0]).sum(axis=0)
+    step = max(1, chunk_entries // cols.size**2)
+    for lo in range(0, len(positions), step):
+        p = positions[lo:lo + step, cols]
+        with np.errstate(invalid="ignore"):
+            close = np.linalg.norm(p[:, :, None] - p[:, None], axis=3) < within_m  # (n, K, K) (NaN: False)
+        f, i, j = np.nonzero(np.triu(close, 1))
+        out[lo + f, cols[np.where(count[i] < count[j], i, j)]] = True
+    return out
+
+
 def load_motion(path: str | os.PathLike, up: str | None = None) -> tuple[list[str], float, np.ndarray]:
     """Marker motion from a C3D, TRC or Motive CSV file, in the synthetic world frame.
 
@@ -394,7 +417,13 @@ def motion_from_file(path: str | os.PathLike, up: str | None = None) -> Motion:
                  path, int(copies.sum()), ", ".join(label for label, c in zip(traj.labels, copies, strict=True) if c))
     keep &= ~copies
     labels = [label for label, k in zip(traj.labels, keep, strict=True) if k]
-    raw = traj.positions[:, keep]
+    twice = _duplicate_samples(traj.positions, keep)
+    if twice.any():
+        worst = np.argsort(twice.sum(axis=0))[::-1][:3]
+        log.info("%s: %d samples lie within %.0f mm of another marker's in their frame (one marker reconstructed "
+                 "twice), not filmed; most from %s", path, int(twice.sum()), DUPLICATE_M * 1e3,
+                 ", ".join(f"{traj.labels[k]} ({int(twice[:, k].sum())})" for k in worst if twice[:, k].any()))
+    raw = np.where(twice[..., None], np.nan, traj.positions)[:, keep]
     source = "--up"
     if up is None:
         try:
@@ -407,6 +436,6 @@ def motion_from_file(path: str | os.PathLike, up: str | None = None) -> Motion:
             "shift_m": shift.tolist(), "markers_dropped_never_seen": int((~seen_ever & ~not_markers).sum()),
             "points_dropped_not_markers": int(not_markers.sum()), "points_dropped_segment_axes": int(axes.sum()),
             "points_dropped_joint_centres": int(centres.sum()),
-            "points_dropped_copies": int(copies.sum()),
+            "points_dropped_copies": int(copies.sum()), "samples_dropped_duplicates": int(twice.sum()),
             "missing_fraction": float(1 - valid[:, keep].mean())}
     return Motion(labels, traj.fps, positions, None, info)
