@@ -416,8 +416,15 @@ def motion_from_file(path: str | os.PathLike, up: str | None = None) -> Motion:
         log.info("%s: %d point(s) coincide with another in every frame (a marker named twice), not filmed twice: %s",
                  path, int(copies.sum()), ", ".join(label for label, c in zip(traj.labels, copies, strict=True) if c))
     keep &= ~copies
-    labels = [label for label, k in zip(traj.labels, keep, strict=True) if k]
     twice = _duplicate_samples(traj.positions, keep)
+    shadows = keep & twice.any(axis=0) & (2 * twice.sum(axis=0) >= valid.sum(axis=0))
+    if shadows.any():
+        log.info("%s: %d point(s) lie on another marker in half their frames or more (a second reconstruction of it, "
+                 "wandering off where they do not), not filmed: %s", path, int(shadows.sum()),
+                 ", ".join(label for label, c in zip(traj.labels, shadows, strict=True) if c))
+        keep &= ~shadows
+        twice[:, shadows] = False
+    labels = [label for label, k in zip(traj.labels, keep, strict=True) if k]
     if twice.any():
         worst = np.argsort(twice.sum(axis=0))[::-1][:3]
         log.info("%s: %d samples lie within %.0f mm of another marker's in their frame (one marker reconstructed "
@@ -436,6 +443,7 @@ def motion_from_file(path: str | os.PathLike, up: str | None = None) -> Motion:
             "shift_m": shift.tolist(), "markers_dropped_never_seen": int((~seen_ever & ~not_markers).sum()),
             "points_dropped_not_markers": int(not_markers.sum()), "points_dropped_segment_axes": int(axes.sum()),
             "points_dropped_joint_centres": int(centres.sum()),
-            "points_dropped_copies": int(copies.sum()), "samples_dropped_duplicates": int(twice.sum()),
+            "points_dropped_copies": int(copies.sum()), "points_dropped_duplicates": int(shadows.sum()),
+            "samples_dropped_duplicates": int(twice.sum()),
             "missing_fraction": float(1 - valid[:, keep].mean())}
     return Motion(labels, traj.fps, positions, None, info)
