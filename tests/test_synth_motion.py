@@ -31,7 +31,7 @@ def test_real_c3d_loads_upright_centred_with_gaps_kept(name):
     missing = np.isnan(positions[..., 0])
     assert missing[~raw.valid[:, seen]].all()  # gaps stay gaps ...
     dropped = missing & raw.valid[:, seen]  # ... and a sample is dropped only where it lies on another marker
-    assert dropped.sum() <= 2  # (the tennis files' LWRB on LWRA for a frame: the recording's labelling)
+    assert dropped.sum() <= 2  # (the tennis files' LWRA on LWRB for a frame: the recording's labelling)
     for f, k in zip(*np.nonzero(dropped), strict=True):
         others = np.delete(raw.positions[f, seen], k, axis=0)
         assert np.nanmin(np.linalg.norm(others - raw.positions[f, seen][k], axis=1)) < DUPLICATE_M
@@ -127,7 +127,7 @@ def test_joint_centres_halfway_between_two_markers_are_not_filmed(tmp_path, capl
 
 def test_a_second_reconstruction_of_a_marker_is_not_filmed_where_it_lies_on_the_marker(tmp_path, caplog):
     """A point on another marker (within 10 mm) in a few of its frames loses those samples (a label on another
-    marker for a frame: the tennis files' LWRB on LWRA); one on it in half its frames or more is not filmed at all
+    marker for a frame: the tennis serve's LWRA on LWRB); one on it in half its frames or more is not filmed at all
     (a Vicon file's unlabelled *20, 2-7 mm from RASI for 740 of its 796 frames, wandering off elsewhere: its other
     samples are a reconstruction's artefacts too). Two markers 12 mm apart are both filmed."""
     labels, fps, markers = marching_body(120, fps=100, n_markers=12, seed=8)
@@ -147,6 +147,19 @@ def test_a_second_reconstruction_of_a_marker_is_not_filmed_where_it_lies_on_the_
     assert not seen[40:50, 12].any() and seen[:40, 12].all() and seen[50:, 12].all()
     assert seen[:, 4].all() and seen[:, 13].all()
     assert "*20" in caplog.text and "G12 (10)" in caplog.text
+
+
+def test_a_label_on_another_marker_for_a_frame_loses_that_sample_not_the_marker_s_own(tmp_path):
+    """The tennis serve's LWRA is on LWRB's marker at frame 400: the sample off its own path is dropped, though LWRB
+    is the point seen less."""
+    labels, fps, markers = marching_body(120, fps=100, n_markers=12, seed=9)
+    points = markers.copy()
+    points[60, 7] = markers[60, 8] + [0.001, 0.0, 0.0]
+    points[10:20, 8] = np.nan
+    write_c3d(Trajectories(labels, fps, points), tmp_path / "hop.c3d")
+    motion = motion_from_file(tmp_path / "hop.c3d", up="z")
+    seen = np.isfinite(motion.positions[..., 0])
+    assert motion.info["samples_dropped_duplicates"] == 1 and not seen[60, 7] and seen[60, 8]
 
 
 def test_a_treadmill_walker_whose_feet_move_more_than_the_head_stands_upright():

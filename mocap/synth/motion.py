@@ -342,21 +342,31 @@ def _midpoints(positions: np.ndarray, keep: np.ndarray, within_m: float = MIDPOI
 def _duplicate_samples(positions: np.ndarray, keep: np.ndarray, within_m: float = DUPLICATE_M,
                        chunk_entries: int = 1 << 22) -> np.ndarray:
     """(F, M) bool: samples of ``positions`` (F, M, 3) m among ``keep`` (M,) within ``within_m`` of another kept
-    point's sample in their frame, of the two the one whose point is seen in fewer frames (the later on a tie): a
-    reconstruction's second copy of a marker (a Vicon file's unlabelled trajectory *20 beside RASI, 2-7 mm away for
-    800 frames), not a second marker. Frames are searched ``chunk_entries`` (frames x points^2) at a time."""
+    point's sample in their frame: of the two, the one off its own path (its step from the mean of its samples either
+    side over ``within_m``, the other's under: a label on another marker for a frame, the tennis serve's LWRA on
+    LWRB at frame 400), else the one whose point is seen in fewer frames (the later on a tie: a reconstruction's
+    second copy of a marker, a Vicon file's unlabelled trajectory *20 beside RASI, 2-7 mm away for 800 frames).
+    Frames are searched ``chunk_entries`` (frames x points^2) at a time."""
     cols = np.flatnonzero(keep)
     out = np.zeros(positions.shape[:2], dtype=bool)
     if cols.size < 2:
         return out
-    count = np.isfinite(positions[:, cols, 0]).sum(axis=0)
+    P = positions[:, cols]
+    count = np.isfinite(P[..., 0]).sum(axis=0)
+    off_path = np.full(P.shape[:2], np.nan)  # (F, K) m: distance from the mean of the samples either side
+    off_path[1:-1] = np.linalg.norm(P[1:-1] - (P[:-2] + P[2:]) / 2, axis=2)
     step = max(1, chunk_entries // cols.size**2)
-    for lo in range(0, len(positions), step):
-        p = positions[lo:lo + step, cols]
+    for lo in range(0, len(P), step):
+        p = P[lo:lo + step]
         with np.errstate(invalid="ignore"):
             close = np.linalg.norm(p[:, :, None] - p[:, None], axis=3) < within_m  # (n, K, K) (NaN: False)
         f, i, j = np.nonzero(np.triu(close, 1))
-        out[lo + f, cols[np.where(count[i] < count[j], i, j)]] = True
+        off_i, off_j = off_path[lo + f, i], off_path[lo + f, j]
+        with np.errstate(invalid="ignore"):  # (NaN: at a gap's edge, compares False)
+            loser = np.where(count[i] < count[j], i, j)
+            loser = np.where((off_i > within_m) & (off_j < within_m), i, loser)
+            loser = np.where((off_j > within_m) & (off_i < within_m), j, loser)
+        out[lo + f, cols[loser]] = True
     return out
 
 
