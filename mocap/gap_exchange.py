@@ -310,6 +310,7 @@ def undo_gap_exchanges(traj: Trajectories, config: GapExchangeConfig | None = No
     P = traj.positions
     F = traj.n_frames
     n = max(cfg.min_samples, int(round(cfg.window_s * traj.fps)))
+    loose = replace(cfg, spread_m=cfg.loose_spread_m) if cfg.loose_spread_m > cfg.spread_m else None
     undone = 0
     done_upto = (-1, -1, -1, -1)  # (frame, kind, a, b) of the last candidate looked at
     while True:
@@ -327,8 +328,8 @@ def undo_gap_exchanges(traj: Trajectories, config: GapExchangeConfig | None = No
                         continue
             win = _Windows(P, seen, a, b, t, n)
             fits = win.fits(cfg)
-            if fits is None and cfg.loose_spread_m > cfg.spread_m:  # (loose references decide whether, not where:
-                fits = win.fits(replace(cfg, spread_m=cfg.loose_spread_m))  # the start below takes steady ones)
+            if fits is None and loose is not None:  # (loose references decide whether, not where: the start
+                fits = win.fits(loose)  # below takes the steady ones)
             if fits is None or fits[1] > cfg.ratio * fits[0] or fits[0] - fits[1] < cfg.margin:
                 continue
             after = max(rows[-1] for (_, before), rows in win.frames.items() if not before and rows.size)

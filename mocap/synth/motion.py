@@ -19,6 +19,7 @@ import numpy as np
 from mocap.errors import MocapError
 from mocap.export.formats import read_trajectories
 from mocap.synth.occlusion import Capsules, capsules_from_markers
+from mocap.trajectories import Trajectories
 
 __all__ = ["Motion", "as_motion", "load_motion", "motion_from_file", "detect_up_axis", "to_z_up", "UP_AXES"]
 
@@ -259,14 +260,20 @@ def _centre(positions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return positions + shift, shift
 
 
+def _probe(positions: np.ndarray, cols: np.ndarray, frames: int) -> np.ndarray:
+    """(R, K, 3) the points ``cols`` (K,) of ``positions`` (F, M, 3) in ``frames`` frames spread over the take (R of
+    them, fewer in a shorter take): where a test over every frame's candidates is first made cheaply."""
+    rows = np.unique(np.linspace(0, len(positions) - 1, min(len(positions), frames)).astype(int))
+    return positions[rows][:, cols]
+
+
 def _copies(positions: np.ndarray, keep: np.ndarray, within_m: float = COPY_M, probe_frames: int = 200
             ) -> np.ndarray:
     """(M,) bool: the points of ``positions`` (F, M, 3) m among ``keep`` (M,) that lie within ``within_m`` of an
     earlier kept point in every frame both are seen (one or more): copies, not markers. Candidates come from
     ``probe_frames`` frames spread over the take, each one is then checked on every frame."""
     cols = np.flatnonzero(keep)
-    rows = np.unique(np.linspace(0, len(positions) - 1, min(len(positions), probe_frames)).astype(int))
-    probe = positions[rows][:, cols]
+    probe = _probe(positions, cols, probe_frames)
     with warnings.catch_warnings(), np.errstate(invalid="ignore"):
         warnings.simplefilter("ignore", RuntimeWarning)  # (pairs never seen together: NaN)
         worst = np.nanmax(np.linalg.norm(probe[:, :, None] - probe[:, None], axis=3), axis=0)  # (K, K)
@@ -321,8 +328,7 @@ def _midpoints(positions: np.ndarray, keep: np.ndarray, within_m: float = MIDPOI
     out = np.zeros(len(keep), dtype=bool)
     if cols.size < 3:
         return out
-    rows = np.unique(np.linspace(0, len(positions) - 1, min(len(positions), probe_frames)).astype(int))
-    probe = positions[rows][:, cols]  # (R, K, 3)
+    probe = _probe(positions, cols, probe_frames)  # (R, K, 3)
     a, b = np.triu_indices(cols.size, 1)
     middle = (probe[:, a] + probe[:, b]) / 2  # (R, P, 3)
     for k in range(cols.size):
@@ -370,6 +376,64 @@ def _duplicate_samples(positions: np.ndarray, keep: np.ndarray, within_m: float 
     return out
 
 
+def _named(labels: list[str], mask: np.ndarray) -> str:
+    """The ``labels`` (M,) where ``mask`` (M,) holds, for a log line."""
+    return ", ".join(label for label, m in zip(labels, mask, strict=True) if m)
+
+
+def _points_to_film(traj: Trajectories, path: Path) -> tuple[np.ndarray, np.ndarray, dict[str, int]]:
+    """Which points of a motion file are markers to film: (M,) bool, the (F, M) samples not to film (a marker
+    reconstructed twice, a label on another marker), and the counts of what was left out (for the take's info),
+    each logged: points never seen, model outputs the file names (:func:`mocap.export.c3d.read_c3d`), segment axes,
+    joint centres, copies, second reconstructions, duplicate samples."""
+    valid = traj.valid
+    not_markers = np.isin(traj.labels, traj.metadata.get("not_markers", []))
+    if not_markers.any():
+        log.info("%s: %d of its %d points are model outputs (angles, forces, moments, powers, modelled markers), "
+                 "not markers: not filmed", path, int(not_markers.sum()), traj.n_markers)
+        if not_markers.all():
+            raise MocapError(f"{path}: every point of the file is a model output (angles, forces, ...), none a "
+                             "marker; give the file with the markers' trajectories")
+    seen_ever = valid.any(axis=0)
+    keep = seen_ever & ~not_markers
+    axes = _segment_axes(traj.positions, traj.labels, keep)
+    if axes.any():
+        log.info("%s: %d points are segments' axes a model wrote (origin and three axis points, e.g. Plug-in Gait's "
+                 "bones), not markers: not filmed", path, int(axes.sum()))
+        keep &= ~axes
+        if not keep.any():
+            raise MocapError(f"{path}: every point of the file is a model output (segment axes), none a marker; "
+                             "give the file with the markers' trajectories")
+    centres = _midpoints(traj.positions, keep)
+    if centres.any():
+        log.info("%s: %d point(s) stay halfway between two others in every frame (joint centres a model wrote), not "
+                 "markers: not filmed: %s", path, int(centres.sum()), _named(traj.labels, centres))
+        keep &= ~centres
+    copies = _copies(traj.positions, keep)
+    if copies.any():
+        log.info("%s: %d point(s) coincide with another in every frame (a marker named twice), not filmed twice: %s",
+                 path, int(copies.sum()), _named(traj.labels, copies))
+        keep &= ~copies
+    twice = _duplicate_samples(traj.positions, keep)
+    shadows = keep & twice.any(axis=0) & (2 * twice.sum(axis=0) >= valid.sum(axis=0))
+    if shadows.any():
+        log.info("%s: %d point(s) lie on another marker in half their frames or more (a second reconstruction of it, "
+                 "wandering off where they do not), not filmed: %s", path, int(shadows.sum()),
+                 _named(traj.labels, shadows))
+        keep &= ~shadows
+        twice[:, shadows] = False
+    if twice.any():
+        worst = np.argsort(twice.sum(axis=0))[::-1][:3]
+        log.info("%s: %d samples lie within %.0f mm of another marker's in their frame (one marker reconstructed "
+                 "twice), not filmed; most from %s", path, int(twice.sum()), DUPLICATE_M * 1e3,
+                 ", ".join(f"{traj.labels[k]} ({int(twice[:, k].sum())})" for k in worst if twice[:, k].any()))
+    dropped = {"markers_dropped_never_seen": int((~seen_ever & ~not_markers).sum()),
+               "points_dropped_not_markers": int(not_markers.sum()), "points_dropped_segment_axes": int(axes.sum()),
+               "points_dropped_joint_centres": int(centres.sum()), "points_dropped_copies": int(copies.sum()),
+               "points_dropped_duplicates": int(shadows.sum()), "samples_dropped_duplicates": int(twice.sum())}
+    return keep, twice, dropped
+
+
 def load_motion(path: str | os.PathLike, up: str | None = None) -> tuple[list[str], float, np.ndarray]:
     """Marker motion from a C3D, TRC or Motive CSV file, in the synthetic world frame.
 
@@ -398,48 +462,8 @@ def motion_from_file(path: str | os.PathLike, up: str | None = None) -> Motion:
     valid = traj.valid
     if not valid.any():
         raise MocapError(f"{path}: every marker sample is missing (all gaps); nothing to render")
-    not_markers = np.isin(traj.labels, traj.metadata.get("not_markers", []))
-    if not_markers.any():
-        log.info("%s: %d of its %d points are model outputs (angles, forces, moments, powers, modelled markers), "
-                 "not markers: not filmed", path, int(not_markers.sum()), traj.n_markers)
-        if not_markers.all():
-            raise MocapError(f"{path}: every point of the file is a model output (angles, forces, ...), none a "
-                             "marker; give the file with the markers' trajectories")
-    seen_ever = valid.any(axis=0)
-    keep = seen_ever & ~not_markers
-    axes = _segment_axes(traj.positions, traj.labels, keep)
-    if axes.any():
-        log.info("%s: %d points are segments' axes a model wrote (origin and three axis points, e.g. Plug-in Gait's "
-                 "bones), not markers: not filmed", path, int(axes.sum()))
-        keep &= ~axes
-        if not keep.any():
-            raise MocapError(f"{path}: every point of the file is a model output (segment axes), none a marker; "
-                             "give the file with the markers' trajectories")
-    centres = _midpoints(traj.positions, keep)
-    if centres.any():
-        log.info("%s: %d point(s) stay halfway between two others in every frame (joint centres a model wrote), not "
-                 "markers: not filmed: %s", path, int(centres.sum()),
-                 ", ".join(label for label, c in zip(traj.labels, centres, strict=True) if c))
-        keep &= ~centres
-    copies = _copies(traj.positions, keep)
-    if copies.any():
-        log.info("%s: %d point(s) coincide with another in every frame (a marker named twice), not filmed twice: %s",
-                 path, int(copies.sum()), ", ".join(label for label, c in zip(traj.labels, copies, strict=True) if c))
-    keep &= ~copies
-    twice = _duplicate_samples(traj.positions, keep)
-    shadows = keep & twice.any(axis=0) & (2 * twice.sum(axis=0) >= valid.sum(axis=0))
-    if shadows.any():
-        log.info("%s: %d point(s) lie on another marker in half their frames or more (a second reconstruction of it, "
-                 "wandering off where they do not), not filmed: %s", path, int(shadows.sum()),
-                 ", ".join(label for label, c in zip(traj.labels, shadows, strict=True) if c))
-        keep &= ~shadows
-        twice[:, shadows] = False
+    keep, twice, dropped = _points_to_film(traj, path)
     labels = [label for label, k in zip(traj.labels, keep, strict=True) if k]
-    if twice.any():
-        worst = np.argsort(twice.sum(axis=0))[::-1][:3]
-        log.info("%s: %d samples lie within %.0f mm of another marker's in their frame (one marker reconstructed "
-                 "twice), not filmed; most from %s", path, int(twice.sum()), DUPLICATE_M * 1e3,
-                 ", ".join(f"{traj.labels[k]} ({int(twice[:, k].sum())})" for k in worst if twice[:, k].any()))
     raw = np.where(twice[..., None], np.nan, traj.positions)[:, keep]
     source = "--up"
     if up is None:
@@ -450,10 +474,5 @@ def motion_from_file(path: str | os.PathLike, up: str | None = None) -> Motion:
         source = "detected"
     positions, shift = _centre(to_z_up(raw, up))
     info = {"source": str(path), "source_fps": traj.fps, "up_axis": up, "up_axis_from": source,
-            "shift_m": shift.tolist(), "markers_dropped_never_seen": int((~seen_ever & ~not_markers).sum()),
-            "points_dropped_not_markers": int(not_markers.sum()), "points_dropped_segment_axes": int(axes.sum()),
-            "points_dropped_joint_centres": int(centres.sum()),
-            "points_dropped_copies": int(copies.sum()), "points_dropped_duplicates": int(shadows.sum()),
-            "samples_dropped_duplicates": int(twice.sum()),
-            "missing_fraction": float(1 - valid[:, keep].mean())}
+            "shift_m": shift.tolist(), **dropped, "missing_fraction": float(1 - valid[:, keep].mean())}
     return Motion(labels, traj.fps, positions, None, info)
