@@ -17,7 +17,12 @@ jointly, by every distance of every marker involved at once.
    after it within ``reach_m`` of one of its identities (a marker lost in the burst and found again as a new
    identity, or as one lost long before, whose tail is a burst identity's), then the leavers: those last seen
    within ``newcomer_s`` before the burst's first hop or later, within ``reach_m`` of one of its identities, and
-   not seen again through the window after it (an identity that ended in the burst while another took its marker);
+   not seen again through the window after it (an identity that ended in the burst while another took its marker).
+   A burst is fast motion, not hops, and left alone, where no newcomer or leaver joins it, its identities are all seen
+   from the frame before it to the frame after, and each hop's acceleration differs from the one before and after
+   it by ``jump_acc`` at most (an identity hopping onto a marker d away accelerates by d, then by -d: a change of 2d;
+   the serve's finger at the swing, 50 Hz, accelerates 110 mm/frame^2 against a threshold of 100, changing by 72 at
+   most, and a reference exchanged just after its burst had swapped it with the wrist's identity);
 2. measures each burst identity's distance to every identity within ``reach_m`` over the ``history_s`` before the
    burst, since the identity was last missing for ``history_gap_s`` (before such a gap it may have been another
    marker's: the tracker's re-identifications after long gaps are where identities get mixed): the range it kept
@@ -158,14 +163,18 @@ def unscramble_bursts(traj: Trajectories, jump_acc: float, config: ScrambleConfi
     history = max(window, int(round(cfg.history_s * traj.fps)))  # frames
     established = max(enough, int(round(cfg.min_history_s * traj.fps)))  # samples a range needs
     history_gap = max(1, int(round(cfg.history_gap_s * traj.fps)))  # frames
-    for first, last, found in _bursts(P, _hop_frames(P, jump_acc), join, jump_acc, cfg):
+    hops = _hop_frames(P, jump_acc)
+    jerky = _jerky(P, jump_acc)
+    for first, last, found in _bursts(P, hops, join, jump_acc, cfg):
         ids = column[found]
         start = last + 1 + cfg.gap
         if ids.size > cfg.max_identities or first < window or start + window > len(P):
             continue
         before = slice(first - window, first)
-        ids = np.union1d(ids, _newcomers_and_leavers(P, ids, before, first, last, start + recent, recent, window,
-                                                     cfg))
+        more = _newcomers_and_leavers(P, ids, before, first, last, start + recent, recent, window, cfg)
+        if more.size == 0 and _fast_motion(P, hops, jerky, first, last, found, ids):
+            continue
+        ids = np.union1d(ids, more)
         now, _, measured = _window_distances(P, slice(start, start + window), ids)
         seen = measured >= enough
         order = None
@@ -193,12 +202,40 @@ def unscramble_bursts(traj: Trajectories, jump_acc: float, config: ScrambleConfi
     return done
 
 
+def _second_differences(P: np.ndarray) -> np.ndarray:
+    """(F, M, 3) the acceleration (second difference) of every sample of ``P`` (F, M, 3), m/frame^2; NaN at the
+    ends and next to missing samples."""
+    second = np.full(P.shape, np.nan)
+    second[1:-1] = P[2:] - 2 * P[1:-1] + P[:-2]
+    return second
+
+
 def _accelerations(P: np.ndarray) -> np.ndarray:
-    """(F, M) the acceleration (second difference) of every sample of ``P`` (F, M, 3), m/frame^2; NaN at the ends
-    and next to missing samples."""
-    acc = np.full(P.shape[:2], np.nan)
-    acc[1:-1] = np.linalg.norm(P[2:] - 2 * P[1:-1] + P[:-2], axis=2)
-    return acc
+    """(F, M) the size of every sample's acceleration (:func:`_second_differences`), m/frame^2."""
+    return np.linalg.norm(_second_differences(P), axis=2)
+
+
+def _jerky(P: np.ndarray, jump_acc: float) -> np.ndarray:
+    """(F, M) whether each sample of ``P`` (F, M, 3) accelerates unlike the one before or after it: the two
+    accelerations differ by more than ``jump_acc`` m/frame^2, or one is not measured (a hop of an identity onto a
+    marker ``d`` away accelerates by ``d``, then by ``-d``)."""
+    change = np.linalg.norm(np.diff(_second_differences(P), axis=0), axis=2)  # (F-1, M) NaN where unmeasured
+    with np.errstate(invalid="ignore"):
+        smooth = change <= jump_acc
+    smooth_next, smooth_before = np.zeros(P.shape[:2], dtype=bool), np.zeros(P.shape[:2], dtype=bool)
+    smooth_next[:-1] = smooth
+    smooth_before[1:] = smooth
+    return ~(smooth_next & smooth_before)
+
+
+def _fast_motion(P: np.ndarray, hops: np.ndarray, jerky: np.ndarray, first: int, last: int, found: np.ndarray,
+                 ids: np.ndarray) -> bool:
+    """Whether a burst (frames ``first`` .. ``last``; identities ``found`` (g,) as in ``hops`` (n, 2) and
+    ``jerky`` (F, M), ``ids`` (g,) now in ``P`` (F, M, 3)) is fast motion, not hops: every identity seen from the
+    frame before it to the frame after, and no hop jerky (:func:`_jerky`)."""
+    inside = (hops[:, 0] >= first) & (hops[:, 0] <= last) & np.isin(hops[:, 1], found)
+    return (not jerky[hops[inside, 0], hops[inside, 1]].any()
+            and bool(np.isfinite(P[max(first - 1, 0):last + 2, ids, 0]).all()))
 
 
 def _hop_frames(P: np.ndarray, jump_acc: float) -> np.ndarray:
