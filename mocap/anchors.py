@@ -24,7 +24,8 @@ it, the joins changed the plates it learned), :func:`rejoin_by_anchors`:
    ambiguous), or their samples share more than ``overlap_fraction`` of the fragment's frames. Where they
    share frames (the target's identity held a neighbour for a while), the fragment's sample replaces the
    target's where its distances to the anchors in that frame fit the target's (mean within ``tolerance_m``) and
-   the target's own do not; the sample left over moves to a new identity.
+   the target's own do not (a frame where no anchor is seen goes with the nearest shared frame where one is); the
+   sample left over moves to a new identity.
 4. repeats 1-3 with anchors spreading less than ``loose_spread_m`` for the fragments left over (skin markers keep
    their distances to 3-5 mm; looser anchors in the first pass disagree where strict ones would have agreed).
 
@@ -183,8 +184,9 @@ def _rejoin(traj: Trajectories, cfg: AnchorConfig, spread_m: float) -> int:
             continue
         if both.size:  # the target keeps its sample unless only the fragment's fits; the other moves out
             anchors = np.flatnonzero(strong[q])
-            mine = ((_misfit(P, both, int(p), q, anchors, median) <= cfg.tolerance_m)
-                    & (_misfit(P, both, r, q, anchors, median) > cfg.tolerance_m))
+            theirs = _misfit(P, both, r, q, anchors, median)
+            mine = _told_or_nearest((_misfit(P, both, int(p), q, anchors, median) <= cfg.tolerance_m)
+                                    & (theirs > cfg.tolerance_m), np.isfinite(theirs), both)
             leave = np.where(mine, r, p)  # the column whose sample moves out, per shared frame
             out = [np.full((len(P),) + a.shape[2:], MISSING[a.dtype.kind], dtype=a.dtype) for a in arrays]
             for a, o in zip(arrays, out, strict=True):
@@ -202,6 +204,18 @@ def _rejoin(traj: Trajectories, cfg: AnchorConfig, spread_m: float) -> int:
             np.concatenate([a] + [s[i][:, None] for s in spilled], axis=1) for i, a in enumerate(arrays))
         traj.labels = list(traj.labels) + [f"fragment{k + 1}" for k in range(len(spilled))]
     return joined
+
+
+def _told_or_nearest(verdicts: np.ndarray, told: np.ndarray, frames: np.ndarray) -> np.ndarray:
+    """(n,) bool: ``verdicts`` in the ``frames`` (n,) sorted where ``told`` (an anchor was seen), elsewhere the
+    verdict of the nearest told frame (a frame without evidence goes with those around it)."""
+    if told.all() or not told.any():
+        return verdicts
+    at, said = frames[told], verdicts[told]
+    i = np.searchsorted(at, frames)
+    before, after = np.clip(i - 1, 0, at.size - 1), np.clip(i, 0, at.size - 1)
+    nearest = np.where(np.abs(frames - at[before]) <= np.abs(at[after] - frames), before, after)
+    return np.where(told, verdicts, said[nearest])
 
 
 def _anchor_votes(P: np.ndarray, rows: np.ndarray, X: np.ndarray, median: np.ndarray, strong: np.ndarray,

@@ -92,6 +92,24 @@ def test_where_the_target_held_a_neighbour_the_fitting_sample_stays_and_the_othe
     assert np.isfinite(traj.positions[..., 0]).sum() == before
 
 
+def test_where_no_anchor_is_seen_in_a_shared_frame_it_goes_with_the_frames_around_it():
+    """As above, with both anchors unseen over frames 155-160: those frames tell nothing, and they go with the
+    shared frames around them (X's samples to X's identity), not to the target's own sample (the serve's fresh
+    5 %-hidden seed 37: LASI's and RBAK's samples alternated between two identities wherever the one anchor was
+    unseen, 16 switches)."""
+    truth = _segment(FOREARM, seed=3)
+    traj = _columns(truth, [
+        [(A1, 0, 155), (A1, 161, F)], [(A2, 0, 155), (A2, 161, F)],
+        [(X, 0, 150), (Y, 150, 170), (X, 170, 300)],
+        [(X, 150, 170), (X, 500, 540)],
+        [(Y, 0, 150), (Y, 170, F)],
+    ])
+    assert rejoin_by_anchors(traj, AnchorConfig(loose_spread_m=0.0)) == 1
+    assert _holder(traj, truth, X) == {2: 340}
+    held = _holder(traj, truth, Y)
+    assert held.pop(4) == 580 and list(held.values()) == [20]
+
+
 def test_a_fragment_that_fits_two_markers_seen_together_is_left_alone():
     mirror = np.array([[0.0, 0.0, 0.0], [0.049, 0.0, 0.0], [0.030, 0.050, 0.0], [0.030, -0.050, 0.0]])
     truth = _segment(mirror, seed=4)  # markers 2 and 3: the same distances to 0 and 1
