@@ -163,8 +163,7 @@ def unscramble_bursts(traj: Trajectories, jump_acc: float, config: ScrambleConfi
     history = max(window, int(round(cfg.history_s * traj.fps)))  # frames
     established = max(enough, int(round(cfg.min_history_s * traj.fps)))  # samples a range needs
     history_gap = max(1, int(round(cfg.history_gap_s * traj.fps)))  # frames
-    hops = _hop_frames(P, jump_acc)
-    jerky = _jerky(P, jump_acc)
+    hops, jerky = _hops(P, jump_acc)
     for first, last, found in _bursts(P, hops, join, jump_acc, cfg):
         ids = column[found]
         start = last + 1 + cfg.gap
@@ -215,34 +214,30 @@ def _accelerations(P: np.ndarray) -> np.ndarray:
     return np.linalg.norm(_second_differences(P), axis=2)
 
 
-def _jerky(P: np.ndarray, jump_acc: float) -> np.ndarray:
-    """(F, M) whether each sample of ``P`` (F, M, 3) accelerates unlike the one before or after it: the two
-    accelerations differ by more than ``jump_acc`` m/frame^2, or one is not measured (a hop of an identity onto a
-    marker ``d`` away accelerates by ``d``, then by ``-d``)."""
-    change = np.linalg.norm(np.diff(_second_differences(P), axis=0), axis=2)  # (F-1, M) NaN where unmeasured
-    with np.errstate(invalid="ignore"):
-        smooth = change <= jump_acc
-    smooth_next, smooth_before = np.zeros(P.shape[:2], dtype=bool), np.zeros(P.shape[:2], dtype=bool)
-    smooth_next[:-1] = smooth
-    smooth_before[1:] = smooth
-    return ~(smooth_next & smooth_before)
-
-
 def _fast_motion(P: np.ndarray, hops: np.ndarray, jerky: np.ndarray, first: int, last: int, found: np.ndarray,
                  ids: np.ndarray) -> bool:
     """Whether a burst (frames ``first`` .. ``last``; identities ``found`` (g,) as in ``hops`` (n, 2) and
     ``jerky`` (F, M), ``ids`` (g,) now in ``P`` (F, M, 3)) is fast motion, not hops: every identity seen from the
-    frame before it to the frame after, and no hop jerky (:func:`_jerky`)."""
+    frame before it to the frame after, and no hop jerky (:func:`_hops`)."""
     inside = (hops[:, 0] >= first) & (hops[:, 0] <= last) & np.isin(hops[:, 1], found)
     return (not jerky[hops[inside, 0], hops[inside, 1]].any()
             and bool(np.isfinite(P[max(first - 1, 0):last + 2, ids, 0]).all()))
 
 
-def _hop_frames(P: np.ndarray, jump_acc: float) -> np.ndarray:
+def _hops(P: np.ndarray, jump_acc: float) -> tuple[np.ndarray, np.ndarray]:
     """(n, 2) frame, identity of every sample of ``P`` (F, M, 3) accelerating over ``jump_acc`` m/frame^2, in frame
-    order."""
+    order; and (F, M) whether each sample accelerates unlike the one before or after it: the two accelerations
+    differ by more than ``jump_acc``, or one is not measured (a hop of an identity onto a marker ``d`` away
+    accelerates by ``d``, then by ``-d``)."""
+    second = _second_differences(P)
+    change = np.linalg.norm(np.diff(second, axis=0), axis=2)  # (F-1, M) NaN where unmeasured
     with np.errstate(invalid="ignore"):
-        return np.argwhere(_accelerations(P) > jump_acc)
+        hops = np.argwhere(np.linalg.norm(second, axis=2) > jump_acc)
+        smooth = change <= jump_acc
+    smooth_next, smooth_before = np.zeros(P.shape[:2], dtype=bool), np.zeros(P.shape[:2], dtype=bool)
+    smooth_next[:-1] = smooth
+    smooth_before[1:] = smooth
+    return hops, ~(smooth_next & smooth_before)
 
 
 def _bursts(P: np.ndarray, hops: np.ndarray, join: int, jump_acc: float, cfg: ScrambleConfig

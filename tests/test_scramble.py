@@ -13,8 +13,7 @@ from scipy.spatial.transform import Rotation
 from mocap.scramble import (
     ScrambleConfig,
     _choose,
-    _hop_frames,
-    _jerky,
+    _hops,
     _range_terms,
     _rigid_terms,
     _Tables,
@@ -168,8 +167,9 @@ def test_a_fast_turn_without_a_hop_is_left_alone():
     np.testing.assert_array_equal(traj.positions, seen)
     hopped = seen.copy()
     hopped[200:202, [0, 1]] = seen[200:202, [1, 0]]
-    assert _hop_frames(hopped, 0.002)[:, 0].min() == 199
-    assert _jerky(hopped, 0.002)[[199, 201], 1].all()
+    hops, jerky = _hops(hopped, 0.002)
+    assert hops[:, 0].min() == 199
+    assert jerky[[199, 201], 1].all()
 
 
 def test_markers_with_no_steady_distance_are_left_alone():

@@ -391,9 +391,6 @@ def _points_to_film(traj: Trajectories, path: Path) -> tuple[np.ndarray, np.ndar
     if not_markers.any():
         log.info("%s: %d of its %d points are model outputs (angles, forces, moments, powers, modelled markers), "
                  "not markers: not filmed", path, int(not_markers.sum()), traj.n_markers)
-        if not_markers.all():
-            raise MocapError(f"{path}: every point of the file is a model output (angles, forces, ...), none a "
-                             "marker; give the file with the markers' trajectories")
     seen_ever = valid.any(axis=0)
     keep = seen_ever & ~not_markers
     axes = _segment_axes(traj.positions, traj.labels, keep)
@@ -401,9 +398,9 @@ def _points_to_film(traj: Trajectories, path: Path) -> tuple[np.ndarray, np.ndar
         log.info("%s: %d points are segments' axes a model wrote (origin and three axis points, e.g. Plug-in Gait's "
                  "bones), not markers: not filmed", path, int(axes.sum()))
         keep &= ~axes
-        if not keep.any():
-            raise MocapError(f"{path}: every point of the file is a model output (segment axes), none a marker; "
-                             "give the file with the markers' trajectories")
+    if not keep.any():
+        raise MocapError(f"{path}: every point of the file seen is a model output (angles, forces, segment axes, "
+                         "...), none a marker; give the file with the markers' trajectories")
     centres = _midpoints(traj.positions, keep)
     if centres.any():
         log.info("%s: %d point(s) stay halfway between two others in every frame (joint centres a model wrote), not "
