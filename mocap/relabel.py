@@ -928,9 +928,11 @@ def repair_identities(traj: Trajectories, config: RelabelConfig | None = None,
     fill from unconfirmed points (:mod:`mocap.fill`), the bridging of gaps by where the neighbours carry a
     marker (:mod:`mocap.bridge`), two markers' identities given back where they came back from a shared gap each
     under the other's (:mod:`mocap.gap_exchange`), the exchanges between a skin-mounted cluster's identities undone
-    by the references both keep (:mod:`mocap.skin`), where hops are clear (:meth:`RelabelConfig.hops_clear`),
-    samples off their identity's own path withheld (:mod:`mocap.offpath`), and the identities of one marker that
-    take turns or follow each other merged (:mod:`mocap.alternate`), in place; empty identity columns are dropped.
+    by the references both keep (:mod:`mocap.skin`), fragments rejoined by anchors once more (the identity a
+    fragment fits may have held another marker over its frames until those passes gave it back), where hops are
+    clear (:meth:`RelabelConfig.hops_clear`), samples off their identity's own path withheld (:mod:`mocap.offpath`),
+    and the identities of one marker that take turns or follow each other merged (:mod:`mocap.alternate`), in place;
+    empty identity columns are dropped.
     ``unconfirmed``: the tracker's points without identity (:meth:`mocap.tracker.Tracker.unconfirmed`), which the
     plate labelling and the fill may give one.
 
@@ -962,6 +964,9 @@ def repair_identities(traj: Trajectories, config: RelabelConfig | None = None,
     stats.gap_exchanges = undo_gap_exchanges(traj, jump_acc=jump, reversal_acc=limits.reversal_acc(traj.fps))
     stats.junctions = undo_junctions(traj, jump_acc=jump, reversal_acc=limits.reversal_acc(traj.fps))
     stats.skin_exchanges = undo_skin_exchanges(traj, jump_acc=jump, reversal_acc=limits.reversal_acc(traj.fps))
+    # (a fragment whose identity held another marker over its frames, which the passes since gave back, can join
+    # it now)
+    stats.rejoined += rejoin_by_anchors(traj)
     if limits.hops_clear(traj.fps):  # (at 50 Hz a swing's own samples leave any smooth path through their neighbours)
         stats.off_path = withhold_off_path(traj)
     stats.merged = merge_alternating(traj)

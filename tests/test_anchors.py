@@ -23,13 +23,13 @@ def _segment(local: np.ndarray, seed: int, noise_m: float = 0.0003) -> np.ndarra
     return world + rng.normal(scale=noise_m, size=world.shape)
 
 
-def _columns(truth: np.ndarray, pieces: list[list[tuple[int, int, int]]]) -> Trajectories:
+def _columns(truth: np.ndarray, pieces: list[list[tuple[int, int, int]]], fps: float = FPS) -> Trajectories:
     """Identity columns made of pieces (truth marker, first frame, end frame) of ``truth`` (F, n, 3)."""
     P = np.full((F, len(pieces), 3), np.nan)
     for col, parts in enumerate(pieces):
         for marker, a, b in parts:
             P[a:b, col] = truth[a:b, marker]
-    return Trajectories([f"id{k}" for k in range(len(pieces))], FPS, P)
+    return Trajectories([f"id{k}" for k in range(len(pieces))], fps, P)
 
 
 def _holder(traj: Trajectories, truth: np.ndarray, marker: int) -> dict[int, int]:
@@ -157,6 +157,37 @@ def test_the_identity_repair_runs_it():
     assert stats.stitches == 0 and stats.rejoined == 1
     assert traj.n_markers == 4 and traj.labels == ["M001", "M002", "M003", "M004"]
     assert list(_holder(traj, truth, X).values()) == [270]
+
+
+def test_the_identity_repair_joins_a_fragment_whose_identity_a_later_pass_freed():
+    """The two players' fresh 5 %-hidden seed 38 at 50 Hz: LTOE, lost for 1.4 s, came back under a new identity,
+    and the tracker had given LTOE's own identity to LTIB, back from a gap of its own meanwhile. The anchors could
+    not join the two (the identity held LTIB over the fragment's frames); the bridge gave LTIB back to its identity
+    later in the repair, and the fragment has to be offered to the anchors again then. Here X is a skin marker whose
+    distances to A1 and A2 spread 4-5 mm (too loose for the re-linking's distances, within the loose anchors'), Z a
+    marker of another, wobbling segment drifting away from the arm."""
+    from mocap.relabel import RelabelConfig, repair_identities
+
+    arm = _segment(FOREARM[[A1, A2, X]], seed=11)
+    along = arm[:, 2] - arm[:, 0]
+    arm[:, 2] += 0.0045 * np.sin(2 * np.pi * np.arange(F) / 17)[:, None] * along / np.linalg.norm(
+        along, axis=1, keepdims=True)
+    other = _segment(np.vstack([FOREARM[:3], FOREARM[:2] + [0.0, 0.0, 0.08]]) + [0.2, 0.0, 0.0], seed=12)
+    t = np.arange(F)[:, None]
+    other += 0.02 * np.sin(2 * np.pi * t / np.array([15, 11, 9, 13, 17]) + np.arange(5))[:, :, None] * np.array(
+        [1.0, 0.5, -0.7])
+    other += np.linspace(0.0, 0.1, F)[:, None, None] * np.array([1.0, 0.0, 0.0])
+    truth = np.concatenate([arm, other], axis=1)  # A1, A2, X, then the other segment's five markers, Z the third
+    x, z = 2, 5
+    traj = _columns(truth, [[(0, 0, F)], [(1, 0, F)], [(3, 0, F)], [(4, 0, F)], [(6, 0, F)], [(7, 0, F)],
+                            [(x, 0, 250), (z, 430, F)],  # X's identity, given to Z after X was lost
+                            [(z, 0, 300)],  # Z's own identity
+                            [(x, 520, F)]],  # X back under a new identity
+                    fps=50.0)
+    stats = repair_identities(traj, RelabelConfig())
+    assert stats.bridged == 1
+    assert list(_holder(traj, truth, x).values()) == [330]
+    assert list(_holder(traj, truth, z).values()) == [470]
 
 
 def test_a_run_where_an_identity_hopped_onto_a_neighbour_moves_to_the_neighbours_identity():
