@@ -17,12 +17,7 @@ jointly, by every distance of every marker involved at once.
    after it within ``reach_m`` of one of its identities (a marker lost in the burst and found again as a new
    identity, or as one lost long before, whose tail is a burst identity's), then the leavers: those last seen
    within ``newcomer_s`` before the burst's first hop or later, within ``reach_m`` of one of its identities, and
-   not seen again through the window after it (an identity that ended in the burst while another took its marker).
-   A burst is fast motion, not hops, and left alone, where no newcomer or leaver joins it, its identities are all seen
-   from the frame before it to the frame after, and each hop's acceleration differs from the one before and after
-   it by ``jump_acc`` at most (an identity hopping onto a marker d away accelerates by d, then by -d: a change of 2d;
-   the serve's finger at the swing, 50 Hz, accelerates 110 mm/frame^2 against a threshold of 100, changing by 72 at
-   most, and a reference exchanged just after its burst had swapped it with the wrist's identity);
+   not seen again through the window after it (an identity that ended in the burst while another took its marker);
 2. measures each burst identity's distance to every identity within ``reach_m`` over the ``history_s`` before the
    burst, since the identity was last missing for ``history_gap_s`` (before such a gap it may have been another
    marker's: the tracker's re-identifications after long gaps are where identities get mixed): the range it kept
@@ -47,7 +42,14 @@ jointly, by every distance of every marker involved at once.
    than the elbow's), where it does so by ``drift_gap_m`` over the next; else the one that moves the fewest
    identities (the tracker's choice stands where nothing tells). It is applied where it beats keeping the tails by
    ``margin_nats`` and, scored against the frames before ending ``recheck_s`` earlier, is still tied with the best
-   and no worse than keeping the tails (frames right before a burst can hold the recording's own garbled labels): from
+   and no worse than keeping the tails (frames right before a burst can hold the recording's own garbled labels), and
+   where it moves no steady member: one seen from two frames before the burst to two after whose acceleration
+   changes by ``jump_acc`` at most from each sample to the next (it made no hop: an identity hopping onto a marker d
+   away accelerates by d, then by -d, a change of 2d). Such an identity kept its marker through the burst, however
+   fast (the serve's finger at the swing, 50 Hz, accelerates 110 mm/frame^2 against a threshold of 100, changing by
+   72 at most: a reference exchanged just after its burst had swapped it with the wrist's identity; the serve's
+   5 %-hidden seed 41: a burst of seven with a newcomer and a leaver, whose best permutation shifted five arm
+   identities by one marker, the wrist's and the finger's among them, IDF1 0.9753). It is applied from
    the frame of the burst that gives the tracks the smoothest paths through it. (A distance's drift is how far it
    left its range, or changed from its median over the window.) Then each frame of the burst gives its samples of
    the burst's identities to those whose paths through it (cubic Hermite curves from their last two samples before
@@ -163,17 +165,14 @@ def unscramble_bursts(traj: Trajectories, jump_acc: float, config: ScrambleConfi
     history = max(window, int(round(cfg.history_s * traj.fps)))  # frames
     established = max(enough, int(round(cfg.min_history_s * traj.fps)))  # samples a range needs
     history_gap = max(1, int(round(cfg.history_gap_s * traj.fps)))  # frames
-    hops, jerky = _hops(P, jump_acc)
+    hops = _hops(P, jump_acc)
     for first, last, found in _bursts(P, hops, join, jump_acc, cfg):
         ids = column[found]
         start = last + 1 + cfg.gap
         if ids.size > cfg.max_identities or first < window or start + window > len(P):
             continue
         before = slice(first - window, first)
-        more = _newcomers_and_leavers(P, ids, before, first, last, start + recent, recent, window, cfg)
-        if more.size == 0 and _fast_motion(P, hops, jerky, first, last, found, ids):
-            continue
-        ids = np.union1d(ids, more)
+        ids = np.union1d(ids, _newcomers_and_leavers(P, ids, before, first, last, start + recent, recent, window, cfg))
         now, _, measured = _window_distances(P, slice(start, start + window), ids)
         seen = measured >= enough
         order = None
@@ -191,6 +190,8 @@ def unscramble_bursts(traj: Trajectories, jump_acc: float, config: ScrambleConfi
                     if least is None or cost[1] - least[0][0] >= cfg.tie_nats or cost[1] > cost[0]:
                         order = None
             break
+        if order is not None and (order != np.arange(ids.size))[_steady(P, first, last, ids, jump_acc)].any():
+            order = None  # (an identity that made no hop kept its marker)
         if order is not None:
             traj.permute_tails(smoothest_split(P, first, last, ids, ids[order]), ids[order], ids)
             _settle_burst(traj, first, last, ids)
@@ -214,30 +215,21 @@ def _accelerations(P: np.ndarray) -> np.ndarray:
     return np.linalg.norm(_second_differences(P), axis=2)
 
 
-def _fast_motion(P: np.ndarray, hops: np.ndarray, jerky: np.ndarray, first: int, last: int, found: np.ndarray,
-                 ids: np.ndarray) -> bool:
-    """Whether a burst (frames ``first`` .. ``last``; identities ``found`` (g,) as in ``hops`` (n, 2) and
-    ``jerky`` (F, M), ``ids`` (g,) now in ``P`` (F, M, 3)) is fast motion, not hops: every identity seen from the
-    frame before it to the frame after, and no hop jerky (:func:`_hops`)."""
-    inside = (hops[:, 0] >= first) & (hops[:, 0] <= last) & np.isin(hops[:, 1], found)
-    return (not jerky[hops[inside, 0], hops[inside, 1]].any()
-            and bool(np.isfinite(P[max(first - 1, 0):last + 2, ids, 0]).all()))
-
-
-def _hops(P: np.ndarray, jump_acc: float) -> tuple[np.ndarray, np.ndarray]:
-    """(n, 2) frame, identity of every sample of ``P`` (F, M, 3) accelerating over ``jump_acc`` m/frame^2, in frame
-    order; and (F, M) whether each sample accelerates unlike the one before or after it: the two accelerations
-    differ by more than ``jump_acc``, or one is not measured (a hop of an identity onto a marker ``d`` away
-    accelerates by ``d``, then by ``-d``)."""
-    second = _second_differences(P)
-    change = np.linalg.norm(np.diff(second, axis=0), axis=2)  # (F-1, M) NaN where unmeasured
+def _steady(P: np.ndarray, first: int, last: int, ids: np.ndarray, jump_acc: float) -> np.ndarray:
+    """(g,) bool: the identities ``ids`` (g,) of ``P`` (F, M, 3) seen from two frames before a burst (frames
+    ``first`` .. ``last``) to two after whose acceleration changes by at most ``jump_acc`` m/frame^2 from each sample
+    to the next: they made no hop (one onto a marker d away changes it by 2d)."""
+    span = P[max(first - 2, 0):last + 3, ids]  # (s, g, 3)
+    change = np.linalg.norm(np.diff(_second_differences(span)[1:-1], axis=0), axis=2)  # (s - 3, g) NaN: unmeasured
     with np.errstate(invalid="ignore"):
-        hops = np.argwhere(np.linalg.norm(second, axis=2) > jump_acc)
-        smooth = change <= jump_acc
-    smooth_next, smooth_before = np.zeros(P.shape[:2], dtype=bool), np.zeros(P.shape[:2], dtype=bool)
-    smooth_next[:-1] = smooth
-    smooth_before[1:] = smooth
-    return hops, ~(smooth_next & smooth_before)
+        return np.isfinite(span[..., 0]).all(axis=0) & (change <= jump_acc).all(axis=0)
+
+
+def _hops(P: np.ndarray, jump_acc: float) -> np.ndarray:
+    """(n, 2) frame, identity of every sample of ``P`` (F, M, 3) accelerating over ``jump_acc`` m/frame^2, in frame
+    order."""
+    with np.errstate(invalid="ignore"):
+        return np.argwhere(_accelerations(P) > jump_acc)
 
 
 def _bursts(P: np.ndarray, hops: np.ndarray, join: int, jump_acc: float, cfg: ScrambleConfig

@@ -16,6 +16,7 @@ from mocap.scramble import (
     _hops,
     _range_terms,
     _rigid_terms,
+    _steady,
     _Tables,
     _window_ranges,
     unscramble_bursts,
@@ -147,29 +148,35 @@ def test_a_fast_turn_without_a_hop_is_left_alone():
     hop, both seen throughout. Two markers nearby that are in no burst (an elbow's and a forearm's) come back from a
     one-frame gap at 306 under each other's identities, and the finger's tail then happens to sit at the wrist's
     old distance to the elbow's identity (the serve's 5 %-hidden seed 34 exchanged RFIN and RWRB on this, IDF1
-    0.9622). Nothing moves. Had the finger's identity hopped onto the wrist marker for two frames, its
-    accelerations there would have changed by twice the hop."""
+    0.9622). Nothing moves, also where a marker beside the wrist is first seen just after the turn (a newcomer the
+    burst takes in: the serve's seed 41 shifted five arm identities by one marker in such a burst, IDF1 0.9753).
+    Had the finger's identity hopped onto the wrist marker for two frames, its accelerations there would have changed
+    by twice the hop."""
     frames = np.arange(400)
     t = frames / FPS
     late = 1 / (1 + np.exp(-(frames - 300) / 2.4))  # the turn, over frames 290-310
     theta = (np.pi / 2 + 0.4 * np.sin(3 * np.pi * t)) * (1 - late) + (0.1 + 0.05 * np.sin(3 * np.pi * t)) * late
-    P = np.zeros((400, 4, 3))
+    P = np.zeros((400, 5, 3))
     P[..., 2] = 1.0
     P[:, 0, 0] = 0.243 + 0.019 * np.sin(1.4 * np.pi * t)  # wrist
     P[:, 1, :2] = P[:, 0, :2] + 0.11 * np.c_[np.cos(theta), np.sin(theta)]  # finger
     P[:, 3, 0] = 0.12  # forearm (the elbow at the origin)
+    P[:, 4] = P[:, 0] + np.array([0.0, -0.08, 0.03])  # beside the wrist
     P += np.random.default_rng(5).normal(0, 0.00005, P.shape)
     seen = P.copy()
     seen[306:, [2, 3]] = P[306:, [3, 2]]
     seen[306, [2, 3]] = np.nan
-    traj = _traj(seen)
-    assert unscramble_bursts(traj, 0.002) == 0
-    np.testing.assert_array_equal(traj.positions, seen)
+    for first_seen in (0, 306):  # the marker beside the wrist seen throughout; first seen after the turn
+        newcomer = seen.copy()
+        newcomer[:first_seen, 4] = np.nan
+        traj = _traj(newcomer)
+        assert unscramble_bursts(traj, 0.002) == 0
+        np.testing.assert_array_equal(traj.positions, newcomer)
+    assert _steady(seen, 297, 303, np.arange(2), 0.002).all()
     hopped = seen.copy()
     hopped[200:202, [0, 1]] = seen[200:202, [1, 0]]
-    hops, jerky = _hops(hopped, 0.002)
-    assert hops[:, 0].min() == 199
-    assert jerky[[199, 201], 1].all()
+    assert _hops(hopped, 0.002)[:, 0].min() == 199
+    assert not _steady(hopped, 199, 202, np.arange(2), 0.002).any()
 
 
 def test_markers_with_no_steady_distance_are_left_alone():
