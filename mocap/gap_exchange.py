@@ -17,7 +17,10 @@ other around it, and for every jump of an identity (the repair's jump rule) onto
 identity's sample the frame before than its own (a 50 Hz serve's wrist and finger markers, 43-98 mm apart, taking
 each other's identities between two frames), and for every jump of an identity in a frame where another one is in
 such a gap, near or not (a clavicle marker back from 0.9 s hidden, taken by the identity of the finger marker that
-swung past it and was lost), in time order (shared gaps, jumps onto another's path, jumps into a gap in a frame):
+swung past it and was lost), and for every gap of two frames at most beside an identity that accelerated over 0.8
+of the jump threshold in it within 0.3 m of the hidden marker (a 50 Hz swing hides a hop onto it in the arm's own
+acceleration: the serve's RFRM identity stepped onto RELB while RELB's missed a frame, then took RFRM), in time
+order (shared gaps, jumps onto another's path, jumps into a gap, short gaps beside a jolt, in a frame):
 
 1. takes the windows: each identity's last ``window_s`` of samples before the shared gap (or the jump) and first
    after it (none after for an identity that ended, none before for one that started);
@@ -81,6 +84,10 @@ class GapExchangeConfig:
         clip: largest squared error, in spreads, one reference adds to a fit.
         ratio: the exchanged fit must be at most this times the kept one ...
         margin: ... and below it by this at least (one reference's full clip).
+        beside_frames: a gap this long at most inside an identity's span pairs it with ...
+        beside_m: ... every identity seen in the gap's first frame within this of the gap's last sample before, m ...
+        beside_jolt: ... that accelerated over this fraction of the jump threshold there (in the gap's first frame or
+            the one before): it may have taken the hidden identity's marker in a swing that hides the hop.
     """
 
     max_gap_s: float = 3.0
@@ -94,6 +101,9 @@ class GapExchangeConfig:
     clip: float = 16.0
     ratio: float = 0.8
     margin: float = 16.0
+    beside_frames: int = 2
+    beside_m: float = 0.3
+    beside_jolt: float = 0.8
 
 
 def _gaps(seen: np.ndarray, max_len: int) -> np.ndarray:
@@ -285,17 +295,42 @@ def _jumps_into_gaps(frames: np.ndarray, cols: np.ndarray, gaps: np.ndarray) -> 
     return np.unique(np.stack([frames[j], frames[j], a, b], axis=1), axis=0)
 
 
-def _candidates(P: np.ndarray, max_len: int, jump: tuple[float, float]) -> list[tuple[int, int, int, int, int]]:
+def _beside_short_gaps(P: np.ndarray, gaps: np.ndarray, jump_acc: float, cfg: GapExchangeConfig) -> np.ndarray:
+    """(L, 4) int: (first frame, last frame, column a, column b), a < b, for every gap of ``gaps`` (K, 4) inside its
+    column's span and ``beside_frames`` long at most, with each identity of ``P`` (F, M, 3) seen in its first frame
+    within ``beside_m`` of the column's last sample before it and accelerating there (that frame or the one before)
+    over ``beside_jolt`` times ``jump_acc`` m/frame^2 (a 50 Hz swing's hop onto the hidden marker, masked by the
+    arm's own acceleration)."""
+    F = len(P)
+    short = gaps[(gaps[:, 3] == 0) & (gaps[:, 2] - gaps[:, 1] < cfg.beside_frames) & (gaps[:, 1] >= 2)
+                 & (gaps[:, 1] + 1 < F)]
+    if short.size == 0 or not np.isfinite(jump_acc):
+        return np.zeros((0, 4), dtype=np.intp)
+    col, t = short[:, 0], short[:, 1]
+    near = np.linalg.norm(P[t] - P[t - 1, col][:, None], axis=2)  # (K, M) m, NaN where unseen
+    jolt = np.fmax(np.linalg.norm(P[t + 1] - 2 * P[t] + P[t - 1], axis=2),
+                   np.linalg.norm(P[t] - 2 * P[t - 1] + P[t - 2], axis=2))  # (K, M) m/frame^2
+    with np.errstate(invalid="ignore"):
+        k, other = np.nonzero((near < cfg.beside_m) & (jolt > cfg.beside_jolt * jump_acc))
+    keep = other != col[k]
+    k, other = k[keep], other[keep]
+    return np.stack([t[k], short[k, 2], np.minimum(other, col[k]), np.maximum(other, col[k])], axis=1)
+
+
+def _candidates(P: np.ndarray, max_len: int, jump: tuple[float, float], cfg: GapExchangeConfig
+                ) -> list[tuple[int, int, int, int, int]]:
     """(first frame, kind, column a, column b, last frame) of every shared gap (kind 0), jump onto another's
-    path (kind 1) and jump while another is in a gap (kind 2) of ``P`` (F, M, 3), in time order, by kind in a
-    frame; ``jump``: the jump rule's accelerations (inf: gaps only)."""
+    path (kind 1), jump while another is in a gap (kind 2) and short gap beside a jolt (kind 3,
+    :func:`_beside_short_gaps`) of ``P`` (F, M, 3), in time order, by kind in a frame; ``jump``: the jump rule's
+    accelerations (inf: gaps only)."""
     gaps = _gaps(np.isfinite(P[..., 0]), max_len)
     shared = _shared_gaps(gaps)
     frames, cols = np.nonzero(jump_starts(P, *jump)) if np.isfinite(jump).any() else (np.zeros(0, np.intp),) * 2
     jumps = _jump_pairs(P, frames, cols)
     into = _jumps_into_gaps(frames, cols, gaps)
-    rows = np.concatenate([shared, jumps, into]).astype(np.intp)
-    kind = np.repeat(np.arange(3), [len(shared), len(jumps), len(into)])
+    beside = _beside_short_gaps(P, gaps, jump[0], cfg)
+    rows = np.concatenate([shared, jumps, into, beside]).astype(np.intp)
+    kind = np.repeat(np.arange(4), [len(shared), len(jumps), len(into), len(beside)])
     order = np.lexsort((rows[:, 3], rows[:, 2], kind, rows[:, 0]))
     return [(int(r[0]), int(k), int(r[2]), int(r[3]), int(r[1])) for r, k in zip(rows[order], kind[order], strict=True)]
 
@@ -315,7 +350,7 @@ def undo_gap_exchanges(traj: Trajectories, config: GapExchangeConfig | None = No
     done_upto = (-1, -1, -1, -1)  # (frame, kind, a, b) of the last candidate looked at
     while True:
         seen = np.isfinite(P[..., 0])
-        candidates = _candidates(P, int(round(cfg.max_gap_s * traj.fps)), (jump_acc, reversal_acc))
+        candidates = _candidates(P, int(round(cfg.max_gap_s * traj.fps)), (jump_acc, reversal_acc), cfg)
         exchanged = False
         for t, kind, a, b, last in candidates:
             if (t, kind, a, b) <= done_upto:
