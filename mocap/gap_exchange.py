@@ -301,9 +301,7 @@ def _beside_short_gaps(P: np.ndarray, gaps: np.ndarray, jump_acc: float, cfg: Ga
     within ``beside_m`` of the column's last sample before it and accelerating there (that frame or the one before)
     over ``beside_jolt`` times ``jump_acc`` m/frame^2 (a 50 Hz swing's hop onto the hidden marker, masked by the
     arm's own acceleration)."""
-    F = len(P)
-    short = gaps[(gaps[:, 3] == 0) & (gaps[:, 2] - gaps[:, 1] < cfg.beside_frames) & (gaps[:, 1] >= 2)
-                 & (gaps[:, 1] + 1 < F)]
+    short = gaps[(gaps[:, 3] == 0) & (gaps[:, 2] - gaps[:, 1] < cfg.beside_frames) & (gaps[:, 1] >= 2)]
     if short.size == 0 or not np.isfinite(jump_acc):
         return np.zeros((0, 4), dtype=np.intp)
     col, t = short[:, 0], short[:, 1]

@@ -18,7 +18,7 @@ import numpy as np
 from mocap import kernels
 
 __all__ = ["PAIRS", "PERMUTATIONS", "close_pairs", "column_runs", "pair_statistics", "placement_jumps", "jump_starts",
-           "rigid_triangles", "seen_blocks", "split_tracklets"]
+           "rigid_triangles", "second_differences", "seen_blocks", "split_tracklets"]
 
 STATISTICS_FRAMES = 4096  # frames per chunk of the co-seen counts, and most frames the distances are taken over
 _SPAN_FRAMES = 256  # frames whose seen identities :func:`seen_blocks` gives together
@@ -134,11 +134,18 @@ def jump_starts(P: np.ndarray, split_acc: float, reversal_acc: float = np.inf) -
     return out
 
 
+def second_differences(P: np.ndarray) -> np.ndarray:
+    """(F, M, 3) the acceleration (second difference) of every sample of ``P`` (F, M, 3), m/frame^2; NaN at the
+    ends and next to missing samples."""
+    second = np.full(P.shape, np.nan)
+    second[1:-1] = P[2:] - 2 * P[1:-1] + P[:-2]
+    return second
+
+
 def _jump_starts(P: np.ndarray, split_acc: float, reversal_acc: float) -> np.ndarray:
     """:func:`jump_starts` of one block of columns."""
     valid = np.isfinite(P[:, :, 0])
-    vec = np.full(P.shape, np.nan)
-    vec[1:-1] = P[2:] - 2 * P[1:-1] + P[:-2]
+    vec = second_differences(P)
     acc = np.zeros(valid.shape)  # (0 where it cannot be computed: no jump)
     acc[1:-1] = np.nan_to_num(np.linalg.norm(vec[1:-1], axis=2))
     with np.errstate(invalid="ignore"):  # (NaN where a sample is missing: no reversal)

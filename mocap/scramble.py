@@ -78,6 +78,7 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 
 from mocap.exchange import roughness, smoothest_split
+from mocap.rigid import second_differences
 from mocap.trajectories import MISSING, Trajectories
 
 __all__ = ["ScrambleConfig", "unscramble_bursts"]
@@ -202,17 +203,9 @@ def unscramble_bursts(traj: Trajectories, jump_acc: float, config: ScrambleConfi
     return done
 
 
-def _second_differences(P: np.ndarray) -> np.ndarray:
-    """(F, M, 3) the acceleration (second difference) of every sample of ``P`` (F, M, 3), m/frame^2; NaN at the
-    ends and next to missing samples."""
-    second = np.full(P.shape, np.nan)
-    second[1:-1] = P[2:] - 2 * P[1:-1] + P[:-2]
-    return second
-
-
 def _accelerations(P: np.ndarray) -> np.ndarray:
-    """(F, M) the size of every sample's acceleration (:func:`_second_differences`), m/frame^2."""
-    return np.linalg.norm(_second_differences(P), axis=2)
+    """(F, M) the size of every sample's acceleration (:func:`mocap.rigid.second_differences`), m/frame^2."""
+    return np.linalg.norm(second_differences(P), axis=2)
 
 
 def _steady(P: np.ndarray, first: int, last: int, ids: np.ndarray, jump_acc: float) -> np.ndarray:
@@ -220,7 +213,7 @@ def _steady(P: np.ndarray, first: int, last: int, ids: np.ndarray, jump_acc: flo
     ``first`` .. ``last``) to two after whose acceleration changes by at most ``jump_acc`` m/frame^2 from each sample
     to the next: they made no hop (one onto a marker d away changes it by 2d)."""
     span = P[max(first - 2, 0):last + 3, ids]  # (s, g, 3)
-    change = np.linalg.norm(np.diff(_second_differences(span)[1:-1], axis=0), axis=2)  # (s - 3, g) NaN: unmeasured
+    change = np.linalg.norm(np.diff(second_differences(span)[1:-1], axis=0), axis=2)  # (s - 3, g) NaN: unmeasured
     with np.errstate(invalid="ignore"):
         return np.isfinite(span[..., 0]).all(axis=0) & (change <= jump_acc).all(axis=0)
 
