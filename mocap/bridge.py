@@ -18,10 +18,13 @@ frames of the ending piece and the first ``check_frames`` of the starting one; r
 miss. Then one optimal assignment of ends to starts per group of competing pieces:
 
 * a link the identities already make costs its miss / ``favour`` (a miss over ``keep_m``: as much as no link), or
-  nothing where no miss can be measured (too short a piece, too few neighbours): the repair's links stand unless
-  the neighbours refute them. A link over a gap longer than ``max_gap_s`` (the repair's distance rules join pieces
-  seconds apart; the bridge measures such a link but does not search for one) weighs less: refuted, it costs as
-  much as leaving both its pieces unlinked, and unmeasured ``miss_m / 2``;
+  nothing where no miss can be measured (an ending piece too short to fit, too few neighbours): the repair's links
+  stand unless the neighbours refute them. A starting piece of one sample is measured on that sample: a lost
+  identity that took one glimpse of another marker in its gap kept that link for free, and the marker's own return
+  under a new identity was left unlinked (the serve's seed 42: a thigh marker's identity, with a finger's glimpse).
+  A link over a gap longer than ``max_gap_s`` (the repair's distance rules join pieces seconds apart; the bridge
+  measures such a link but does not search for one) weighs less: refuted, it costs as much as leaving both its
+  pieces unlinked, and unmeasured ``miss_m / 2``;
 * another link costs its miss where it is below ``miss_m`` and its ending piece is ``fit_frames`` long or more
   (``short_frames`` or more where the miss is clearly the piece's best, ``short_ratio``);
 * leaving a piece unlinked costs ``miss_m``.
@@ -53,7 +56,7 @@ class BridgeConfig:
         min_gap: identities are cut into pieces at gaps longer than this, frames.
         max_gap_s: longest gap bridged, s.
         fit_frames: frames of the ending piece the combination is fitted over (at most; 3 at least).
-        check_frames: frames of the starting piece it is checked over (at most; 2 at least).
+        check_frames: frames of the starting piece it is checked over (at most; its one sample at least).
         neighbours: nearest identities the combination is of (3 at least are needed).
         reach_m: neighbours farther than this from the marker at the end are not used, m.
         ridge_m2: ridge of the combination's least squares, m^2 (a steady pose fits many combinations).
@@ -109,7 +112,7 @@ def carried_miss(P: np.ndarray, end: np.ndarray, start: np.ndarray, cfg: BridgeC
     before = np.arange(max(fa, la - cfg.fit_frames + 1), la + 1)
     after = np.arange(fb, min(lb, fb + cfg.check_frames - 1) + 1)
     before, after = before[seen[before, ma]], after[seen[after, mb]]
-    if before.size < 3 or after.size < 2:
+    if before.size < 3 or not after.size:
         return np.nan
     both = seen[before].all(axis=0) & seen[after].all(axis=0)
     both[[ma, mb]] = False

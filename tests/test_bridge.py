@@ -97,6 +97,21 @@ def test_links_without_evidence_stay_and_a_take_without_gaps_is_untouched():
     assert bridge_gaps(near) == 1 and len(_columns_of(near, truth)[0]) == 1
 
 
+def test_a_glimpse_of_another_marker_in_a_gap_does_not_hold_the_link():
+    """Marker 0's identity, hidden for 0.5 s, took one sample of marker 5 in the gap (a one-frame glimpse the
+    tracker gave the lost identity); marker 0 came back as a new identity. The one sample is measured too: the
+    neighbours carry marker 0 far from it, so marker 0's pieces are linked and the glimpse goes back to a piece of
+    its own."""
+    truth = _swinging_arm(7)
+    columns = ([[(0, 0, 99), (5, 110, 110)], [(0, 126, 199)], [(5, 0, 109), (5, 111, 199)]]
+               + [[(m, 0, 199)] for m in (1, 2, 3, 4, 6, 7, 8, 9)])
+    traj = _trajectories(columns, truth)
+    assert _columns_of(traj, truth)[0] == {0, 1}
+    assert bridge_gaps(traj) == 1
+    after = _columns_of(traj, truth)
+    assert len(after[0]) == 1 and not after[0] & after[5]
+
+
 def test_a_link_over_a_long_gap_gives_way_to_the_link_the_neighbours_carry():
     """The identity of marker 0 went on, after 3.2 s, with another marker back from a long absence (the repair's
     distance rules join pieces that far apart); marker 0 came back after 0.4 s as a new identity. The long link is
