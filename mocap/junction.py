@@ -27,7 +27,17 @@ when every member's tail is mapped at once, the references among them included.
    started (the serving hand's markers out of a swing under new identities), the best without those joins;
 5. gives each matched after-window's identity, from the last event on, to the identity its window before
    belongs to, up to where all the moved identities are hidden for ``window_s`` (what comes after was linked by
-   other evidence).
+   other evidence);
+6. looks at a junction step 4 leaves undecided once more, widened: at a 50 Hz swing the arm's markers hide in turn
+   over a few tenths of a second, and the identities that ended before the first event or start after the last are
+   outside ``span_s`` (the two players' 5 %-hidden seed 42: RFIN's identity ended 0.4 s before its arm's rotation,
+   RFRM's new one started 0.3 s after). It adds the identities unseen through the junction (and the frame before it)
+   whose last sample before it is within ``widen_s`` (or, with none, whose first after it), within ``near_m`` of a
+   member seen in that frame, and drops the members whose windows have fewer than two references each;
+   ``max_widened`` members at most. The windows then span the swing's bending, so no link is held to ``worst_fit``;
+   instead the best matching must also score at most ``ratio`` times every matching that makes other new links. The
+   repair widens only at rates where a body's own accelerations reach the jump threshold
+   (:meth:`mocap.relabel.RelabelConfig.hops_clear`: 50 Hz, not 100): there a swing hides an arm's markers in turn.
 
 Only whole samples move between identity columns; positions are never changed, and no sample is dropped.
 """
@@ -58,6 +68,10 @@ class JunctionConfig:
         max_members: most identities a junction has (the nearest to the first event's).
         worst_fit: each direction of a link the decision makes fits within this (mean over references of the
             clipped squared error, in spreads): 3 spreads, on average.
+        widen_s: an undecided junction is widened by the identities ended this long before it or starting this
+            long after it, s (step 6 of the module docstring).
+        max_widened: most identities a widened junction has, those with too few references left out (its
+            matchings grow as the factorial).
         fit: windows, references and the decision's ratio and margin.
     """
 
@@ -66,6 +80,8 @@ class JunctionConfig:
     min_members: int = 3
     max_members: int = 6
     worst_fit: float = 9.0
+    widen_s: float = 0.4
+    max_widened: int = 7
     fit: GapExchangeConfig = GapExchangeConfig()
 
 
@@ -208,8 +224,9 @@ def _matchings(before: list[int], after: list[int]):
             yield list(zip(before, chosen, strict=True))
 
 
-def _decide(prof: _Profiles, members: tuple[int, ...], M: int, cfg: JunctionConfig) -> list[tuple[int, int]] | None:
-    """The links to make (step 4 of the module docstring), or None."""
+def _decide(prof: _Profiles, members: tuple[int, ...], M: int, cfg: JunctionConfig, widened: bool = False
+            ) -> list[tuple[int, int]] | None:
+    """The links to make (step 4 of the module docstring; ``widened``: step 6), or None."""
     tracked = set(prof.before) & set(prof.after)  # identities the tracker continued through the junction
     if len(prof.before) < 2 or len(prof.after) < 2:
         return None
@@ -231,10 +248,48 @@ def _decide(prof: _Profiles, members: tuple[int, ...], M: int, cfg: JunctionConf
     if not rivals:
         return None
     rival = min(rivals, key=lambda s: s[0])
-    if (best[0] > cfg.fit.ratio * rival[0] or (rival[0] - best[0]) * min(best[1], rival[1]) < cfg.fit.margin
-            or best[2] > cfg.worst_fit):
+    if best[0] > cfg.fit.ratio * rival[0] or (rival[0] - best[0]) * min(best[1], rival[1]) < cfg.fit.margin:
+        return None
+    if widened:
+        others = [s[0] for s in scored if {link for link in s[3] if link[0] != link[1]} != new]
+        if others and best[0] > cfg.fit.ratio * min(others):
+            return None
+    elif best[2] > cfg.worst_fit:
         return None
     return best[3]
+
+
+def _widened(P: np.ndarray, seen: np.ndarray, members: tuple[int, ...], t0: int, t1: int, cfg: JunctionConfig,
+             fps: float) -> tuple[int, ...]:
+    """``members`` of the junction with events ``t0``-``t1`` and the identities of ``P`` (F, M, 3) unseen from
+    ``t0 - 1`` to ``t1`` (one that ended at the first event is an event step 1 left out) whose last sample before
+    is within ``widen_s`` of ``t0`` (or, with none, whose first after ``t1``), within ``near_m`` of a member seen in
+    that frame (step 6 of the module docstring)."""
+    reach = int(round(cfg.widen_s * fps))
+    lo, hi = max(0, t0 - reach), min(len(P), t1 + reach + 1)
+    quiet = ~seen[max(0, t0 - 1):t1 + 1].any(axis=0) & seen[lo:hi].any(axis=0)  # (not ended at the first event)
+    quiet[list(members)] = False
+    added = []
+    for c in np.flatnonzero(quiet):
+        rows = np.flatnonzero(seen[lo:hi, c]) + lo
+        f = rows[rows < t0][-1] if rows[0] < t0 else rows[0]
+        with np.errstate(invalid="ignore"):
+            if (np.linalg.norm(P[f, list(members)] - P[f, c], axis=1) < cfg.near_m).any():
+                added.append(int(c))
+    return tuple(sorted(set(members) | set(added)))
+
+
+def _decide_widened(P: np.ndarray, seen: np.ndarray, wider: tuple[int, ...], t0: int, t1: int, n: int,
+                    cfg: JunctionConfig) -> list[tuple[int, int]] | None:
+    """The links to make at a junction step 4 left undecided, with its members ``wider`` from :func:`_widened`
+    (step 6 of the module docstring), or None; ``n``: frames of a window."""
+    prof = _Profiles(P, seen, wider, t0, t1, n, cfg.fit)
+    referenced = tuple(c for c in wider if any(prof.refs[key].sum() >= 2 for key in ((c, True), (c, False))
+                                               if key in prof.refs))
+    if len(referenced) > cfg.max_widened:
+        return None
+    prof = _Profiles(P, seen, referenced, t0, t1, n, cfg.fit)
+    return _decide(prof, referenced, P.shape[1], cfg, widened=True)
 
 
 def _stop(seen: np.ndarray, cols: list[int], t: int, n: int) -> int:
@@ -247,10 +302,11 @@ def _stop(seen: np.ndarray, cols: list[int], t: int, n: int) -> int:
 
 
 def undo_junctions(traj: Trajectories, config: JunctionConfig | None = None, jump_acc: float = np.inf,
-                   reversal_acc: float = np.inf) -> int:
+                   reversal_acc: float = np.inf, widen: bool = True) -> int:
     """Give back, in place, the markers three or more identities exchanged at a junction (see the module
     docstring). ``jump_acc`` and ``reversal_acc``: the repair's jump rule (:func:`mocap.rigid.jump_starts`),
-    m/frame^2. Returns the number of junctions undone."""
+    m/frame^2; ``widen``: look at undecided junctions once more widened (step 6). Returns the number of junctions
+    undone."""
     cfg = config or JunctionConfig()
     fit = cfg.fit
     P = traj.positions
@@ -265,8 +321,11 @@ def undo_junctions(traj: Trajectories, config: JunctionConfig | None = None, jum
             if (t0, members) <= done_upto:
                 continue
             done_upto = (t0, members)
-            prof = _Profiles(P, seen, members, t0, t1, n, fit)
-            links = _decide(prof, members, M, cfg)
+            links = _decide(_Profiles(P, seen, members, t0, t1, n, fit), members, M, cfg)
+            if links is None and widen:
+                wider = _widened(P, seen, members, t0, t1, cfg, traj.fps)
+                if wider != members:
+                    links = _decide_widened(P, seen, wider, t0, t1, n, cfg)
             if links is None:
                 continue
             moved = [(b, a) for b, a in links if b != a]

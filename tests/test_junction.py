@@ -82,3 +82,19 @@ def test_a_junction_s_exchange_stops_where_all_its_markers_are_hidden_for_a_wind
     assert undo_junctions(traj, jump_acc=JUMP_ACC) == 1
     np.testing.assert_array_equal(traj.positions[302:400, :3], truth[302:400, :3])
     np.testing.assert_array_equal(traj.positions[550:, :3], truth[550:, :3])
+
+
+def test_a_junction_whose_markers_hid_in_turn_before_it_is_widened_to_their_identities():
+    """Markers 0 and 2 hid 0.2 s before the junction (their identities end at frame 280, outside its 0.1 s); at
+    301-302 marker 2 comes back under a new identity, identity 1 jumps onto marker 0 and marker 1 goes on under
+    another new one. The junction's own members (1, 6, 7) have one window before it: undecided; widened by the
+    identities that ended 0.2 s before, every marker gets its identity back."""
+    truth = moving(HAND, np.random.default_rng(5), 0.0)
+    traj = _junction_take(truth, rotated=True)
+    traj.positions[280:300, [0, 2]] = np.nan
+    samples = np.isfinite(traj.positions[..., 0]).sum()
+    assert undo_junctions(traj, JunctionConfig(widen_s=0.0), jump_acc=JUMP_ACC) == 0
+    assert undo_junctions(traj, jump_acc=JUMP_ACC) == 1
+    np.testing.assert_array_equal(traj.positions[302:, :6], truth[302:])
+    assert np.isnan(traj.positions[302:, 6:]).all()
+    assert np.isfinite(traj.positions[..., 0]).sum() == samples  # no sample lost
