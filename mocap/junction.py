@@ -149,20 +149,22 @@ class _Profiles:
         self.members = np.array(members)
         self.tables: dict[tuple[tuple[int, bool], tuple[int, bool]], tuple] = {}  # by (key, other) window
 
-    def direction(self, key: tuple[int, bool], other: tuple[int, bool], to_other: np.ndarray,
-                  cfg: GapExchangeConfig) -> tuple[float, int]:
-        """(mean over references, references) of window ``other``'s fit to window ``key``'s references, a
-        reference column r of ``key`` read as column ``to_other[r]`` of ``other`` (-1: not read; an identity
-        outside the junction is always read as itself)."""
+    def directions(self, key: tuple[int, bool], other: tuple[int, bool], to_other: np.ndarray,
+                   cfg: GapExchangeConfig) -> tuple[np.ndarray, np.ndarray]:
+        """(K,) means over references and (K,) references of window ``other``'s fit to window ``key``'s references
+        under K matchings: a reference r of ``key`` that is a member is read as identity ``to_other[k, i]`` of
+        ``other`` (i: r's place among the members; -1: not read); one outside the junction always as itself."""
         if (key, other) not in self.tables:
             self.tables[key, other] = self._table(key, other, cfg)
         fixed_sum, fixed_count, member_refs, table = self.tables[key, other]
-        read = to_other[member_refs]  # (R,) the member each member reference is read as, -1: none
-        slot = np.searchsorted(self.members, read)
-        value = table[np.arange(read.size), np.minimum(slot, self.members.size - 1)]
-        value = value[(read >= 0) & np.isfinite(value)]
-        count = fixed_count + value.size
-        return ((fixed_sum + float(value.sum())) / count if count else 0.0), count
+        read = to_other[:, np.searchsorted(self.members, member_refs)]  # (K, R) identity read, -1: none
+        slot = np.minimum(np.searchsorted(self.members, read), self.members.size - 1)
+        value = table[np.arange(member_refs.size), slot]  # (K, R)
+        used = (read >= 0) & np.isfinite(value)
+        count = fixed_count + used.sum(axis=1)
+        total = fixed_sum + np.where(used, value, 0.0).sum(axis=1)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            return np.where(count > 0, total / count, 0.0), count
 
     def _table(self, key: tuple[int, bool], other: tuple[int, bool], cfg: GapExchangeConfig
                ) -> tuple[float, int, np.ndarray, np.ndarray]:
@@ -189,28 +191,30 @@ class _Profiles:
         return float(fit(fixed, fixed[:, None]).sum()), int(fixed.size), member_refs, table
 
 
-def _score(prof: _Profiles, links: list[tuple[int, int]], members: tuple[int, ...], M: int,
-           cfg: GapExchangeConfig) -> tuple[float, int, float] | None:
-    """(sum of the links' direction means, fewest references of a direction, worst direction mean of a link
-    between two identities) of the matching ``links`` ((before identity, after identity) pairs); None where a
-    direction has fewer than two references."""
-    after_to_before = np.arange(M)
-    after_to_before[list(members)] = -1
-    for b, a in links:
-        after_to_before[a] = b
-    before_to_after = np.full(M, -1)
-    mapped = after_to_before >= 0
-    before_to_after[after_to_before[mapped]] = np.flatnonzero(mapped)
-    total, fewest, worst = 0.0, np.iinfo(int).max, 0.0
-    for b, a in links:
-        for key, other, to_other in (((b, True), (a, False), before_to_after),
-                                     ((a, False), (b, True), after_to_before)):
-            mean, refs = prof.direction(key, other, to_other, cfg)
-            if refs < 2:
-                return None
-            total, fewest = total + mean, min(fewest, refs)
-            if a != b:
-                worst = max(worst, mean)
+def _scores(prof: _Profiles, matchings: list[list[tuple[int, int]]], cfg: GapExchangeConfig
+            ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(K,) sum of the links' direction means, (K,) fewest references of a direction and (K,) worst direction mean
+    of a link between two identities, of K ``matchings`` (lists of (before identity, after identity) links, as many
+    in each): a matching with a direction of fewer than two references is not scored (fewest under 2)."""
+    links = np.array(matchings, dtype=np.intp)  # (K, L, 2)
+    K, L = links.shape[:2]
+    rows = np.repeat(np.arange(K), L)
+    before_to_after = np.full((K, prof.members.size), -1)  # by member: the identity it continues as, -1: none
+    before_to_after[rows, np.searchsorted(prof.members, links[..., 0]).ravel()] = links[..., 1].ravel()
+    after_to_before = np.full((K, prof.members.size), -1)
+    after_to_before[rows, np.searchsorted(prof.members, links[..., 1]).ravel()] = links[..., 0].ravel()
+    total, fewest, worst = np.zeros(K), np.full(K, np.iinfo(np.intp).max), np.zeros(K)
+    for place in range(L):
+        pairs, which = np.unique(links[:, place], axis=0, return_inverse=True)
+        for p, (b, a) in enumerate(pairs):
+            sel = np.flatnonzero(which.ravel() == p)
+            for key, other, to_other in (((b, True), (a, False), before_to_after),
+                                         ((a, False), (b, True), after_to_before)):
+                mean, refs = prof.directions(key, other, to_other[sel], cfg)
+                total[sel] += mean
+                fewest[sel] = np.minimum(fewest[sel], refs)
+                if a != b:
+                    worst[sel] = np.maximum(worst[sel], mean)
     return total, fewest, worst
 
 
@@ -224,18 +228,18 @@ def _matchings(before: list[int], after: list[int]):
             yield list(zip(before, chosen, strict=True))
 
 
-def _decide(prof: _Profiles, members: tuple[int, ...], M: int, cfg: JunctionConfig, widened: bool = False
-            ) -> list[tuple[int, int]] | None:
+def _decide(prof: _Profiles, cfg: JunctionConfig, widened: bool = False) -> list[tuple[int, int]] | None:
     """The links to make (step 4 of the module docstring; ``widened``: step 6), or None."""
     tracked = set(prof.before) & set(prof.after)  # identities the tracker continued through the junction
     if len(prof.before) < 2 or len(prof.after) < 2:
         return None
+    matchings = list(_matchings(prof.before, prof.after))
+    total, fewest, worst = _scores(prof, matchings, cfg.fit)
     scored = []  # (score, fewest references, worst new link, links, keeps the tracker's links)
-    for links in _matchings(prof.before, prof.after):
-        score = _score(prof, links, members, M, cfg.fit)
-        if score is not None:
-            keeps = all((c, c) in links for c in tracked if any(c in link for link in links))
-            scored.append((*score, links, keeps))
+    for k in np.flatnonzero(fewest >= 2):
+        links = matchings[k]
+        keeps = all((c, c) in links for c in tracked if any(c in link for link in links))
+        scored.append((float(total[k]), int(fewest[k]), float(worst[k]), links, keeps))
     if not scored:
         return None
     best = min(scored, key=lambda s: s[0])
@@ -289,7 +293,7 @@ def _decide_widened(P: np.ndarray, seen: np.ndarray, wider: tuple[int, ...], t0:
     if len(referenced) > cfg.max_widened:
         return None
     prof = _Profiles(P, seen, referenced, t0, t1, n, cfg.fit)
-    return _decide(prof, referenced, P.shape[1], cfg, widened=True)
+    return _decide(prof, cfg, widened=True)
 
 
 def _stop(seen: np.ndarray, cols: list[int], t: int, n: int) -> int:
@@ -310,7 +314,6 @@ def undo_junctions(traj: Trajectories, config: JunctionConfig | None = None, jum
     cfg = config or JunctionConfig()
     fit = cfg.fit
     P = traj.positions
-    M = traj.n_markers
     n = max(fit.min_samples, int(round(fit.window_s * traj.fps)))
     undone = 0
     done_upto = (-1, ())
@@ -321,7 +324,7 @@ def undo_junctions(traj: Trajectories, config: JunctionConfig | None = None, jum
             if (t0, members) <= done_upto:
                 continue
             done_upto = (t0, members)
-            links = _decide(_Profiles(P, seen, members, t0, t1, n, fit), members, M, cfg)
+            links = _decide(_Profiles(P, seen, members, t0, t1, n, fit), cfg)
             if links is None and widen:
                 wider = _widened(P, seen, members, t0, t1, cfg, traj.fps)
                 if wider != members:

@@ -963,7 +963,7 @@ def repair_identities(traj: Trajectories, config: RelabelConfig | None = None,
     stats.bridged = bridge_gaps(traj, jump_acc=jump, reversal_acc=limits.reversal_acc(traj.fps))
     stats.gap_exchanges = undo_gap_exchanges(traj, jump_acc=jump, reversal_acc=limits.reversal_acc(traj.fps))
     # (widened only where a body's own accelerations reach the jump threshold, 50 Hz: there a swing hides the arm's
-    # markers in turn for tenths of a second; at 100 Hz and more no capture changes, and the repair took 1.2-2.8x)
+    # markers in turn for tenths of a second; at 100 Hz and more no capture changed)
     stats.junctions = undo_junctions(traj, jump_acc=jump, reversal_acc=limits.reversal_acc(traj.fps),
                                      widen=not limits.hops_clear(traj.fps))
     stats.skin_exchanges = undo_skin_exchanges(traj, jump_acc=jump, reversal_acc=limits.reversal_acc(traj.fps))
