@@ -44,6 +44,7 @@ Only whole samples move between identity columns; positions are never changed, a
 
 from __future__ import annotations
 
+import copy
 import itertools
 import warnings
 from dataclasses import dataclass
@@ -149,6 +150,18 @@ class _Profiles:
         self.members = np.array(members)
         self.tables: dict[tuple[tuple[int, bool], tuple[int, bool]], tuple] = {}  # by (key, other) window
 
+    def restricted(self, members: tuple[int, ...]) -> _Profiles:
+        """These windows for ``members`` (a subset of the members) only; the tables, which read references through
+        the members, afresh."""
+        out = copy.copy(self)
+        out.profile = {key: p for key, p in self.profile.items() if key[0] in members}
+        out.refs = {key: r for key, r in self.refs.items() if key[0] in members}
+        out.before = [c for c in self.before if c in members]
+        out.after = [c for c in self.after if c in members]
+        out.members = np.array(members)
+        out.tables = {}
+        return out
+
     def directions(self, key: tuple[int, bool], other: tuple[int, bool], to_other: np.ndarray,
                    cfg: GapExchangeConfig) -> tuple[np.ndarray, np.ndarray]:
         """(K,) means over references and (K,) references of window ``other``'s fit to window ``key``'s references
@@ -206,8 +219,9 @@ def _scores(prof: _Profiles, matchings: list[list[tuple[int, int]]], cfg: GapExc
     total, fewest, worst = np.zeros(K), np.full(K, np.iinfo(np.intp).max), np.zeros(K)
     for place in range(L):
         pairs, which = np.unique(links[:, place], axis=0, return_inverse=True)
+        which = which.ravel()
         for p, (b, a) in enumerate(pairs):
-            sel = np.flatnonzero(which.ravel() == p)
+            sel = np.flatnonzero(which == p)
             for key, other, to_other in (((b, True), (a, False), before_to_after),
                                          ((a, False), (b, True), after_to_before)):
                 mean, refs = prof.directions(key, other, to_other[sel], cfg)
@@ -292,8 +306,7 @@ def _decide_widened(P: np.ndarray, seen: np.ndarray, wider: tuple[int, ...], t0:
                                                if key in prof.refs))
     if len(referenced) > cfg.max_widened:
         return None
-    prof = _Profiles(P, seen, referenced, t0, t1, n, cfg.fit)
-    return _decide(prof, cfg, widened=True)
+    return _decide(prof.restricted(referenced), cfg, widened=True)
 
 
 def _stop(seen: np.ndarray, cols: list[int], t: int, n: int) -> int:
