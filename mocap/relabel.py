@@ -84,6 +84,7 @@ from mocap.fill import fill_from_unconfirmed
 from mocap.gap_exchange import undo_gap_exchanges
 from mocap.junction import undo_junctions
 from mocap.offpath import withhold_off_path
+from mocap.orphans import rejoin_orphans
 from mocap.plates import label_plates
 from mocap.quickstats import quick_median
 from mocap.reunite import SKIN_CLUSTERS, centred_change, reunite_clusters
@@ -250,7 +251,8 @@ class RelabelStats:
     where the neighbours carry a marker, exchanges undone where two markers came back from a shared gap each under
     the other's identity, exchanges undone between a skin-mounted cluster's identities, samples withheld off their
     identity's path (hops onto a neighbour), identities of one marker that took turns or followed each other merged,
-    scattered identities withdrawn."""
+    identities that ended joined to later ones their rigid neighbours carry them to, scattered identities
+    withdrawn."""
 
     duplicates: int = 0
     swaps: int = 0
@@ -268,6 +270,7 @@ class RelabelStats:
     skin_exchanges: int = 0
     off_path: int = 0
     merged: int = 0
+    orphans: int = 0
     withdrawn: int = 0
 
 
@@ -931,8 +934,9 @@ def repair_identities(traj: Trajectories, config: RelabelConfig | None = None,
     by the references both keep (:mod:`mocap.skin`), fragments rejoined by anchors once more (the identity a
     fragment fits may have held another marker over its frames until those passes gave it back), where hops are
     clear (:meth:`RelabelConfig.hops_clear`), samples off their identity's own path withheld (:mod:`mocap.offpath`),
-    and the identities of one marker that take turns or follow each other merged (:mod:`mocap.alternate`), in place;
-    empty identity columns are dropped.
+    the identities of one marker that take turns or follow each other merged (:mod:`mocap.alternate`), and identities
+    that ended joined to later ones their rigid neighbours carry them to (:mod:`mocap.orphans`), in place; empty
+    identity columns are dropped.
     ``unconfirmed``: the tracker's points without identity (:meth:`mocap.tracker.Tracker.unconfirmed`), which the
     plate labelling and the fill may give one.
 
@@ -973,9 +977,10 @@ def repair_identities(traj: Trajectories, config: RelabelConfig | None = None,
     if limits.hops_clear(traj.fps):  # (at 50 Hz a swing's own samples leave any smooth path through their neighbours)
         stats.off_path = withhold_off_path(traj)
     stats.merged = merge_alternating(traj)
+    stats.orphans = rejoin_orphans(traj)
     stats.withdrawn = withdraw_scattered(traj, limits)
     if (stats.reunited or stats.rejoined or stats.plate_samples or stats.anchor_moves or stats.bridged
-            or stats.junctions or stats.off_path or stats.merged or stats.withdrawn):
+            or stats.junctions or stats.off_path or stats.merged or stats.orphans or stats.withdrawn):
         keep = np.isfinite(traj.positions[..., 0]).any(axis=0)
         traj.positions, traj.residuals, traj.camera_masks = (traj.positions[:, keep], traj.residuals[:, keep],
                                                              traj.camera_masks[:, keep])

@@ -1,0 +1,64 @@
+"""Identities that ended joined to the later identity their rigid neighbours carry them to (:mod:`mocap.orphans`)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from helpers_rigid import FRAMES, PLATE, TRIANGLE, columns_follow, moving
+
+from mocap.orphans import OrphanConfig, rejoin_orphans
+from mocap.trajectories import Trajectories
+
+FPS = 100.0
+
+
+def _scene(seed: int) -> np.ndarray:
+    """(F, 10, 3) m: a seven-marker rigid body (a plate beside a triangle) tumbling and travelling 0.7 m/s, and a
+    three-marker plate of another body moving its own way 0.3 m beside it."""
+    rng = np.random.default_rng(seed)
+    body = moving(np.concatenate([PLATE, TRIANGLE + [0.15, 0.0, 0.05]]), rng, 0.0)
+    other = moving(PLATE[:3], rng, 0.3)
+    return np.concatenate([body, other], axis=1)
+
+
+def _identities(truth: np.ndarray, pieces: list[tuple[int, int, int]]) -> Trajectories:
+    """One identity per piece (marker, first, last) of ``truth`` (F, M, 3)."""
+    P = np.full((len(truth), len(pieces), 3), np.nan)
+    for k, (m, first, last) in enumerate(pieces):
+        P[first:last + 1, k] = truth[first:last + 1, m]
+    seen = np.isfinite(P[..., 0])
+    return Trajectories([f"M{k}" for k in range(len(pieces))], FPS, P, np.where(seen, 0.1, np.nan),
+                        seen.astype(np.uint32))
+
+
+def _whole(markers: range, skip: set[int]) -> list[tuple[int, int, int]]:
+    return [(m, 0, FRAMES - 1) for m in markers if m not in skip]
+
+
+@pytest.mark.parametrize("seed", [1, 2])
+def test_markers_back_from_a_long_gap_rejoin_their_identities(seed):
+    """Markers 0 and 4 are hidden for 1.5 s, while their body turns and travels a metre, and come back as new
+    identities: each is carried by its rigid neighbours to its own return, not to the other's."""
+    truth = _scene(seed)
+    pieces = _whole(range(10), {0, 4}) + [(0, 0, 199), (4, 0, 199), (0, 350, FRAMES - 1), (4, 350, FRAMES - 1)]
+    traj = _identities(truth, pieces)
+    assert np.linalg.norm(truth[350, 0] - truth[199, 0]) > 0.8  # far from where the marker was last seen
+    samples = np.isfinite(traj.positions[..., 0]).sum()
+    assert rejoin_orphans(traj) == 2
+    assert sorted(columns_follow(traj, truth)) == list(range(10))  # one identity per marker, each pure
+    assert np.isfinite(traj.positions[..., 0]).sum() == samples  # no sample lost or made
+
+
+def test_a_new_marker_of_another_body_is_not_joined_to_an_identity_that_ended():
+    """Marker 0's identity ends for good; marker 7, on the other body, enters the volume 1.5 s later."""
+    truth = _scene(3)
+    traj = _identities(truth, _whole(range(10), {0, 7}) + [(0, 0, 199), (7, 350, FRAMES - 1)])
+    assert rejoin_orphans(traj) == 0
+    assert sorted(columns_follow(traj, truth)) == list(range(10))
+
+
+def test_a_return_after_more_than_the_longest_gap_is_left():
+    truth = _scene(1)
+    pieces = _whole(range(10), {0}) + [(0, 0, 199), (0, 350, FRAMES - 1)]
+    assert rejoin_orphans(_identities(truth, pieces), OrphanConfig(max_gap_s=1.0)) == 0
+    assert rejoin_orphans(_identities(truth, pieces), OrphanConfig(max_gap_s=2.0)) == 1
