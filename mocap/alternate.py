@@ -14,14 +14,18 @@ distances to the two differ by less than ``agree_m`` in the median; the best-agr
 merged once per call. Only whole samples move (positions, residuals and camera masks together). The thresholds: on
 45 captured takes the two such pairs of one marker differ by 1.6 and 2.6 mm, the closest pairs of two markers (a
 forearm's, 40-65 mm apart) by 7 mm; two neighbours are enough for turns since the fifty-fifth session (a serve's
-LKNE under two identities, 1.5 and 4.8 mm; 82 other captures the same).
+LKNE under two identities, 1.5 and 4.8 mm; 82 other captures the same); ``agree_m`` is 5 mm since the sixtieth (4
+before: the serve's 5 %-hidden seed 6 kept RUPA under two identities taking turns at 4.4 mm).
 
 A pair that follows each other (one ends, the other starts later: a marker back after a gap too long or too changed
 for the re-linking) has one junction only, so it must show more: both identities seen ``follow_s`` or longer,
 ``min_neighbours`` neighbours or more, and that many each within ``follow_agree_m`` (not only the median). On the 45
 captures the eight such pairs of one marker under ``agree_m`` have their third-best neighbour within 5 mm and are
 seen 1.3 s and longer; the one pair of two markers under it (a forearm's near-isosceles triangle, 0.7 mm in the
-median) is a 0.24 s identity whose third neighbour differs by 12 mm. Two identities seen together in at most
+median) is a 0.24 s identity whose third neighbour differs by 12 mm. ``follow_agree_m`` is 10 mm since the sixtieth
+session (8 before: the two players' 5 %-hidden seed 23 kept RUPA under two identities that agree by 1.3 mm in the
+median, 9.3 mm at the third neighbour); on the 54 captures of that session every pair under 12 mm in the median is
+one marker's, the nearest being 5.6 mm. Two identities seen together in at most
 ``max_together`` frames (the tracker gave one of them a stray sample of another marker, a swing's hop, far from the
 rest of it) are held to the following pair's test, whatever their spans.
 """
@@ -37,7 +41,7 @@ _CHUNK = 4096  # candidate pairs compared at once (chunk x identities arrays)
 
 
 def merge_alternating(traj: Trajectories, min_shared: int = 20, min_neighbours: int = 3, radius_m: float = 0.25,
-                      agree_m: float = 0.004, follow_s: float = 1.0, follow_agree_m: float = 0.008,
+                      agree_m: float = 0.005, follow_s: float = 1.0, follow_agree_m: float = 0.010,
                       max_together: int = 2, turn_neighbours: int = 2) -> int:
     """Merge, in place, the identities of one marker that take turns or follow each other (see the module
     docstring); the merged identity's samples move to the other's column, except in the at most ``max_together``
