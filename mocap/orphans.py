@@ -41,6 +41,8 @@ from mocap.trajectories import MISSING, Trajectories
 
 __all__ = ["OrphanConfig", "rejoin_orphans"]
 
+_MAX_ROUNDS = 8  # rounds of joins at most (each round's joins can free the next's; a safety bound)
+
 
 @dataclass(frozen=True)
 class OrphanConfig:
@@ -49,6 +51,7 @@ class OrphanConfig:
     Attributes:
         min_frames: samples each identity has at least.
         max_gap_s: longest time from the ending identity's last sample to the starting one's first, s.
+        return_gap_s: a return is an identity's first sample after this long unseen or longer, s.
         window_s: the neighbours' rigidity is measured over this much of each identity's samples by the gap, s.
         reach_m: neighbours are within this of the marker (median over the window), m.
         rigid_m: a neighbour's distance to the marker spreads (1.4826 MAD) less than this over the window, m.
@@ -62,6 +65,7 @@ class OrphanConfig:
 
     min_frames: int = 30
     max_gap_s: float = 5.0
+    return_gap_s: float = 0.1
     window_s: float = 1.0
     reach_m: float = 0.4
     rigid_m: float = 0.015
@@ -105,55 +109,99 @@ def _carry(P: np.ndarray, seen: np.ndarray, col: int, rigidity: np.ndarray, at: 
         X, Y = np.delete(X, worst, axis=0), np.delete(Y, worst, axis=0)
 
 
-def _misses(P: np.ndarray, seen: np.ndarray, ends: np.ndarray, starts: np.ndarray, first: np.ndarray,
-            last: np.ndarray, fps: float, cfg: OrphanConfig) -> np.ndarray:
-    """(len(ends), len(starts)) miss, m, of every pair (step 2 of the module docstring); NaN where not a pair or
-    not measurable."""
-    n = max(3, int(round(cfg.window_s * fps)))
-    max_gap = int(round(cfg.max_gap_s * fps))
-    out = np.full((ends.size, starts.size), np.nan)
-    paired = (last[ends][:, None] < first[starts][None]) & (first[starts][None] <= last[ends][:, None] + max_gap)
-    rows, cols = np.nonzero(paired)
-    before = {a: _rigidity(P, a, np.flatnonzero(seen[:last[a] + 1, a])[-n:]) for a in np.unique(ends[rows])}
-    after = {b: _rigidity(P, b, first[b] + np.flatnonzero(seen[first[b]:, b])[:n]) for b in np.unique(starts[cols])}
-    for i, k in zip(rows, cols, strict=True):
-        a, b = ends[i], starts[k]
-        la, fb = last[a], first[b]
-        forward = _carry(P, seen, a, before[a], la, fb, (a, b), cfg)
-        backward = _carry(P, seen, b, after[b], fb, la, (a, b), cfg)
-        if forward is not None and backward is not None:
-            out[i, k] = max(np.linalg.norm(forward - P[fb, b]), np.linalg.norm(backward - P[la, a]))
-    return out
+def _miss(P: np.ndarray, seen: np.ndarray, a: int, la: int, b: int, fb: int, n: int, cfg: OrphanConfig) -> float:
+    """The larger of the two carries' misses, m (step 2 of the module docstring), between identity ``a``'s sample
+    at frame ``la`` (its window: its ``n`` samples up to it) and identity ``b``'s at ``fb`` (its ``n`` from it);
+    NaN where either carry has too few neighbours."""
+    forward = _carry(P, seen, a, _rigidity(P, a, np.flatnonzero(seen[:la + 1, a])[-n:]), la, fb, (a, b), cfg)
+    backward = _carry(P, seen, b, _rigidity(P, b, fb + np.flatnonzero(seen[fb:, b])[:n]), fb, la, (a, b), cfg)
+    if forward is None or backward is None:
+        return np.nan
+    return float(max(np.linalg.norm(forward - P[fb, b]), np.linalg.norm(backward - P[la, a])))
+
+
+def _starts(seen: np.ndarray, first: np.ndarray, size: np.ndarray, fps: float, cfg: OrphanConfig
+            ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(S,) column, first frame and the column's last sample before it (-1: none) of every start: identities that
+    start after the take's first frame, and returns after ``return_gap_s`` or more unseen, each with
+    ``min_frames`` samples from there on."""
+    cols, frames, prior = [], [], []
+    gap = max(2, int(round(cfg.return_gap_s * fps)))
+    for col in np.flatnonzero(size >= cfg.min_frames):
+        rows = np.flatnonzero(seen[:, col])
+        back = np.flatnonzero(np.diff(rows) > gap) + 1  # the first sample after each long gap
+        back = back[rows.size - back >= cfg.min_frames]
+        cols += [col] * back.size
+        frames += rows[back].tolist()
+        prior += rows[back - 1].tolist()
+        if first[col] > 0:
+            cols.append(col)
+            frames.append(int(first[col]))
+            prior.append(-1)
+    return np.array(cols, dtype=np.intp), np.array(frames, dtype=np.intp), np.array(prior, dtype=np.intp)
 
 
 def rejoin_orphans(traj: Trajectories, config: OrphanConfig | None = None) -> int:
-    """Join, in place, identities that ended to identities that started later where their rigid neighbours carry
-    one to the other (see the module docstring); the later identity's column is left empty (the caller drops it).
-    Returns the number of joins."""
+    """Join, in place, identities that ended to identities that started later, or to returns under another
+    identity, where their rigid neighbours carry one to the other (see the module docstring), until none is left
+    to join (a return moved away ends the identity that held it, whose own marker may come back later). A joined
+    identity's column is left empty (the caller drops it); a return moves with the rest of its identity. Returns
+    the number of joins."""
     cfg = config or OrphanConfig()
+    total = 0
+    for _ in range(_MAX_ROUNDS):
+        joined = _rejoin_once(traj, cfg)
+        if joined == 0:
+            break
+        total += joined
+    return total
+
+
+def _rejoin_once(traj: Trajectories, cfg: OrphanConfig) -> int:
+    """One round of :func:`rejoin_orphans`: the joins the identities as they are allow."""
     P = traj.positions
     seen = np.isfinite(P[..., 0])  # (F, M)
     F = len(seen)
     size = seen.sum(axis=0)
     first, last = seen.argmax(axis=0), F - 1 - seen[::-1].argmax(axis=0)
-    long_enough = size >= cfg.min_frames
-    ends = np.flatnonzero(long_enough & (last < F - 1))
-    starts = np.flatnonzero(long_enough & (first > 0))
-    if ends.size == 0 or starts.size == 0:
+    ends = np.flatnonzero((size >= cfg.min_frames) & (last < F - 1))
+    if ends.size == 0:
         return 0
-    miss = _misses(P, seen, ends, starts, first, last, traj.fps, cfg)
+    cols, frames, prior = _starts(seen, first, size, traj.fps, cfg)
+    n = max(3, int(round(cfg.window_s * traj.fps)))
+    max_gap = int(round(cfg.max_gap_s * traj.fps))
+    miss = np.full((ends.size, cols.size), np.nan)
+    for i, k in zip(*np.nonzero((last[ends][:, None] < frames[None]) & (frames[None] <= last[ends][:, None] + max_gap)
+                                & (ends[:, None] != cols[None])), strict=True):
+        miss[i, k] = _miss(P, seen, ends[i], last[ends[i]], cols[k], frames[k], n, cfg)
+    own: dict[int, float] = {}  # a return's miss from its own identity's sample before the gap (inf: a new identity)
+
+    def own_miss(k: int) -> float:
+        if k not in own:
+            own[k] = np.inf if prior[k] < 0 else np.nan_to_num(
+                _miss(P, seen, cols[k], prior[k], cols[k], frames[k], n, cfg), nan=0.0)
+        return own[k]
+
     measured = np.where(np.isfinite(miss), miss, np.inf)
     home = np.arange(traj.n_markers)  # the column each identity's samples are in now
+    moved: set[int] = set()
     joined = 0
-    for i, k in zip(*np.nonzero(measured < cfg.miss_m), strict=True):
-        rivals = np.concatenate([np.delete(measured[i], k), np.delete(measured[:, k], i)])
-        if not np.all(measured[i, k] < cfg.ratio * rivals):
+    for i, k in sorted(zip(*np.nonzero(measured < cfg.miss_m), strict=True), key=lambda ik: frames[ik[1]]):
+        if cols[k] in moved or not measured[i, k] < cfg.ratio * min(np.delete(measured[:, k], i).min(initial=np.inf),
+                                                                   own_miss(k)):
             continue
-        a, b = home[ends[i]], starts[k]
-        rows = np.flatnonzero(np.isfinite(P[:, b, 0]))
+        # the end's other candidates: not its first return's identity's later ones (the join moves them too), nor
+        # returns their own identity carries nearer
+        close = np.flatnonzero((cols != cols[k]) & (measured[i] <= measured[i, k] / cfg.ratio))
+        if any(own_miss(r) > measured[i, r] for r in close):
+            continue
+        a, b = home[ends[i]], cols[k]
+        rows = frames[k] + np.flatnonzero(np.isfinite(P[frames[k]:, b, 0]))
         for arr in (traj.positions, traj.residuals, traj.camera_masks):
             arr[rows, a] = arr[rows, b]
-            arr[:, b] = MISSING[arr.dtype.kind]
-        home[home == b] = a
+            arr[rows, b] = MISSING[arr.dtype.kind]
+        if prior[k] < 0:
+            home[home == b] = a
+        moved.add(int(b))
         joined += 1
     return joined

@@ -49,6 +49,20 @@ def test_markers_back_from_a_long_gap_rejoin_their_identities(seed):
     assert np.isfinite(traj.positions[..., 0]).sum() == samples  # no sample lost or made
 
 
+def test_a_return_taken_by_another_lost_identity_goes_back_to_its_own():
+    """Markers 0 and 4 are hidden for 1.5 s; marker 0 comes back under marker 4's old identity (the tracker
+    re-identified it there), marker 4 as a new identity. The tail goes to marker 0's identity, which ended, and
+    the new identity then joins marker 4's, which the move ended."""
+    truth = _scene(4)
+    pieces = _whole(range(10), {0, 4}) + [(0, 0, 199), (4, 0, 199), (4, 350, FRAMES - 1)]
+    traj = _identities(truth, pieces)
+    traj.positions[350:, 9] = truth[350:, 0]  # marker 4's old identity holds marker 0's return
+    samples = np.isfinite(traj.positions[..., 0]).sum()
+    assert rejoin_orphans(traj) == 2
+    assert sorted(columns_follow(traj, truth)) == list(range(10))
+    assert np.isfinite(traj.positions[..., 0]).sum() == samples
+
+
 def test_a_new_marker_of_another_body_is_not_joined_to_an_identity_that_ended():
     """Marker 0's identity ends for good; marker 7, on the other body, enters the volume 1.5 s later."""
     truth = _scene(3)
