@@ -117,12 +117,30 @@ def _carry(P: np.ndarray, seen: np.ndarray, col: int, rigidity: np.ndarray, at: 
         X, Y = np.delete(X, worst, axis=0), np.delete(Y, worst, axis=0)
 
 
-def _miss(P: np.ndarray, seen: np.ndarray, a: int, la: int, b: int, fb: int, n: int, cfg: OrphanConfig) -> float:
+class _Rigidities:
+    """:func:`_rigidity` of identities over their ``n`` samples up to a frame (before) or from it (after), each
+    measured once: a long take's ends meet many returns."""
+
+    def __init__(self, P: np.ndarray, seen: np.ndarray, n: int):
+        self._P, self._seen, self._n = P, seen, n
+        self._known: dict[tuple[int, int, bool], np.ndarray] = {}
+
+    def of(self, col: int, frame: int, before: bool) -> np.ndarray:
+        key = (col, frame, before)
+        if key not in self._known:
+            rows = (np.flatnonzero(self._seen[:frame + 1, col])[-self._n:] if before
+                    else frame + np.flatnonzero(self._seen[frame:, col])[:self._n])
+            self._known[key] = _rigidity(self._P, col, rows)
+        return self._known[key]
+
+
+def _miss(P: np.ndarray, seen: np.ndarray, rigid: _Rigidities, a: int, la: int, b: int, fb: int,
+          cfg: OrphanConfig) -> float:
     """The larger of the two carries' misses, m (step 2 of the module docstring), between identity ``a``'s sample
-    at frame ``la`` (its window: its ``n`` samples up to it) and identity ``b``'s at ``fb`` (its ``n`` from it);
-    NaN where either carry has too few neighbours."""
-    forward = _carry(P, seen, a, _rigidity(P, a, np.flatnonzero(seen[:la + 1, a])[-n:]), la, fb, (a, b), cfg)
-    backward = _carry(P, seen, b, _rigidity(P, b, fb + np.flatnonzero(seen[fb:, b])[:n]), fb, la, (a, b), cfg)
+    at frame ``la`` (its window: its samples up to it) and identity ``b``'s at ``fb`` (its samples from it); NaN
+    where either carry has too few neighbours."""
+    forward = _carry(P, seen, a, rigid.of(a, la, True), la, fb, (a, b), cfg)
+    backward = _carry(P, seen, b, rigid.of(b, fb, False), fb, la, (a, b), cfg)
     if forward is None or backward is None:
         return np.nan
     return float(max(np.linalg.norm(forward - P[fb, b]), np.linalg.norm(backward - P[la, a])))
@@ -176,18 +194,18 @@ def _rejoin_once(traj: Trajectories, cfg: OrphanConfig) -> int:
     if ends.size == 0:
         return 0
     cols, frames, prior = _starts(seen, first, size, traj.fps, cfg)
-    n = max(3, int(round(cfg.window_s * traj.fps)))
+    rigid = _Rigidities(P, seen, max(3, int(round(cfg.window_s * traj.fps))))
     max_gap = int(round(cfg.max_gap_s * traj.fps))
     miss = np.full((ends.size, cols.size), np.nan)
     for i, k in zip(*np.nonzero((last[ends][:, None] < frames[None]) & (frames[None] <= last[ends][:, None] + max_gap)
                                 & (ends[:, None] != cols[None])), strict=True):
-        miss[i, k] = _miss(P, seen, ends[i], last[ends[i]], cols[k], frames[k], n, cfg)
+        miss[i, k] = _miss(P, seen, rigid, ends[i], last[ends[i]], cols[k], frames[k], cfg)
     own: dict[int, float] = {}  # a return's miss from its own identity's sample before the gap (inf: a new identity)
 
     def own_miss(k: int) -> float:
         if k not in own:
             own[k] = np.inf if prior[k] < 0 else np.nan_to_num(
-                _miss(P, seen, cols[k], prior[k], cols[k], frames[k], n, cfg), nan=0.0)
+                _miss(P, seen, rigid, cols[k], prior[k], cols[k], frames[k], cfg), nan=0.0)
         return own[k]
 
     measured = np.where(np.isfinite(miss), miss, np.inf)
