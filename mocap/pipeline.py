@@ -243,12 +243,13 @@ def reconstruct(take: str | os.PathLike, options: ReconstructOptions | None = No
                  "bridged by where the neighbours carry a marker; %d exchanges undone where two markers came back "
                  "from a shared gap; %d junctions of three or more identities undone; %d exchanges undone in "
                  "skin-mounted clusters; %d samples withheld off their identity's path; %d pairs of identities of "
-                 "one marker that took turns or followed each other merged; %d scattered identities (no %d frames "
-                 "running) withdrawn",
+                 "one marker that took turns or followed each other merged; %d identities that ended joined to "
+                 "their marker's return by its rigid neighbours; %d scattered identities (no %d frames running) "
+                 "withdrawn",
                  stats.duplicates, stats.swaps, before, traj.n_markers, stats.reunited, stats.exchanges,
                  stats.unscrambled, stats.plate_samples, stats.rejoined, stats.anchor_moves, stats.filled,
                  stats.bridged, stats.gap_exchanges, stats.junctions, stats.skin_exchanges, stats.off_path,
-                 stats.merged, stats.withdrawn, confirm)
+                 stats.merged, stats.orphans, stats.withdrawn, confirm)
     traj.camera_names = rig.names
     traj.metadata.update({"source": str(path), "software": f"mocap {__version__}", "cameras": len(rig)})
     if traj.n_markers == 0 and blobs == 0:
