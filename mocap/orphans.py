@@ -44,8 +44,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from mocap.quickstats import nanmedian_columns
-from mocap.trajectories import MISSING, Trajectories
+from mocap.gap_exchange import WindowProfile
+from mocap.trajectories import Trajectories
 
 __all__ = ["OrphanConfig", "rejoin_orphans"]
 
@@ -86,10 +86,9 @@ class OrphanConfig:
 
 def _rigidity(P: np.ndarray, col: int, window: np.ndarray) -> np.ndarray:
     """(2, M) median and spread (1.4826 MAD) of every identity's distance to identity ``col`` over frames
-    ``window`` of ``P`` (F, M, 3), m; NaN for those never seen there."""
-    d = np.linalg.norm(P[window] - P[window, col][:, None], axis=2)  # (n, M)
-    median = nanmedian_columns(d)
-    return np.stack([median, 1.4826 * nanmedian_columns(np.abs(d - median))])
+    ``window`` of ``P`` (F, M, 3), m (:class:`mocap.gap_exchange.WindowProfile`); NaN for those never seen there."""
+    profile = WindowProfile.of(np.linalg.norm(P[window] - P[window, col][:, None], axis=2))
+    return np.stack([profile.median, profile.spread])
 
 
 def _carry(P: np.ndarray, seen: np.ndarray, col: int, rigidity: np.ndarray, at: int, to: int,
@@ -222,10 +221,7 @@ def _rejoin_once(traj: Trajectories, cfg: OrphanConfig) -> int:
         if any(own_miss(r) > measured[i, r] for r in close):
             continue
         a, b = home[ends[i]], cols[k]
-        rows = frames[k] + np.flatnonzero(np.isfinite(P[frames[k]:, b, 0]))
-        for arr in (traj.positions, traj.residuals, traj.camera_masks):
-            arr[rows, a] = arr[rows, b]
-            arr[rows, b] = MISSING[arr.dtype.kind]
+        traj.move_samples(frames[k] + np.flatnonzero(np.isfinite(P[frames[k]:, b, 0])), b, a)
         if prior[k] < 0:
             home[home == b] = a
         moved.add(int(b))
