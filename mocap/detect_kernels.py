@@ -562,13 +562,14 @@ def fit_discs(values, ox, oy, starts, params, iterations, tables, steps, z_res, 
 
 
 @_jit
-def fit_results(params, pcov, start, origin, centroid_cov, sigma, k, vague_factor):
+def fit_results(params, pcov, start, origin, centroid_cov, sigma, k, vague_factor, pixel_var):
     """Centres (N, k, 2) px, covariances (N, k, 2, 2) px^2 and (N,) whether a disc's fit failed, from the fitted
     ``params`` and ``pcov`` (N, 2k, 2k) of :func:`fit_discs`, the ``start`` (N, 1 + 5k) it began from (centres
     relative to ``origin`` (N, 2)) and the blobs' centroid covariances (N, 2, 2), as :func:`mocap.detect._fit_results`
     checks them: a disc whose offset or covariance is not finite, whose covariance is not positive or exceeds
     ``vague_factor`` times the centroid's trace, or whose centre wandered more than max(1.5 px, its radius) falls
-    back to its start with the centroid's covariance (+ 0.25 px^2 per axis for k > 1)."""
+    back to its start with the centroid's covariance (+ 0.25 px^2 per axis for k > 1, ``pixel_var`` for k = 1: the
+    vague test compares with the centroid's noise alone)."""
     n = params.shape[0]
     centres = np.empty((n, k, 2))
     covs = np.empty((n, k, 2, 2))
@@ -599,7 +600,9 @@ def fit_results(params, pcov, start, origin, centroid_cov, sigma, k, vague_facto
             if bad:
                 failed[i] = True
                 centres[i, j, 0], centres[i, j, 1] = sx, sy
-                covs[i, j, 0, 0], covs[i, j, 0, 1], covs[i, j, 1, 0], covs[i, j, 1, 1] = f00, f01, f10, f11
+                single = pixel_var if k == 1 else 0.0
+                covs[i, j, 0, 0], covs[i, j, 0, 1] = f00 + single, f01
+                covs[i, j, 1, 0], covs[i, j, 1, 1] = f10, f11 + single
             else:
                 centres[i, j, 0], centres[i, j, 1] = sx + dx, sy + dy
                 covs[i, j, 0, 0], covs[i, j, 0, 1], covs[i, j, 1, 0], covs[i, j, 1, 1] = a, b, c, d
