@@ -80,9 +80,10 @@ DAMPING = 1e-2  # Levenberg-style relative damping of every Gauss-Newton step bu
 MAX_STEP = 1.0  # px: a centre moves at most this far per step
 FIT_VAGUE = 3.0  # a fit whose std exceeds this many times the weighted centroid's, or whose covariance is
 #   not positive semi-definite, is ill-posed: it falls back to the weighted centroid
-FALLBACK_PIXEL_VAR = 1.0 / 12.0  # px^2 per axis added to the covariance of a single disc's fallback: the
-#   thresholded centroid of a blob whose fit failed (a faint marker a few pixels across, in noise and blur) misses
-#   its sub-threshold skirt, so it is known to about a pixel (uniform over one: 1/12 px^2), not to its noise alone
+FALLBACK_PIXEL_VAR = 1.0 / 12.0  # px^2 per axis in a single disc's weighted centroid's covariance besides its noise:
+#   the thresholded centroid of a faint marker a few pixels across (in noise and blur) misses its sub-threshold
+#   skirt, so it is known to about a pixel (uniform over one: 1/12 px^2). The vague test compares a fit with it,
+#   and a fallback reports it
 _SATURATED = 255
 _START_BLUR = 0.5  # px: the edge blur a fit starts from
 # a saturated disc of height A: the gap between its half-full-scale and saturated edges, in units of the blur,
@@ -673,8 +674,9 @@ def _fit_results(params: np.ndarray, pcov: np.ndarray, start: np.ndarray, origin
     failed, from the fit's ``params`` (N, 1 + 5k) and ``pcov`` (N, 2k, 2k), its ``start`` (centres relative to
     ``origin`` (N, 2)) and the blobs' ``centroid_cov`` (N, 2, 2) (unit noise; ``sigma`` grey levels). A disc whose
     offset or covariance is not finite, whose covariance is not positive or its std ``FIT_VAGUE`` times the
-    centroid's, or whose centre wandered more than max(1.5 px, its radius) falls back to its start, with the
-    centroid's covariance (+ 0.25 px^2 per axis for k > 1, ``FALLBACK_PIXEL_VAR`` for k = 1). With the kernels on,
+    centroid's (its noise covariance + ``FALLBACK_PIXEL_VAR`` per axis for k = 1), or whose centre wandered more
+    than max(1.5 px, its radius) falls back to its start, with the centroid's covariance (+ 0.25 px^2 per axis for
+    k > 1, ``FALLBACK_PIXEL_VAR`` for k = 1). With the kernels on,
     :func:`mocap.detect_kernels.fit_results` does the same disc by disc."""
     if kernels.HAVE_NUMBA:
         return detect_kernels.fit_results(params, pcov, start, kernels.contiguous(origin),
@@ -688,11 +690,12 @@ def _fit_results(params: np.ndarray, pcov: np.ndarray, start: np.ndarray, origin
     fallback_cov = centroid_cov[:, None] * sigma**2 + np.eye(2) * (0.25 if k > 1 else 0.0)
     a, b, d = cov[..., 0, 0], cov[..., 0, 1], cov[..., 1, 1]
     with np.errstate(invalid="ignore"):  # (NaN covariances are caught by the finiteness test)
-        vague = (a < 0) | (a * d < b * b) | (a + d > FIT_VAGUE**2 * np.trace(fallback_cov, axis1=2, axis2=3))
+        vague = (a < 0) | (a * d < b * b) | (a + d > FIT_VAGUE**2 * (np.trace(fallback_cov, axis1=2, axis2=3)
+                                                                    + (2 * FALLBACK_PIXEL_VAR if k == 1 else 0.0)))
     bad = (~np.isfinite(offset).all(axis=2) | ~np.isfinite(cov).all(axis=(2, 3)) | vague
            | (np.hypot(*offset.transpose(2, 0, 1)) > np.maximum(1.5, disc[:, :, 3])))
     start_xy = start[:, 1:].reshape(n, k, 5)[:, :, :2] + origin[:, None]
-    if k == 1:  # (after the vague test, which compares with the centroid's noise alone)
+    if k == 1:
         fallback_cov = fallback_cov + np.eye(2) * FALLBACK_PIXEL_VAR
     return (start_xy + np.where(bad[:, :, None], 0.0, offset), np.where(bad[:, :, None, None], fallback_cov, cov),
             bad.any(axis=1))

@@ -568,8 +568,8 @@ def fit_results(params, pcov, start, origin, centroid_cov, sigma, k, vague_facto
     relative to ``origin`` (N, 2)) and the blobs' centroid covariances (N, 2, 2), as :func:`mocap.detect._fit_results`
     checks them: a disc whose offset or covariance is not finite, whose covariance is not positive or exceeds
     ``vague_factor`` times the centroid's trace, or whose centre wandered more than max(1.5 px, its radius) falls
-    back to its start with the centroid's covariance (+ 0.25 px^2 per axis for k > 1, ``pixel_var`` for k = 1: the
-    vague test compares with the centroid's noise alone)."""
+    back to its start with the centroid's covariance (+ 0.25 px^2 per axis for k > 1, ``pixel_var`` for k = 1, also
+    in the vague test)."""
     n = params.shape[0]
     centres = np.empty((n, k, 2))
     covs = np.empty((n, k, 2, 2))
@@ -593,7 +593,7 @@ def fit_results(params, pcov, start, origin, centroid_cov, sigma, k, vague_facto
             d = pcov[i, 2 * j + 1, 2 * j + 1] * s2
             finite = (math.isfinite(dx) and math.isfinite(dy) and math.isfinite(a) and math.isfinite(b)
                       and math.isfinite(c) and math.isfinite(d))
-            vague = a < 0 or a * d < b * b or a + d > vague_factor * (f00 + f11)
+            vague = a < 0 or a * d < b * b or a + d > vague_factor * (f00 + f11 + (2 * pixel_var if k == 1 else 0.0))
             r = params[i, p + 3]
             reach = 1.5 if r <= 1.5 else r  # (np.maximum: a NaN radius stays NaN, and nothing exceeds it)
             bad = not finite or vague or math.hypot(dx, dy) > reach
