@@ -674,9 +674,9 @@ def _fit_results(params: np.ndarray, pcov: np.ndarray, start: np.ndarray, origin
     failed, from the fit's ``params`` (N, 1 + 5k) and ``pcov`` (N, 2k, 2k), its ``start`` (centres relative to
     ``origin`` (N, 2)) and the blobs' ``centroid_cov`` (N, 2, 2) (unit noise; ``sigma`` grey levels). A disc whose
     offset or covariance is not finite, whose covariance is not positive or its std ``FIT_VAGUE`` times the
-    centroid's (its noise covariance + ``FALLBACK_PIXEL_VAR`` per axis for k = 1), or whose centre wandered more
-    than max(1.5 px, its radius) falls back to its start, with the centroid's covariance (+ 0.25 px^2 per axis for
-    k > 1, ``FALLBACK_PIXEL_VAR`` for k = 1). With the kernels on,
+    centroid's, or whose centre wandered more than max(1.5 px, its radius) falls back to its start, with the
+    centroid's covariance: its noise covariance + ``FALLBACK_PIXEL_VAR`` per axis for k = 1 (+ 0.25 px^2 for k > 1),
+    also what the vague test compares with. With the kernels on,
     :func:`mocap.detect_kernels.fit_results` does the same disc by disc."""
     if kernels.HAVE_NUMBA:
         return detect_kernels.fit_results(params, pcov, start, kernels.contiguous(origin),
@@ -687,16 +687,13 @@ def _fit_results(params: np.ndarray, pcov: np.ndarray, start: np.ndarray, origin
     offset = disc[:, :, :2] - start[:, 1:].reshape(n, k, 5)[:, :, :2]
     pos = 2 * np.arange(k)[:, None] + np.arange(2)  # (k, 2) covariance rows of each centre
     cov = pcov[np.arange(n)[:, None, None, None], pos[None, :, :, None], pos[None, :, None, :]] * sigma**2
-    fallback_cov = centroid_cov[:, None] * sigma**2 + np.eye(2) * (0.25 if k > 1 else 0.0)
+    fallback_cov = centroid_cov[:, None] * sigma**2 + np.eye(2) * (0.25 if k > 1 else FALLBACK_PIXEL_VAR)
     a, b, d = cov[..., 0, 0], cov[..., 0, 1], cov[..., 1, 1]
     with np.errstate(invalid="ignore"):  # (NaN covariances are caught by the finiteness test)
-        vague = (a < 0) | (a * d < b * b) | (a + d > FIT_VAGUE**2 * (np.trace(fallback_cov, axis1=2, axis2=3)
-                                                                    + (2 * FALLBACK_PIXEL_VAR if k == 1 else 0.0)))
+        vague = (a < 0) | (a * d < b * b) | (a + d > FIT_VAGUE**2 * np.trace(fallback_cov, axis1=2, axis2=3))
     bad = (~np.isfinite(offset).all(axis=2) | ~np.isfinite(cov).all(axis=(2, 3)) | vague
            | (np.hypot(*offset.transpose(2, 0, 1)) > np.maximum(1.5, disc[:, :, 3])))
     start_xy = start[:, 1:].reshape(n, k, 5)[:, :, :2] + origin[:, None]
-    if k == 1:
-        fallback_cov = fallback_cov + np.eye(2) * FALLBACK_PIXEL_VAR
     return (start_xy + np.where(bad[:, :, None], 0.0, offset), np.where(bad[:, :, None, None], fallback_cov, cov),
             bad.any(axis=1))
 

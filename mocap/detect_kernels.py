@@ -568,14 +568,13 @@ def fit_results(params, pcov, start, origin, centroid_cov, sigma, k, vague_facto
     relative to ``origin`` (N, 2)) and the blobs' centroid covariances (N, 2, 2), as :func:`mocap.detect._fit_results`
     checks them: a disc whose offset or covariance is not finite, whose covariance is not positive or exceeds
     ``vague_factor`` times the centroid's trace, or whose centre wandered more than max(1.5 px, its radius) falls
-    back to its start with the centroid's covariance (+ 0.25 px^2 per axis for k > 1, ``pixel_var`` for k = 1, also
-    in the vague test)."""
+    back to its start with the centroid's covariance (+ ``pixel_var`` px^2 per axis for k = 1, 0.25 for k > 1)."""
     n = params.shape[0]
     centres = np.empty((n, k, 2))
     covs = np.empty((n, k, 2, 2))
     failed = np.zeros(n, np.bool_)
     s2 = sigma * sigma
-    extra = 0.25 if k > 1 else 0.0
+    extra = 0.25 if k > 1 else pixel_var
     for i in range(n):
         f00 = centroid_cov[i, 0, 0] * s2 + extra
         f01 = centroid_cov[i, 0, 1] * s2
@@ -593,16 +592,14 @@ def fit_results(params, pcov, start, origin, centroid_cov, sigma, k, vague_facto
             d = pcov[i, 2 * j + 1, 2 * j + 1] * s2
             finite = (math.isfinite(dx) and math.isfinite(dy) and math.isfinite(a) and math.isfinite(b)
                       and math.isfinite(c) and math.isfinite(d))
-            vague = a < 0 or a * d < b * b or a + d > vague_factor * (f00 + f11 + (2 * pixel_var if k == 1 else 0.0))
+            vague = a < 0 or a * d < b * b or a + d > vague_factor * (f00 + f11)
             r = params[i, p + 3]
             reach = 1.5 if r <= 1.5 else r  # (np.maximum: a NaN radius stays NaN, and nothing exceeds it)
             bad = not finite or vague or math.hypot(dx, dy) > reach
             if bad:
                 failed[i] = True
                 centres[i, j, 0], centres[i, j, 1] = sx, sy
-                single = pixel_var if k == 1 else 0.0
-                covs[i, j, 0, 0], covs[i, j, 0, 1] = f00 + single, f01
-                covs[i, j, 1, 0], covs[i, j, 1, 1] = f10, f11 + single
+                covs[i, j, 0, 0], covs[i, j, 0, 1], covs[i, j, 1, 0], covs[i, j, 1, 1] = f00, f01, f10, f11
             else:
                 centres[i, j, 0], centres[i, j, 1] = sx + dx, sy + dy
                 covs[i, j, 0, 0], covs[i, j, 0, 1], covs[i, j, 1, 0], covs[i, j, 1, 1] = a, b, c, d
