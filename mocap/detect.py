@@ -10,7 +10,12 @@ the same blobs, pixels and order as the numpy path here, which stays the referen
    taken from the lower half so bright blobs do not inflate them).
 2. **Coarse search**: 4x4 max-pooling (``cv2.dilate`` + stride) and a threshold
    ``level + max(6 sigma, 8)`` give candidate cells; their 8-connected groups (a 16x smaller image)
-   give one patch per group, margin 4 px.
+   give one patch per group, margin 4 px. Markers too faint for that threshold (heavy sensor noise, soft optics)
+   are looked for the same way in the 3x3 mean image, whose noise is a third (measured on it), at its own
+   ``level + max(6 sigma, 8)``; each pixel is held to its brightest neighbour's level first, so that a lone hot
+   pixel adds nothing. A blob found there that holds no pixel of a blob found in the raw image is added, its
+   pixels carrying their raw grey levels, its fit window a pixel wider, and a fallback to its thresholded centroid
+   reported as known to its 3x3 box (9/12 px^2 per axis). At default realism (noise 2) it finds nothing more.
 3. **Blobs**: the patches, thresholded and restricted to their own cells, are stacked in one
    small mosaic and labelled once (8-connectivity). Area, intensity-weighted centroid and second
    moments (roundness) come from ``bincount`` over the labelled pixels.
@@ -84,6 +89,7 @@ FALLBACK_PIXEL_VAR = 1.0 / 12.0  # px^2 per axis in a single disc's weighted cen
 #   the thresholded centroid of a faint marker a few pixels across (in noise and blur) misses its sub-threshold
 #   skirt, so it is known to about a pixel (uniform over one: 1/12 px^2). The vague test compares a fit with it,
 #   and a fallback reports it
+FAINT_PIXEL_VAR = 9.0 / 12.0  # px^2 per axis: ... and a faint blob's, thresholded in the 3x3 mean image, to its box
 _SATURATED = 255
 _START_BLUR = 0.5  # px: the edge blur a fit starts from
 # a saturated disc of height A: the gap between its half-full-scale and saturated edges, in units of the blur,
@@ -116,6 +122,7 @@ _Z_ORIGIN = _Z_MAX * _Z_RES  # table index of z = 0
 _Z_LAST = 2 * _Z_ORIGIN - 0.01  # highest interpolation position inside one half
 _MIN_FOOTPRINT = 0.1  # px: a and b are at least this (a box this narrow changes the edge by < 1e-3 px^2)
 _ROW_KERNEL = np.ones((1, CELL), np.uint8)
+_RING_3 = np.array([[1, 1, 1], [1, 0, 1], [1, 1, 1]], np.uint8)  # a pixel's 8 neighbours
 _WINDOW_HALVES = 6 * 2 ** np.arange(12)  # sizes of the cached window templates, px
 
 
@@ -281,6 +288,61 @@ def _label_blobs(image: np.ndarray, t: int, cell_labels: np.ndarray, boxes: np.n
         n_labels += labels.size
     pixels = _Pixels(*(np.concatenate(a) for a in zip(*parts, strict=True)))
     return pixels, _Owners(*(np.concatenate(a) for a in zip(*owners, strict=True))), _runs(pixels.blob)[0]
+
+
+def _blobs_above(image: np.ndarray, t: int, rois: np.ndarray | None) -> tuple[_Pixels, _Owners, np.ndarray] | None:
+    """The blobs of pixels brighter than ``t`` (coarse search, then labelling; ``rois`` as :func:`detect`), or
+    None when there are none."""
+    cell_labels, boxes = _groups(image, t, rois)
+    return _label_blobs(image, t, cell_labels, boxes) if len(boxes) else None
+
+
+def _faint_blobs(image: np.ndarray, t: int, rois: np.ndarray | None, found: tuple[_Pixels, _Owners, np.ndarray] | None,
+                 min_area: int) -> tuple[_Pixels, _Owners, np.ndarray] | None:
+    """Markers too faint for the raw threshold ``t``: blobs of the 3x3 mean image (its noise a third of the raw
+    image's, measured on it) above ``its level + max(6 sigma, 8)``, each holding no pixel of a blob ``found``
+    (``_blobs_above(image, t, ...)``) of ``min_area`` or more. The mean is taken with every pixel held to its
+    brightest neighbour's level, so that a lone hot pixel adds nothing (a marker's peak, spread by the optics,
+    loses little). The blobs' pixels (the mean image's above its threshold) carry the raw grey levels. None when
+    there are none, or when the mean image's threshold is not below ``t``."""
+    smooth = cv2.blur(cv2.min(image, cv2.dilate(image, _RING_3)), (3, 3))
+    level, sigma = background_level(smooth)
+    ts = max(0, math.floor(level + max(K_SIGMA * sigma, MIN_CONTRAST)))
+    if ts >= t:
+        return None
+    faint = _blobs_above(smooth, ts, rois)
+    if faint is None:
+        return None
+    pixels, owners, starts = faint
+    pixels.grey = image[pixels.y, pixels.x]
+    taken = np.zeros(image.shape, bool)
+    if found is not None:
+        area = np.diff(np.append(found[2], len(found[0].blob)))
+        big = area[found[0].blob] >= min_area
+        taken[found[0].y[big], found[0].x[big]] = True
+    keep = np.bincount(pixels.blob, weights=taken[pixels.y, pixels.x], minlength=len(starts)) == 0
+    if not keep.any():
+        return None
+    at = keep[pixels.blob]
+    new_id = np.cumsum(keep) - 1
+    pixels = _Pixels(new_id[pixels.blob[at]], pixels.x[at], pixels.y[at], pixels.grey[at], presorted=True)
+    owners = _Owners(owners.labels, *(a[keep] for a in (owners.base, owners.x0, owners.y0, owners.width,
+                                                        owners.height, owners.local)))
+    return pixels, owners, _runs(pixels.blob)[0]
+
+
+def _joined(a: tuple[_Pixels, _Owners, np.ndarray] | None, b: tuple[_Pixels, _Owners, np.ndarray] | None
+            ) -> tuple[_Pixels, _Owners, np.ndarray] | None:
+    """Two sets of labelled blobs as one, ``b``'s after ``a``'s."""
+    if a is None or b is None:
+        return a if b is None else b
+    (pa, oa, sa), (pb, ob, sb) = a, b
+    pixels = _Pixels(np.concatenate([pa.blob, pb.blob + len(sa)]), *(np.concatenate([getattr(pa, k), getattr(pb, k)])
+                                                                      for k in ("x", "y", "grey")), presorted=True)
+    owners = _Owners(np.concatenate([oa.labels, ob.labels]), np.concatenate([oa.base, ob.base + len(oa.labels)]),
+                     *(np.concatenate([getattr(oa, k), getattr(ob, k)]) for k in ("x0", "y0", "width", "height",
+                                                                                   "local")))
+    return pixels, owners, np.concatenate([sa, sb + len(pa.blob)])
 
 
 # --------------------------------------------------------------------------- blob model fit
@@ -645,10 +707,10 @@ def _disc_starts(blobs: np.ndarray, k: int, origin: np.ndarray, peaks: tuple[np.
 
 
 def _measure(image: np.ndarray, owners: _Owners, blobs: np.ndarray, k: int, radius: np.ndarray,
-             peaks: tuple[np.ndarray, np.ndarray, np.ndarray], stats: _Blobs, level: float, sigma: float, t: int
-             ) -> tuple[np.ndarray, np.ndarray]:
+             peaks: tuple[np.ndarray, np.ndarray, np.ndarray], stats: _Blobs, level: float, sigma: float, t: int,
+             pixel_var: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Fit ``k`` discs to each blob in ``blobs`` (N,) on the pixels within ``radius`` (N,) px of its
-    centroid.
+    centroid (``pixel_var`` (N,): px^2 per axis in a single disc's centroid besides its noise).
 
     Returns:
         centres (N, k, 2) px, their covariances (N, k, 2, 2) px^2 and (N,) whether a disc's fit failed. A fit that
@@ -665,29 +727,30 @@ def _measure(image: np.ndarray, owners: _Owners, blobs: np.ndarray, k: int, radi
     params[fitted], pcov[fitted] = _fit_discs(values, ox, oy, (np.cumsum(fitted) - 1).take(seg),
                                               np.cumsum(count) - count, start[fitted],
                                               FIT_ITERATIONS if k == 1 else SPLIT_ITERATIONS)
-    return _fit_results(params, pcov, start, origin, stats.centroid_cov[blobs], float(sigma), k)
+    return _fit_results(params, pcov, start, origin, stats.centroid_cov[blobs], float(sigma), k, pixel_var)
 
 
 def _fit_results(params: np.ndarray, pcov: np.ndarray, start: np.ndarray, origin: np.ndarray,
-                 centroid_cov: np.ndarray, sigma: float, k: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                 centroid_cov: np.ndarray, sigma: float, k: int, pixel_var: np.ndarray
+                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The fitted discs checked: centres (N, k, 2) px, covariances (N, k, 2, 2) px^2 and (N,) whether a disc's fit
     failed, from the fit's ``params`` (N, 1 + 5k) and ``pcov`` (N, 2k, 2k), its ``start`` (centres relative to
     ``origin`` (N, 2)) and the blobs' ``centroid_cov`` (N, 2, 2) (unit noise; ``sigma`` grey levels). A disc whose
     offset or covariance is not finite, whose covariance is not positive or its std ``FIT_VAGUE`` times the
     centroid's, or whose centre wandered more than max(1.5 px, its radius) falls back to its start, with the
-    centroid's covariance: its noise covariance + ``FALLBACK_PIXEL_VAR`` per axis for k = 1 (+ 0.25 px^2 for k > 1),
+    centroid's covariance: its noise covariance + ``pixel_var`` (N,) px^2 per axis for k = 1 (0.25 for k > 1),
     also what the vague test compares with. With the kernels on,
     :func:`mocap.detect_kernels.fit_results` does the same disc by disc."""
     if kernels.HAVE_NUMBA:
         return detect_kernels.fit_results(params, pcov, start, kernels.contiguous(origin),
                                           kernels.contiguous(centroid_cov), sigma, k, FIT_VAGUE**2,
-                                          FALLBACK_PIXEL_VAR)
+                                          kernels.contiguous(pixel_var))
     n = len(params)
     disc = params[:, 1:].reshape(n, k, 5)
     offset = disc[:, :, :2] - start[:, 1:].reshape(n, k, 5)[:, :, :2]
     pos = 2 * np.arange(k)[:, None] + np.arange(2)  # (k, 2) covariance rows of each centre
     cov = pcov[np.arange(n)[:, None, None, None], pos[None, :, :, None], pos[None, :, None, :]] * sigma**2
-    fallback_cov = centroid_cov[:, None] * sigma**2 + np.eye(2) * (0.25 if k > 1 else FALLBACK_PIXEL_VAR)
+    fallback_cov = centroid_cov[:, None] * sigma**2 + np.eye(2) * (0.25 if k > 1 else pixel_var[:, None, None, None])
     a, b, d = cov[..., 0, 0], cov[..., 0, 1], cov[..., 1, 1]
     with np.errstate(invalid="ignore"):  # (NaN covariances are caught by the finiteness test)
         vague = (a < 0) | (a * d < b * b) | (a + d > FIT_VAGUE**2 * np.trace(fallback_cov, axis1=2, axis2=3))
@@ -706,7 +769,7 @@ def detect(image: np.ndarray, *, threshold: float | None = None, min_area: int =
     Args:
         image: (H, W) uint8 grey image (bright markers, dark background).
         threshold: grey level a blob pixel must exceed; default ``level + max(6 sigma, 8)`` from
-            :func:`background_level`.
+            :func:`background_level`, and markers too faint for it found in the 3x3 mean image (its noise a third).
         min_area: fewest pixels above the threshold for a blob (2 rejects single hot pixels).
         max_area: most pixels above the threshold (larger blobs are reflections or lamps, dropped).
         rois: optional (K, 4) int boxes ``x0, y0, x1, y1`` (px, inclusive): report only blobs whose
@@ -733,12 +796,16 @@ def detect(image: np.ndarray, *, threshold: float | None = None, min_area: int =
     t = max(0, math.floor(threshold if threshold is not None else level + max(K_SIGMA * sigma, MIN_CONTRAST)))
     if t >= _SATURATED or (rois is not None and len(rois) == 0):
         return Detections.empty()
-    cell_labels, boxes = _groups(image, t, rois)
-    if len(boxes) == 0:
+    found = _blobs_above(image, t, rois)
+    n_found = 0 if found is None else len(found[2])
+    if threshold is None:  # (a threshold given is the one a blob pixel must exceed)
+        found = _joined(found, _faint_blobs(image, t, rois, found, min_area))
+    if found is None:
         return Detections.empty()
-    pixels, owners, starts = _label_blobs(image, t, cell_labels, boxes)
+    pixels, owners, starts = found
     stats = _Blobs(pixels, starts, level)
-    keep = (stats.area >= min_area) & (stats.area <= max_area)
+    faint = np.arange(len(starts)) >= n_found  # (a faint blob's area is in the mean image: any is kept)
+    keep = ((stats.area >= min_area) | faint) & (stats.area <= max_area)
     if rois is not None:
         r = np.asarray(rois, dtype=np.float64).reshape(-1, 4)
         c = stats.centroid[:, None, :]
@@ -767,19 +834,20 @@ def detect(image: np.ndarray, *, threshold: float | None = None, min_area: int =
     if seeds is not None and len(seeds):
         peaks, n_discs, seeded = _seeded_peaks(np.asarray(seeds, dtype=np.float64).reshape(-1, 2), ids,
                                                fit & flagged & (n_discs == 1), owners, stats, peaks, n_discs)
-    radius = stats.reach[ids] + SKIRT
+    radius = stats.reach[ids] + SKIRT + faint[ids]  # (a faint blob's pixels: where the 3x3 mean clears its threshold)
+    pixel_var = np.where(faint[ids], FAINT_PIXEL_VAR, FALLBACK_PIXEL_VAR)
     groups = []  # (blobs (N,) of ids, centres (N, k, 2), covariances (N, k, 2, 2)) per fitted disc count
     for k in np.unique(n_discs[fit]):
         group = np.flatnonzero(fit & (n_discs == k))
         centres, covs, failed = _measure(image, owners, ids[group], int(k), radius[group], peaks, stats, level,
-                                         sigma, t)
+                                         sigma, t, pixel_var[group])
         whole = failed & seeded[group]  # a seeded split that failed: measured whole below
         n_discs[group[whole]] = 1
         groups.append((group[~whole], centres[~whole], covs[~whole]))
     again = np.flatnonzero(seeded & (n_discs == 1))
     if again.size:
         groups.append((again, *_measure(image, owners, ids[again], 1, radius[again], peaks, stats, level, sigma,
-                                        t)[:2]))
+                                        t, pixel_var[again])[:2]))
     for group, centres, covs in groups:  # (N, k, ...) per group
         xy.append(centres.reshape(-1, 2))
         cov.append(covs.reshape(-1, 2, 2))

@@ -568,14 +568,14 @@ def fit_results(params, pcov, start, origin, centroid_cov, sigma, k, vague_facto
     relative to ``origin`` (N, 2)) and the blobs' centroid covariances (N, 2, 2), as :func:`mocap.detect._fit_results`
     checks them: a disc whose offset or covariance is not finite, whose covariance is not positive or exceeds
     ``vague_factor`` times the centroid's trace, or whose centre wandered more than max(1.5 px, its radius) falls
-    back to its start with the centroid's covariance (+ ``pixel_var`` px^2 per axis for k = 1, 0.25 for k > 1)."""
+    back to its start with the centroid's covariance (+ ``pixel_var`` (N,) px^2 per axis for k = 1, 0.25 for k > 1)."""
     n = params.shape[0]
     centres = np.empty((n, k, 2))
     covs = np.empty((n, k, 2, 2))
     failed = np.zeros(n, np.bool_)
     s2 = sigma * sigma
-    extra = 0.25 if k > 1 else pixel_var
     for i in range(n):
+        extra = 0.25 if k > 1 else pixel_var[i]
         f00 = centroid_cov[i, 0, 0] * s2 + extra
         f01 = centroid_cov[i, 0, 1] * s2
         f10 = centroid_cov[i, 1, 0] * s2

@@ -366,6 +366,56 @@ def test_faint_small_markers_in_noise_and_blur_report_an_honest_covariance():
     assert np.sqrt(np.mean((err / std) ** 2)) < 2.0  # 2D errors: sqrt(2) where the covariance is right
 
 
+def _faint_grid(sensor: Sensor, rng: np.random.Generator, amplitude: tuple[float, float]) -> tuple[np.ndarray, ...]:
+    """A 200x200 frame of markers 2.2 px across on a 14 px grid (random sub-pixel offsets and brightness)."""
+    image = sensor.background_frame((200, 200), rng)
+    grid = np.stack(np.meshgrid(np.arange(12, 190, 14), np.arange(12, 190, 14)), -1).reshape(-1, 2)
+    uv = grid + rng.uniform(-0.5, 0.5, grid.shape)
+    sensor.draw(image, uv, np.full(len(uv), 1.1), rng.uniform(*amplitude, len(uv)), rng)
+    return image, uv
+
+
+def test_markers_under_the_raw_threshold_in_heavy_noise_are_found_in_the_mean_image():
+    """Sensor noise 6 and blur 1.5 px: a small marker's blurred peak rarely clears level + 6 sigma (36 grey levels),
+    so the raw threshold finds almost none of these; the 3x3 mean image (its noise a third) finds them, and their fits
+    are honest about being faint (rms error / reported std near sqrt(2), 2D)."""
+    rng = np.random.default_rng(3)
+    sensor = Sensor(noise=6.0, blur_px=1.5)
+    raw, err, std, extra = [], [], [], 0
+    for _ in range(10):
+        image, uv = _faint_grid(sensor, rng, (80.0, 140.0))
+        level, sigma = background_level(image)
+        raw.append((cKDTree(detect(image, threshold=level + 6 * sigma).xy.reshape(-1, 2)).query(uv)[0] < 2).mean()
+                   if len(detect(image, threshold=level + 6 * sigma)) else 0.0)
+        det = detect(image)
+        dist, k = cKDTree(det.xy).query(uv)
+        extra += (cKDTree(uv).query(det.xy)[0] >= 2).sum()
+        err.append(dist[dist < 2])
+        std.append(np.sqrt(0.5 * np.trace(det.cov[k[dist < 2]], axis1=1, axis2=2)))
+    err, std = np.concatenate(err), np.concatenate(std)
+    assert np.mean(raw) < 0.05
+    assert err.size > 0.9 * 1690 and extra == 0
+    assert np.sqrt(np.mean(err**2)) < 0.4  # px (0.30)
+    assert np.sqrt(np.mean((err / std) ** 2)) < 2.0  # (1.41)
+
+
+def test_lone_hot_pixels_in_heavy_noise_are_not_markers():
+    """Hot pixels (one pixel at 120-255) on a noise-6 sensor would light a 3x3 square of the mean image (and the
+    pixels of their 3x3 square without them, whose means hold them): they are not reported, pure noise gives nothing
+    either, and a faint marker among them is found."""
+    rng = np.random.default_rng(8)
+    sensor = Sensor(noise=6.0, blur_px=1.5)
+    for _ in range(5):
+        image = sensor.background_frame((480, 640), rng)
+        assert len(detect(image)) == 0
+        ys, xs = rng.integers(2, 478, 200), rng.integers(2, 638, 200)
+        image[ys, xs] = rng.integers(120, 256, 200)
+        assert len(detect(image)) == 0
+        sensor.draw(image, [[320.3, 240.6]], [1.1], [140.0], rng)
+        det = detect(image)
+        assert len(det) == 1 and np.hypot(det.xy[0, 0] - 320.3, det.xy[0, 1] - 240.6) < 1.0
+
+
 def test_an_ill_posed_fit_falls_back_to_the_weighted_centroid():
     """A 2-px ringing artefact beside a marker in an MPEG-4 (mp4v) encoded rendered frame: the disc fit on its two
     pixels (19 and 16 grey, diagonal) is ill-posed and its covariance indefinite, which floored_covariance turned into
