@@ -303,13 +303,15 @@ def _faint_blobs(image: np.ndarray, t: int, rois: np.ndarray | None, found: tupl
     image's, measured on it) above ``its level + max(6 sigma, 8)``, each holding no pixel of a blob ``found``
     (``_blobs_above(image, t, ...)``) of ``min_area`` or more. The mean is taken with every pixel held to its
     brightest neighbour's level, so that a lone hot pixel adds nothing (a marker's peak, spread by the optics,
-    loses little). The blobs' pixels (the mean image's above its threshold) carry the raw grey levels. None when
+    loses little; the border rows and columns are left out). The blobs' pixels (the mean image's above its
+    threshold) carry the raw grey levels. None when
     there are none, or when the mean image's threshold is not below ``t``."""
     smooth = cv2.blur(cv2.min(image, cv2.dilate(image, _RING_3)), (3, 3))
     level, sigma = background_level(smooth)
     ts = max(0, math.floor(level + max(K_SIGMA * sigma, MIN_CONTRAST)))
     if ts >= t:
         return None
+    smooth[[0, -1], :] = smooth[:, [0, -1]] = 0  # (means over the border's reflected copies: noisier)
     faint = _blobs_above(smooth, ts, rois)
     if faint is None:
         return None
