@@ -827,7 +827,9 @@ def detect(image: np.ndarray, *, threshold: float | None = None, min_area: int =
     if refine not in ("fit", "centroid"):
         raise ValueError(f"refine must be 'fit' or 'centroid', got {refine!r}")
     fit = stats.area[ids] <= FIT_MAX_AREA if refine == "fit" else np.zeros(len(ids), bool)
-    xy, cov, part = [stats.centroid[ids[~fit]]], [stats.centroid_cov[ids[~fit]] * sigma**2], [np.flatnonzero(~fit)]
+    xy, part = [stats.centroid[ids[~fit]]], [np.flatnonzero(~fit)]
+    box_var = np.where(faint[ids[~fit]], FAINT_PIXEL_VAR, 0.0)[:, None, None]  # (a faint blob's centroid: to its box)
+    cov = [stats.centroid_cov[ids[~fit]] * sigma**2 + np.eye(2) * box_var]
 
     # two markers side by side make an elongated (or oversized) blob: look for their peaks there
     peaks = _peaks(image, pixels, starts, ids[fit & (elongated | too_big)], level, sigma)

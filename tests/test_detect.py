@@ -383,7 +383,7 @@ def test_markers_under_the_raw_threshold_in_heavy_noise_are_found_in_the_mean_im
     are honest about being faint (rms error / reported std near sqrt(2), 2D)."""
     rng = np.random.default_rng(3)
     sensor = Sensor(noise=6.0, blur_px=1.5)
-    raw, err, std, extra = [], [], [], 0
+    raw, err, std, centroid_z, extra = [], [], [], [], 0
     for _ in range(10):
         image, uv = _faint_grid(sensor, rng, (80.0, 140.0))
         level, sigma = background_level(image)
@@ -394,7 +394,11 @@ def test_markers_under_the_raw_threshold_in_heavy_noise_are_found_in_the_mean_im
         extra += (cKDTree(uv).query(det.xy)[0] >= 2).sum()
         err.append(dist[dist < 2])
         std.append(np.sqrt(0.5 * np.trace(det.cov[k[dist < 2]], axis1=1, axis2=2)))
+        det = detect(image, refine="centroid")  # the weighted centroid of the mean image's pixels: known to its box
+        dist, k = cKDTree(det.xy).query(uv)
+        centroid_z.append(dist[dist < 2] / np.sqrt(0.5 * np.trace(det.cov[k[dist < 2]], axis1=1, axis2=2)))
     err, std = np.concatenate(err), np.concatenate(std)
+    assert np.sqrt(np.mean(np.concatenate(centroid_z) ** 2)) < 2.0  # (0.51; 67 with the noise's covariance alone)
     assert np.mean(raw) < 0.05
     assert err.size > 0.9 * 1690 and extra == 0
     assert np.sqrt(np.mean(err**2)) < 0.4  # px (0.30)
