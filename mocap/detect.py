@@ -65,7 +65,7 @@ from scipy.spatial import cKDTree
 from mocap import detect_kernels, kernels
 from mocap.detections import Detections, floored_covariance
 
-__all__ = ["background_level", "detect", "K_SIGMA", "MIN_CONTRAST"]
+__all__ = ["background_level", "detect", "flattened_background", "K_SIGMA", "MIN_CONTRAST"]
 
 K_SIGMA = 6.0  # detection threshold above the background, in noise std
 MIN_CONTRAST = 8.0  # ... and never fewer grey levels than this (noise-free or black images)
@@ -90,6 +90,7 @@ FALLBACK_PIXEL_VAR = 1.0 / 12.0  # px^2 per axis in a single disc's weighted cen
 #   skirt, so it is known to about a pixel (uniform over one: 1/12 px^2). The vague test compares a fit with it,
 #   and a fallback reports it
 FAINT_PIXEL_VAR = 9.0 / 12.0  # px^2 per axis: ... and a faint blob's, thresholded in the 3x3 mean image, to its box
+BACKGROUND_TILE = 64  # px: a frame whose tiles this size differ in background level is made level by their medians
 _SATURATED = 255
 _START_BLUR = 0.5  # px: the edge blur a fit starts from
 # a saturated disc of height A: the gap between its half-full-scale and saturated edges, in units of the blur,
@@ -153,6 +154,43 @@ def background_level(image: np.ndarray) -> tuple[float, float]:
     cum = np.cumsum(hist) / hist.sum()
     level = _quantile_from_histogram(cum, 0.5)
     return level, level - _quantile_from_histogram(cum, 0.15866)
+
+
+@functools.lru_cache(maxsize=8)
+def _tile_index(shape: tuple[int, int], step: int) -> tuple[np.ndarray, int, int]:
+    """Each pixel of a frame's subsample (every ``step``-th pixel of every ``step``-th row): its ``BACKGROUND_TILE``
+    tile's index times 256, (h, w) int64; and the tiles down and across."""
+    h, w = -(-shape[0] // step), -(-shape[1] // step)
+    side = BACKGROUND_TILE // step
+    ty, tx = -(-h // side), -(-w // side)
+    return 256 * ((np.arange(h) // side)[:, None] * tx + (np.arange(w) // side)[None, :]), ty, tx
+
+
+def _tile_medians(image: np.ndarray, step: int) -> tuple[np.ndarray, float]:
+    """(ty, tx) float32 median of each ``BACKGROUND_TILE`` px tile's subsample (every ``step``-th pixel of every
+    ``step``-th row), and the median over tiles of ``median - 15.87th percentile`` (the noise std, unswayed by a
+    slope across the frame), grey levels."""
+    index, ty, tx = _tile_index(image.shape, step)
+    cum = np.cumsum(np.bincount((index + image[::step, ::step]).ravel(), minlength=ty * tx * 256).reshape(-1, 256),
+                    axis=1)
+    medians = np.argmax(cum >= 0.5 * cum[:, -1:], axis=1)
+    low = np.argmax(cum >= 0.15866 * cum[:, -1:], axis=1)
+    return medians.astype(np.float32).reshape(ty, tx), float(np.median(medians - low))
+
+
+def flattened_background(image: np.ndarray) -> np.ndarray | None:
+    """The image with its background made level, or None when it is level already (its tiles' medians, from every
+    8th pixel of every 8th row, within ``max(4 sigma, 8)`` grey levels of each other). Made level: minus the
+    bilinear surface through the medians of its ``BACKGROUND_TILE`` px tiles (every 4th pixel of every 4th row),
+    plus their median; saturated pixels stay saturated. For ambient light or a lit wall, where one threshold for
+    the whole frame would swallow the bright side and miss markers on the dark one. (H, W) uint8 -> (H, W) uint8."""
+    medians, sigma = _tile_medians(image, 8)
+    if medians.max() - medians.min() <= max(4.0 * sigma, MIN_CONTRAST):
+        return None
+    medians = _tile_medians(image, 4)[0]
+    surface = cv2.resize(medians, (image.shape[1], image.shape[0]), interpolation=cv2.INTER_LINEAR)
+    flat = np.clip(np.rint(image - surface + np.median(medians)), 0, _SATURATED - 1).astype(np.uint8)
+    return np.where(image >= _SATURATED, image, flat)
 
 
 # --------------------------------------------------------------------------- coarse search
@@ -792,6 +830,9 @@ def detect(image: np.ndarray, *, threshold: float | None = None, min_area: int =
     image = np.ascontiguousarray(image)
     if image.ndim != 2 or image.dtype != np.uint8:
         raise ValueError(f"detect needs an (H, W) uint8 image, got {image.dtype} {image.shape}")
+    if threshold is None:
+        flat = flattened_background(image)
+        image = image if flat is None else flat
     level, sigma = background_level(image)
     if noise_sigma is not None:
         sigma = float(noise_sigma)
