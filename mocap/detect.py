@@ -7,7 +7,8 @@ the same blobs, pixels and order as the numpy path here, which stays the referen
 
 1. **Background and noise** (:func:`background_level`): the median of a 1-in-16 pixel subsample and
    the robust std ``median - 15.87th percentile`` (both interpolated within integer grey levels, and
-   taken from the lower half so bright blobs do not inflate them).
+   taken from the lower half so bright blobs do not inflate them). A frame whose 64 px tiles disagree on the
+   background level (ambient light) is made level by their medians first (:func:`flattened_background`).
 2. **Coarse search**: 4x4 max-pooling (``cv2.dilate`` + stride) and a threshold
    ``level + max(6 sigma, 8)`` give candidate cells; their 8-connected groups (a 16x smaller image)
    give one patch per group, margin 4 px. Markers too faint for that threshold (heavy sensor noise, soft optics)
@@ -342,8 +343,8 @@ def _faint_blobs(image: np.ndarray, t: int, rois: np.ndarray | None, found: tupl
     (``_blobs_above(image, t, ...)``) of ``min_area`` or more. The mean is taken with every pixel held to its
     brightest neighbour's level, so that a lone hot pixel adds nothing (a marker's peak, spread by the optics,
     loses little; the border rows and columns are left out). The blobs' pixels (the mean image's above its
-    threshold) carry the raw grey levels. None when
-    there are none, or when the mean image's threshold is not below ``t``."""
+    threshold) carry the raw grey levels. ``image`` (H, W) uint8; returns the blobs as ``_blobs_above`` does, or
+    None when there are none or when the mean image's threshold is not below ``t``."""
     smooth = cv2.blur(cv2.min(image, cv2.dilate(image, _RING_3)), (3, 3))
     level, sigma = background_level(smooth)
     ts = max(0, math.floor(level + max(K_SIGMA * sigma, MIN_CONTRAST)))
