@@ -387,8 +387,8 @@ def test_markers_under_the_raw_threshold_in_heavy_noise_are_found_in_the_mean_im
     for _ in range(10):
         image, uv = _faint_grid(sensor, rng, (80.0, 140.0))
         level, sigma = background_level(image)
-        raw.append((cKDTree(detect(image, threshold=level + 6 * sigma).xy.reshape(-1, 2)).query(uv)[0] < 2).mean()
-                   if len(detect(image, threshold=level + 6 * sigma)) else 0.0)
+        raw_det = detect(image, threshold=level + 6 * sigma)
+        raw.append((cKDTree(raw_det.xy).query(uv)[0] < 2).mean() if len(raw_det) else 0.0)
         det = detect(image)
         dist, k = cKDTree(det.xy).query(uv)
         extra += (cKDTree(uv).query(det.xy)[0] >= 2).sum()
