@@ -12,7 +12,9 @@ it, the joins changed the plates it learned), :func:`rejoin_by_anchors`:
 
 1. measures every pair of identities over the frames both are seen in (:func:`mocap.rigid.pair_statistics`):
    an identity's anchors are the identities within ``reach_m`` whose distance to it spread (1.4826 MAD) less
-   than ``spread_m`` over ``min_frames`` frames seen together at least;
+   than ``spread_m`` over ``min_frames`` frames seen together at least; an identity with fewer than
+   ``min_anchors`` such anchors takes them within ``far_reach_m`` (a marker of a large rigid object: a
+   wheelchair frame's markers stand 0.45-0.8 m apart, with no other marker rigid to them within 0.3 m);
 2. takes the identities shortest first, and offers each (the fragment) to every longer identity (the target):
    the fragment's median distance to each of the target's anchors it was seen with (``piece_frames`` frames
    at least) must equal the target's within ``tolerance_m`` and spread less than ``spread_m``, for
@@ -64,7 +66,8 @@ class AnchorConfig:
             or a toe's skin marker to its neighbours spreads 3-5 mm; in one pass the looser anchors that disagree
             kept the sprint start's forearm marker from joining its identity).
         joint_spread_m: ... or less than this for the fragment's own anchors (a marker by a joint), m.
-        reach_m: anchors are within this of the target (median), m.
+        reach_m: anchors are within this of the target (median), m ...
+        far_reach_m: ... or within this for an identity with fewer than ``min_anchors`` anchors within ``reach_m``, m.
         min_frames: frames an anchor and the target must be seen together.
         piece_frames: frames an anchor and the fragment must be seen together.
         min_anchors: fewest anchors that must agree.
@@ -79,6 +82,7 @@ class AnchorConfig:
     loose_spread_m: float = 0.005
     joint_spread_m: float = 0.006
     reach_m: float = 0.3
+    far_reach_m: float = 1.0
     min_frames: int = 30
     piece_frames: int = 3
     min_anchors: int = 2
@@ -97,10 +101,13 @@ def _statistics(P: np.ndarray, cfg: AnchorConfig, spread_m: float
 
 def _steady(median: np.ndarray, spread: np.ndarray, count: np.ndarray, cfg: AnchorConfig, spread_m: float
             ) -> np.ndarray:
-    """(M, M) bool: pairs within ``reach_m``, seen together ``min_frames`` frames or more, whose distance spreads
-    less than ``spread_m``."""
+    """(M, M) bool, row m: identity m's anchors, the identities seen with it ``min_frames`` frames or more whose
+    distance to it spreads less than ``spread_m``, within ``reach_m``, or within ``far_reach_m`` for an identity
+    with fewer than ``min_anchors`` anchors within ``reach_m``."""
     with np.errstate(invalid="ignore"):
-        return (spread < spread_m) & (median <= cfg.reach_m) & (count >= cfg.min_frames)
+        rigid = (spread < spread_m) & (count >= cfg.min_frames)
+        near = rigid & (median <= cfg.reach_m)
+        return near | (rigid & (median <= cfg.far_reach_m) & (near.sum(axis=1) < cfg.min_anchors)[:, None])
 
 
 def _target(p: int, median: np.ndarray, spread: np.ndarray, count: np.ndarray, strong: np.ndarray,

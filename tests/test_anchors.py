@@ -132,6 +132,25 @@ def test_one_anchor_is_not_enough_and_the_tolerance_decides():
     assert rejoin_by_anchors(_columns(moved, near), AnchorConfig(tolerance_m=0.010)) == 1
 
 
+# A wheelchair frame's markers: 0.45-0.8 m apart, none within the 0.3 m reach of another.
+FRAME = np.array([[0.0, 0.0, 0.0], [0.80, 0.0, 0.0], [0.30, 0.55, 0.10], [0.60, 0.40, -0.20]])
+
+
+def test_a_marker_with_no_anchor_within_reach_takes_its_anchors_farther_out():
+    truth = np.concatenate([_segment(FRAME, seed=7), _segment(np.array([[0.0, 0.0, 0.5]]), seed=8)[:, :, ::-1]],
+                           axis=1)  # + a marker on another, unrelated motion
+    other = 4
+    pieces = [[(0, 0, F)], [(1, 0, F)], [(2, 0, F)],
+              [(3, 0, 200)], [(3, 300, F)],  # marker 3 back as a new identity after a gap
+              [(other, 0, 350)], [(other, 420, F)]]  # the other marker back as a new identity too
+    near_only = _columns(truth, pieces)
+    assert rejoin_by_anchors(near_only, AnchorConfig(far_reach_m=0.3)) == 0
+    traj = _columns(truth, pieces)
+    assert rejoin_by_anchors(traj) == 1
+    assert list(_holder(traj, truth, 3).values()) == [500]  # (the shorter piece joins the longer)
+    assert _holder(traj, truth, other) == {5: 350, 6: 180}  # (nothing rigid to it: no anchors, left alone)
+
+
 def test_a_fragment_of_a_marker_by_a_joint_joins_it():
     # An elbow marker 0.12 m from A1 and A2: its distances to them change by +-6 mm with the joint over the take
     # (spread about 6 mm, over the 5 mm of a loose anchor), but hardly over a fragment of 50 frames.
