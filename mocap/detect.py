@@ -172,6 +172,9 @@ def _tile_medians(image: np.ndarray, step: int) -> tuple[np.ndarray, float]:
     """(ty, tx) float32 median of each ``BACKGROUND_TILE`` px tile's subsample (every ``step``-th pixel of every
     ``step``-th row), and the median over tiles of ``median - 15.87th percentile`` (the noise std, unswayed by a
     slope across the frame), grey levels."""
+    if kernels.HAVE_NUMBA:
+        medians, low = detect_kernels.tile_quantiles(image, step, BACKGROUND_TILE // step, 0.15866)
+        return medians.astype(np.float32), float(np.median(medians - low))
     index, ty, tx = _tile_index(image.shape, step)
     cum = np.cumsum(np.bincount((index + image[::step, ::step]).ravel(), minlength=ty * tx * 256).reshape(-1, 256),
                     axis=1)

@@ -1,5 +1,5 @@
-"""Compiled kernels of blob detection (:mod:`mocap.detect`): coarse pass, labelling, per-blob sums, neighbour medians,
-peaks, fit windows, the disc fit and its checks.
+"""Compiled kernels of blob detection (:mod:`mocap.detect`): background tiles, coarse pass, labelling, per-blob
+sums, neighbour medians, peaks, fit windows, the disc fit and its checks.
 
 Each computes what the numpy stages of :mod:`mocap.detect` compute, with one loop over the pixels of a frame
 instead of dozens of numpy calls on small arrays; :mod:`mocap.detect` switches to them where
@@ -15,8 +15,8 @@ import numpy as np
 
 from mocap.kernels import _jit
 
-__all__ = ["subsampled_histogram", "coarse_groups", "label_blobs", "blob_sums", "neighbour_medians", "peaks", "window",
-           "fit_discs", "fit_results"]
+__all__ = ["subsampled_histogram", "tile_quantiles", "coarse_groups", "label_blobs", "blob_sums",
+           "neighbour_medians", "peaks", "window", "fit_discs", "fit_results"]
 
 
 # ---------------------------------------------------------------------------------------------- coarse search
@@ -29,6 +29,37 @@ def subsampled_histogram(image, step):
         for x in range(0, w, step):
             counts[image[y, x]] += 1
     return counts.astype(np.float64)
+
+
+@_jit
+def tile_quantiles(image, step, side, q_low):
+    """The numpy ``_tile_medians``' per-tile levels: of every ``step``-th pixel of every ``step``-th row, grouped in
+    tiles of ``side`` such samples a side, each tile's lowest grey level whose cumulative count reaches half its
+    samples, and ``q_low`` of them. Returns (ty, tx) int64 medians and (ty, tx) int64 low quantiles."""
+    h, w = image.shape
+    hs, ws = (h + step - 1) // step, (w + step - 1) // step
+    ty, tx = (hs + side - 1) // side, (ws + side - 1) // side
+    counts = np.zeros((ty, tx, 256), np.int32)
+    for i in range(hs):
+        row = image[i * step]
+        for j in range(ws):
+            counts[i // side, j // side, row[j * step]] += 1
+    medians, lows = np.empty((ty, tx), np.int64), np.empty((ty, tx), np.int64)
+    for a in range(ty):
+        for b in range(tx):
+            total = 0
+            for k in range(256):
+                total += counts[a, b, k]
+            cum, low, med = 0, -1, -1
+            for k in range(256):
+                cum += counts[a, b, k]
+                if low < 0 and cum >= q_low * total:
+                    low = k
+                if cum >= 0.5 * total:
+                    med = k
+                    break
+            medians[a, b], lows[a, b] = med, low
+    return medians, lows
 
 
 @_jit
