@@ -14,7 +14,9 @@ it, the joins changed the plates it learned), :func:`rejoin_by_anchors`:
    an identity's anchors are the identities within ``reach_m`` whose distance to it spread (1.4826 MAD) less
    than ``spread_m`` over ``min_frames`` frames seen together at least; an identity with fewer than
    ``min_anchors`` such anchors takes them within ``far_reach_m`` (a marker of a large rigid object: a
-   wheelchair frame's markers stand 0.45-0.8 m apart, with no other marker rigid to them within 0.3 m);
+   wheelchair frame's markers stand 0.45-0.8 m apart, with no other marker rigid to them within 0.3 m), where
+   the distance also holds over the frames in which the marker moves faster than ``moving_mps`` (an athlete who
+   sits still for ten seconds makes the steering wheel look rigid to the frame in the median and its MAD);
 2. takes the identities shortest first, and offers each (the fragment) to every longer identity (the target):
    the fragment's median distance to each of the target's anchors it was seen with (``piece_frames`` frames
    at least) must equal the target's within ``tolerance_m`` and spread less than ``spread_m``, for
@@ -67,7 +69,8 @@ class AnchorConfig:
             kept the sprint start's forearm marker from joining its identity).
         joint_spread_m: ... or less than this for the fragment's own anchors (a marker by a joint), m.
         reach_m: anchors are within this of the target (median), m ...
-        far_reach_m: ... or within this for an identity with fewer than ``min_anchors`` anchors within ``reach_m``, m.
+        far_reach_m: ... or within this for an identity with fewer than ``min_anchors`` anchors within ``reach_m``, m,
+            whose distance also holds over the frames in which the identity moves faster than ``moving_mps``, m/s.
         min_frames: frames an anchor and the target must be seen together.
         piece_frames: frames an anchor and the fragment must be seen together.
         min_anchors: fewest anchors that must agree.
@@ -83,6 +86,7 @@ class AnchorConfig:
     joint_spread_m: float = 0.006
     reach_m: float = 0.3
     far_reach_m: float = 1.0
+    moving_mps: float = 0.12
     min_frames: int = 30
     piece_frames: int = 3
     min_anchors: int = 2
@@ -91,23 +95,49 @@ class AnchorConfig:
     vote_fraction: float = 0.5
 
 
-def _statistics(P: np.ndarray, cfg: AnchorConfig, spread_m: float
+def _statistics(P: np.ndarray, cfg: AnchorConfig, spread_m: float, fps: float
                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """:func:`mocap.rigid.pair_statistics` of ``P`` (F, M, 3) (median m, spread m, count) and the (M, M) bool anchors,
-    those spreading less than ``spread_m`` (step 1 of the module docstring)."""
+    row m identity m's: those spreading less than ``spread_m`` within ``reach_m``, and for an identity with fewer
+    than ``min_anchors`` of them, :func:`_far_anchors` (step 1 of the module docstring; ``fps``: frames per second)."""
     median, spread, count = pair_statistics(P, cfg.piece_frames)
-    return median, spread, count, _steady(median, spread, count, cfg, spread_m)
+    strong = _steady(median, spread, count, cfg, spread_m)
+    for a in np.flatnonzero(strong.sum(axis=1) < cfg.min_anchors):
+        strong[a, _far_anchors(P, a, median, spread, count, cfg, spread_m, fps)] = True
+    return median, spread, count, strong
+
+
+def _far_anchors(P: np.ndarray, a: int, median: np.ndarray, spread: np.ndarray, count: np.ndarray,
+                 cfg: AnchorConfig, spread_m: float, fps: float) -> np.ndarray:
+    """(k,) identities between ``reach_m`` and ``far_reach_m`` from identity ``a`` whose distance to it spreads less
+    than ``spread_m`` over the take and over ``min_frames`` or more frames in which ``a`` moves faster than
+    ``moving_mps`` (its central difference), both seen."""
+    step = np.full(len(P), np.nan)
+    step[1:-1] = np.linalg.norm(P[2:, a] - P[:-2, a], axis=1) * (0.5 * fps)
+    with np.errstate(invalid="ignore"):
+        rows = np.flatnonzero(step > cfg.moving_mps)
+        candidates = np.flatnonzero((median[a] <= cfg.far_reach_m) & (median[a] > cfg.reach_m)
+                                    & (count[a] >= cfg.min_frames) & (spread[a] < spread_m))
+    if rows.size < cfg.min_frames or candidates.size == 0:
+        return candidates[:0]
+    d = np.linalg.norm(P[rows][:, candidates] - P[rows, a][:, None], axis=2)  # (n, k), NaN where unseen
+    seen = np.isfinite(d).sum(axis=0)
+    enough = seen >= cfg.min_frames
+    if not enough.any():
+        return candidates[:0]
+    d = d[:, enough]
+    with np.errstate(invalid="ignore"):
+        mid = np.nanmedian(d, axis=0)
+        moving_spread = 1.4826 * np.nanmedian(np.abs(d - mid), axis=0)
+    return candidates[enough][moving_spread < spread_m]
 
 
 def _steady(median: np.ndarray, spread: np.ndarray, count: np.ndarray, cfg: AnchorConfig, spread_m: float
             ) -> np.ndarray:
-    """(M, M) bool, row m: identity m's anchors, the identities seen with it ``min_frames`` frames or more whose
-    distance to it spreads less than ``spread_m``, within ``reach_m``, or within ``far_reach_m`` for an identity
-    with fewer than ``min_anchors`` anchors within ``reach_m``."""
+    """(M, M) bool: pairs within ``reach_m``, seen together ``min_frames`` frames or more, whose distance spreads
+    less than ``spread_m``."""
     with np.errstate(invalid="ignore"):
-        rigid = (spread < spread_m) & (count >= cfg.min_frames)
-        near = rigid & (median <= cfg.reach_m)
-        return near | (rigid & (median <= cfg.far_reach_m) & (near.sum(axis=1) < cfg.min_anchors)[:, None])
+        return (spread < spread_m) & (median <= cfg.reach_m) & (count >= cfg.min_frames)
 
 
 def _target(p: int, median: np.ndarray, spread: np.ndarray, count: np.ndarray, strong: np.ndarray,
@@ -170,7 +200,7 @@ def _rejoin(traj: Trajectories, cfg: AnchorConfig, spread_m: float) -> int:
     P = traj.positions
     if traj.n_markers < cfg.min_anchors + 2 or not np.isfinite(P[..., 0]).any():
         return 0
-    median, spread, count, strong = _statistics(P, cfg, spread_m)
+    median, spread, count, strong = _statistics(P, cfg, spread_m, traj.fps)
     frames = np.isfinite(P[..., 0]).sum(axis=0)
     root = np.arange(traj.n_markers)
     arrays = [traj.positions, traj.residuals, traj.camera_masks]
@@ -241,12 +271,13 @@ def _anchor_votes(P: np.ndarray, rows: np.ndarray, X: np.ndarray, median: np.nda
 
 
 def _candidates(P: np.ndarray, seen: np.ndarray, median: np.ndarray, strong: np.ndarray, tolerance_m: float
-                ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """(frames, columns) of the samples of ``P`` (F, M, 3) that may belong to another identity: those that no anchor
     of their identity seen in their frame agrees with (within ``tolerance_m`` of the median distance) and one or more
-    disagree with, and every sample of an identity without anchors; and the (F, M) bool samples that an anchor of
-    their identity agrees with."""
-    frames, columns = [], []
+    disagree with, those whose identity's anchors are all unseen in their frame, and every sample of an identity
+    without anchors; (n,) bool: the candidate has no anchor of its own to refute it (the last two kinds: it votes
+    only where no anchor disagrees); and the (F, M) bool samples that an anchor of their identity agrees with."""
+    frames, columns, unrefuted = [], [], []
     agreed = np.zeros(seen.shape, dtype=bool)
     for m in np.flatnonzero(strong.any(axis=1)):
         anchors = np.flatnonzero(strong[m])
@@ -254,13 +285,16 @@ def _candidates(P: np.ndarray, seen: np.ndarray, median: np.ndarray, strong: np.
         dev = _deviation(P, rows, P[rows, m], anchors, median[m, anchors])
         agreed[rows, m] = (dev <= tolerance_m).any(axis=1)
         bad = ~agreed[rows, m] & (dev > tolerance_m).any(axis=1)
-        frames.append(rows[bad])
-        columns.append(np.full(int(bad.sum()), m))
+        blind = ~np.isfinite(dev).any(axis=1)
+        frames.append(rows[bad | blind])
+        columns.append(np.full(int((bad | blind).sum()), m))
+        unrefuted.append(blind[bad | blind])
     loose = ~strong.any(axis=1)
     free_f, free_c = np.nonzero(seen[:, loose])
     frames.append(free_f)
     columns.append(np.flatnonzero(loose)[free_c])
-    return np.concatenate(frames), np.concatenate(columns), agreed
+    unrefuted.append(np.ones(free_f.size, dtype=bool))
+    return np.concatenate(frames), np.concatenate(columns), np.concatenate(unrefuted), agreed
 
 
 def _continued(P: np.ndarray, frame: np.ndarray, col: np.ndarray, step: int, hop_m: float) -> np.ndarray:
@@ -300,9 +334,10 @@ def move_refuted_samples(traj: Trajectories, config: AnchorConfig | None = None,
     identity for a while).
 
     A sample votes when its identity's anchors refute it (none seen in its frame agrees within ``tolerance_m``,
-    one or more disagree), or when its identity has no anchors; it votes for the one identity without a sample in
-    its frame that it fits (``min_anchors`` anchors or more agree, more agree than disagree, none disagree for a
-    sample of an identity without anchors), unless another sample of its frame votes for that identity too. Each
+    one or more disagree), when none of them is seen in its frame, or when its identity has no anchors; it votes
+    for the one identity without a sample in its frame that it fits (``min_anchors`` anchors or more agree, more
+    agree than disagree, none disagree for a sample that no anchor of its own refutes), unless another sample of
+    its frame votes for that identity too. Each
     identity is cut into pieces at gaps, at jumps (an acceleration over ``jump_acc``, m/frame^2, on both samples
     of a step), at hops there and back (over ``hop_m`` in opposite directions), and where the votes change (to or
     from a sample its own anchors agree with, or between two identities) and its path does not go on through the
@@ -319,18 +354,17 @@ def move_refuted_samples(traj: Trajectories, config: AnchorConfig | None = None,
     F, M = P.shape[:2]
     if M < cfg.min_anchors + 2:
         return 0
-    median, _, _, strong = _statistics(P, cfg, cfg.spread_m)
+    median, _, _, strong = _statistics(P, cfg, cfg.spread_m, traj.fps)
     if not strong.any():
         return 0
     seen = np.isfinite(P[..., 0])
-    f, c, agreed = _candidates(P, seen, median, strong, cfg.tolerance_m)
-    anchored = strong.any(axis=1)[c]
+    f, c, unrefuted, agreed = _candidates(P, seen, median, strong, cfg.tolerance_m)
     votes = [np.zeros((0, 3), dtype=np.intp)]  # (frame, column, identity) of the samples that fit one identity
     step = max(1, 2_000_000 // int(strong.sum() + M))
     for s in range(0, f.size, step):
         ff, cc = f[s:s + step], c[s:s + step]
         ok, off = _anchor_votes(P, ff, P[ff, cc], median, strong, cfg.tolerance_m)
-        fits = (ok >= cfg.min_anchors) & (ok > off) & ~seen[ff] & (anchored[s:s + step, None] | (off == 0))
+        fits = (ok >= cfg.min_anchors) & (ok > off) & ~seen[ff] & (~unrefuted[s:s + step, None] | (off == 0))
         one = fits.sum(axis=1) == 1
         votes.append(np.stack([ff[one], cc[one], fits[one].argmax(axis=1)], axis=1))
     f, c, t = np.concatenate(votes).T

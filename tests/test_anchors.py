@@ -151,6 +151,39 @@ def test_a_marker_with_no_anchor_within_reach_takes_its_anchors_farther_out():
     assert _holder(traj, truth, other) == {5: 350, 6: 180}  # (nothing rigid to it: no anchors, left alone)
 
 
+def test_far_neighbours_that_only_sat_still_with_a_marker_are_not_its_anchors():
+    """The athlete sits still for 60 % of the take: three wheel markers 0.5 m off keep their distances to the frame
+    then (the median and MAD over the take say rigid) and turn after. Judged over the frames in which the marker
+    moves, they are not its anchors, so its fragment after a gap joins it (with them it would be 3 against 3)."""
+    moving = _segment(FRAME, seed=9)
+    still = 360
+    frame = np.concatenate([np.repeat(moving[:1], still, axis=0), moving[:F - still]], axis=0)
+    rng = np.random.default_rng(9)
+    spin = Rotation.from_rotvec(np.outer(np.r_[np.zeros(still), np.linspace(0.0, 6.0, F - still)], [0.0, 0.0, 1.0]))
+    hub = frame[:, 3] + np.array([0.4, 0.0, 0.1])
+    wheel = np.stack([hub + spin.apply(np.array(off)) for off in ([0.2, 0.0, 0.0], [0.0, 0.2, 0.0], [-0.2, 0.0, 0.0])],
+                     axis=1)
+    truth = np.concatenate([frame, wheel], axis=1) + rng.normal(scale=0.0003, size=(F, 7, 3))
+    pieces = [[(0, 0, F)], [(1, 0, F)], [(2, 0, F)], [(3, 0, 420)], [(3, 480, F)],  # marker 3 back after a gap
+              [(4, 0, F)], [(5, 0, F)], [(6, 0, F)]]
+    assert rejoin_by_anchors(_columns(truth, pieces), AnchorConfig(moving_mps=0.0)) == 0
+    traj = _columns(truth, pieces)
+    assert rejoin_by_anchors(traj) == 1
+    assert list(_holder(traj, truth, 3).values()) == [540]
+
+
+def test_a_sample_no_anchor_of_its_own_identity_can_judge_goes_where_anchors_fit_it():
+    """Marker 2's identity holds marker 5's point for frames 300-309 while marker 2's plate is hidden; marker 5's
+    plate is seen there and fits it, so those samples go to marker 5's identity."""
+    plate = np.concatenate([_segment(FOREARM[:3], seed=10), _segment(FOREARM[:3] * 1.3, seed=11)[:, :, ::-1]], axis=1)
+    hidden = np.arange(300, 310)
+    traj = _columns(plate, [[(0, 0, F)], [(1, 0, F)], [(2, 0, 295), (5, 300, 310), (2, 320, F)],
+                            [(3, 0, F)], [(4, 0, F)], [(5, 0, 300), (5, 310, F)]])
+    traj.positions[hidden, :2] = np.nan  # marker 2's plate hidden
+    assert move_refuted_samples(traj) == 10
+    assert _holder(traj, plate, 5) == {5: F}
+
+
 def test_a_fragment_of_a_marker_by_a_joint_joins_it():
     # An elbow marker 0.12 m from A1 and A2: its distances to them change by +-6 mm with the joint over the take
     # (spread about 6 mm, over the 5 mm of a loose anchor), but hardly over a fragment of 50 frames.
