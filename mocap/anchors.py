@@ -120,7 +120,7 @@ def _far_anchors(P: np.ndarray, a: int, median: np.ndarray, spread: np.ndarray, 
                                     & (count[a] >= cfg.min_frames) & (spread[a] < spread_m))
     if rows.size < cfg.min_frames or candidates.size == 0:
         return candidates[:0]
-    d = np.linalg.norm(P[rows][:, candidates] - P[rows, a][:, None], axis=2)  # (n, k), NaN where unseen
+    d = np.linalg.norm(P[rows[:, None], candidates[None, :]] - P[rows, a][:, None], axis=2)  # (n, k), NaN: unseen
     seen = np.isfinite(d).sum(axis=0)
     enough = seen >= cfg.min_frames
     if not enough.any():
