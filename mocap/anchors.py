@@ -50,6 +50,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from mocap.gap_exchange import WindowProfile
 from mocap.rigid import pair_statistics, placement_jumps, split_tracklets
 from mocap.trajectories import MISSING, Trajectories
 
@@ -120,16 +121,9 @@ def _far_anchors(P: np.ndarray, a: int, median: np.ndarray, spread: np.ndarray, 
                                     & (count[a] >= cfg.min_frames) & (spread[a] < spread_m))
     if rows.size < cfg.min_frames or candidates.size == 0:
         return candidates[:0]
-    d = np.linalg.norm(P[rows[:, None], candidates[None, :]] - P[rows, a][:, None], axis=2)  # (n, k), NaN: unseen
-    seen = np.isfinite(d).sum(axis=0)
-    enough = seen >= cfg.min_frames
-    if not enough.any():
-        return candidates[:0]
-    d = d[:, enough]
+    moving = WindowProfile.of(np.linalg.norm(P[rows[:, None], candidates[None, :]] - P[rows, a][:, None], axis=2))
     with np.errstate(invalid="ignore"):
-        mid = np.nanmedian(d, axis=0)
-        moving_spread = 1.4826 * np.nanmedian(np.abs(d - mid), axis=0)
-    return candidates[enough][moving_spread < spread_m]
+        return candidates[(moving.count >= cfg.min_frames) & (moving.spread < spread_m)]
 
 
 def _steady(median: np.ndarray, spread: np.ndarray, count: np.ndarray, cfg: AnchorConfig, spread_m: float
@@ -285,10 +279,11 @@ def _candidates(P: np.ndarray, seen: np.ndarray, median: np.ndarray, strong: np.
         dev = _deviation(P, rows, P[rows, m], anchors, median[m, anchors])
         agreed[rows, m] = (dev <= tolerance_m).any(axis=1)
         bad = ~agreed[rows, m] & (dev > tolerance_m).any(axis=1)
-        blind = ~np.isfinite(dev).any(axis=1)
-        frames.append(rows[bad | blind])
-        columns.append(np.full(int((bad | blind).sum()), m))
-        unrefuted.append(blind[bad | blind])
+        blind = ~np.isfinite(dev).any(axis=1)  # none of its anchors seen in its frame
+        pick = bad | blind
+        frames.append(rows[pick])
+        columns.append(np.full(int(pick.sum()), m))
+        unrefuted.append(blind[pick])
     loose = ~strong.any(axis=1)
     free_f, free_c = np.nonzero(seen[:, loose])
     frames.append(free_f)
