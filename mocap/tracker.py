@@ -162,6 +162,9 @@ class TrackerConfig:
         withhold_merged_depth: a point seen cleanly by one camera only, its other views merged blobs that another
             live track's image lies in too, is not output (it still updates its filter): its depth along that
             camera's ray rests on the merged centroid, up to a marker radius off (see ``_depth_on_merged_blobs``).
+        yield_explained_blobs: a point seen by two cameras, one of whose blobs (not merged) another measured point
+            not seen in that camera projects onto, is a ghost: its track misses the frame (see
+            ``_explained_elsewhere``).
         yield_outside_gate: a track's point outside its 3D search radius that an identity lost for at most
             ``yield_s`` holds inside its own, more tightly, is left to that identity (see ``_yield_outside_gate``) ...
         yield_s: ... seconds (at least one frame; the search radius of an identity lost for longer is wide enough
@@ -227,6 +230,7 @@ class TrackerConfig:
     deblend: bool = True
     deblend_px: float = 0.1
     withhold_merged_depth: bool = True
+    yield_explained_blobs: bool = True
     yield_outside_gate: bool = True
     yield_s: float = 0.085
     attached_check: bool = True
@@ -511,6 +515,8 @@ class Tracker:
                 self._refute_by_attached(meas)
             if self._cfg.settle_hops:
                 self._settle_hops(meas)
+            if self._cfg.yield_explained_blobs:
+                meas.miss(self._explained_elsewhere(fr, meas), C)
             self._update(fr, meas, np.flatnonzero(meas.ok))
             self._follow_residual_level(fr, meas)
         self._new_markers(fr, fr.valid & ~_taken(meas.asg, fr.valid.shape), meas)
@@ -865,6 +871,36 @@ class Tracker:
         asg = np.where(meas.asg[win] >= 0, meas.asg[win], meas.asg[lose[first_loss]])
         meas.miss(lose, self._C)
         self._measure_again(fr, crowded, meas, win, asg)
+
+    def _explained_elsewhere(self, fr: _Frame, meas: _Measurements) -> np.ndarray:
+        """Tracks (indices) whose point rests on two cameras, one of them a clean blob that another measured point,
+        not seen in that camera, projects onto (within ``n_sigma`` x the blob's and that point's image std combined,
+        at least the camera rejection floor): the blob is that point's third view, and the two-view point is a ghost
+        (the sprint's forearm, markers 42 mm apart: the wrong pairing of two cameras' blobs has an epipolar distance of
+        0.14 px, and its point lay 19 mm off both markers). Two two-view points that each explain a blob of the other
+        are both kept."""
+        used = meas.asg >= 0
+        two = np.flatnonzero(meas.ok & (used.sum(axis=1) == 2))
+        if two.size == 0:
+            return two
+        others = np.flatnonzero(meas.ok & meas.out & (used.sum(axis=1) >= 2))
+        p_i, cams = np.nonzero(used[two])
+        rows = two[p_i]  # (m,) a two-view track, once per camera it is seen in
+        j = meas.asg[rows, cams]
+        clean = ~fr.merged[cams, j]
+        rows, cams, j = rows[clean], cams[clean], j[clean]
+        if rows.size == 0:
+            return rows
+        proj, _ = project_ideal(self._P[cams], meas.X[others])  # (m, L, 2)
+        sigma = np.sqrt(0.5 * (fr.S[cams, j, 0, 0] + fr.S[cams, j, 1, 1]))  # (m,) px
+        reach = np.maximum(self._cfg.repick_px, self._cfg.n_sigma * sigma)  # (a free blob this near is re-picked)
+        near = np.linalg.norm(proj - fr.D[cams, j][:, None], axis=2) < reach[:, None]
+        near &= (meas.asg[others[None, :], cams[:, None]] < 0) & (others[None, :] != rows[:, None])
+        k, q = np.nonzero(near)
+        loser, winner = rows[k], others[q]
+        pair = np.stack([loser, winner], axis=1)
+        mutual = (pair[:, None, :] == pair[None, :, ::-1]).all(axis=2).any(axis=1)
+        return np.unique(loser[~mutual])
 
     def _neighbour_shift(self, meas: _Measurements, play: np.ndarray) -> np.ndarray:
         """(K, 3) m: per track the median prediction error of the measured tracks within ``neighbour_m`` of it

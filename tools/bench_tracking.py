@@ -65,7 +65,8 @@ def _time(make, rig, fps, frames) -> tuple[float, object]:
 
 # Tracker methods timed by --stages (names missing from the current Tracker are skipped).
 _STAGES = ("_prepare", "_predict", "_associate", "_search_regions", "_crowded", "_measure", "_neighbour_shift",
-           "_update", "_refute_by_attached", "_new_markers", "_known_clutter", "_lifecycle", "_record", "finish")
+           "_update", "_refute_by_attached", "_explained_elsewhere", "_new_markers", "_known_clutter", "_lifecycle",
+           "_record", "finish")
 # Module functions timed by --stages, patched where they are looked up while the tracker runs.
 _FUNCTIONS = {
     "mocap.tracker": ("predict", "update_position", "gate", "assign", "epipolar_consistency", "robust_triangulate",
