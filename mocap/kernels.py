@@ -27,7 +27,7 @@ __all__ = ["HAVE_NUMBA", "REASON", "announce", "contiguous", "robust_triangulate
            "repick", "predict", "update_tracks", "epipolar_consistency", "gate", "search_regions", "crowded",
            "undistort_points", "near_any", "assign_unambiguous", "frame_record", "frame_detections", "attached_learn",
            "attached_fill", "pair_distance_statistics", "measure_views", "match_free_pairs",
-           "triangulate_two_views", "prepare_frame", "measured_points"]
+           "triangulate_two_views", "prepare_frame", "measured_points", "explained_elsewhere"]
 
 _log = logging.getLogger("mocap")
 
@@ -988,6 +988,46 @@ def measured_points(X, used, crowded, split, merged, sigma, asg, depth, focal, x
         agree = math.sqrt(d0 * d0 + d1 * d1 + d2 * d2) < min(max(gate_scale * e3[k, 0], suspect_lo), high)
         out[k] = ok[k] and (n >= 2 or (agree and n == 1))
     return ok, clean, out
+
+
+@_jit
+def explained_elsewhere(asg, ok, out, merged, D, S, P, X, repick_px, n_sigma):
+    """(K,) bool: the tracks whose measured point ``X`` (K, 3) m (``ok`` (K,)) rests on two views (``asg`` (K, C)
+    into the (C, N) detections ``D`` ideal px, ``S`` px^2, ``merged``), one of them a clean blob that another
+    output (``out``) point of two views or more, not seen in that camera and in front of it, projects onto within
+    the larger of ``repick_px`` and ``n_sigma`` x the blob's std; not where the two explain a blob of each other
+    (``mocap.tracker.Tracker._explained_elsewhere``). ``P`` (C, 3, 4)."""
+    K, C = asg.shape
+    views = np.zeros(K, np.int64)
+    for k in range(K):
+        for c in range(C):
+            if asg[k, c] >= 0:
+                views[k] += 1
+    explains = np.zeros((K, K), dtype=np.bool_)
+    for p in range(K):
+        if not ok[p] or views[p] != 2:
+            continue
+        for c in range(C):
+            j = asg[p, c]
+            if j < 0 or merged[c, j]:
+                continue
+            reach = max(repick_px, n_sigma * math.sqrt(0.5 * (S[c, j, 0, 0] + S[c, j, 1, 1])))
+            for q in range(K):
+                if q == p or not (ok[q] and out[q]) or views[q] < 2 or asg[q, c] >= 0:
+                    continue
+                w = X[q, 0] * P[c, 2, 0] + X[q, 1] * P[c, 2, 1] + X[q, 2] * P[c, 2, 2] + P[c, 2, 3]
+                if not w > 0:
+                    continue
+                u = (X[q, 0] * P[c, 0, 0] + X[q, 1] * P[c, 0, 1] + X[q, 2] * P[c, 0, 2] + P[c, 0, 3]) / w
+                v = (X[q, 0] * P[c, 1, 0] + X[q, 1] * P[c, 1, 1] + X[q, 2] * P[c, 1, 2] + P[c, 1, 3]) / w
+                if math.hypot(u - D[c, j, 0], v - D[c, j, 1]) < reach:
+                    explains[p, q] = True
+    loser = np.zeros(K, dtype=np.bool_)
+    for p in range(K):
+        for q in range(K):
+            if explains[p, q] and not explains[q, p]:
+                loser[p] = True
+    return loser
 
 
 @_jit

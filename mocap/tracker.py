@@ -516,7 +516,7 @@ class Tracker:
             if self._cfg.settle_hops:
                 self._settle_hops(meas)
             if self._cfg.yield_explained_blobs:
-                meas.miss(self._explained_elsewhere(fr, meas), C)
+                meas.miss(np.flatnonzero(self._explained_elsewhere(fr, meas)), C)
             self._update(fr, meas, np.flatnonzero(meas.ok))
             self._follow_residual_level(fr, meas)
         self._new_markers(fr, fr.valid & ~_taken(meas.asg, fr.valid.shape), meas)
@@ -873,34 +873,38 @@ class Tracker:
         self._measure_again(fr, crowded, meas, win, asg)
 
     def _explained_elsewhere(self, fr: _Frame, meas: _Measurements) -> np.ndarray:
-        """Tracks (indices) whose point rests on two cameras, one of them a clean blob that another measured point,
-        not seen in that camera, projects onto (within ``n_sigma`` x the blob's and that point's image std combined,
-        at least the camera rejection floor): the blob is that point's third view, and the two-view point is a ghost
-        (the sprint's forearm, markers 42 mm apart: the wrong pairing of two cameras' blobs has an epipolar distance of
-        0.14 px, and its point lay 19 mm off both markers). Two two-view points that each explain a blob of the other
-        are both kept."""
+        """(K,) bool: tracks whose point rests on two cameras, one of them a clean blob that another output point of
+        two views or more, not seen in that camera and in front of it, projects onto (within ``repick_px`` or
+        ``n_sigma`` x the blob's std: a free blob that near would be re-picked by it). The blob is that point's third
+        view, and the two-view point is a ghost (the sprint's forearm, markers 42 mm apart: the wrong pairing of two
+        cameras' blobs has an epipolar distance of 0.14 px, and its point lay 19 mm off both markers). Two two-view
+        points that each explain a blob of the other are both kept. One kernel call with numba
+        (:func:`mocap.kernels.explained_elsewhere`)."""
+        cfg = self._cfg
+        if kernels.HAVE_NUMBA:
+            return kernels.explained_elsewhere(meas.asg, meas.ok, meas.out, fr.merged, fr.D, fr.S, self._P,
+                                               kernels.contiguous(meas.X), float(cfg.repick_px), float(cfg.n_sigma))
+        K = len(meas.ok)
         used = meas.asg >= 0
-        two = np.flatnonzero(meas.ok & (used.sum(axis=1) == 2))
+        views = used.sum(axis=1)
+        two = np.flatnonzero(meas.ok & (views == 2))
         if two.size == 0:
-            return two
-        others = np.flatnonzero(meas.ok & meas.out & (used.sum(axis=1) >= 2))
+            return np.zeros(K, dtype=bool)
+        others = np.flatnonzero(meas.ok & meas.out & (views >= 2))
         p_i, cams = np.nonzero(used[two])
         rows = two[p_i]  # (m,) a two-view track, once per camera it is seen in
         j = meas.asg[rows, cams]
         clean = ~fr.merged[cams, j]
         rows, cams, j = rows[clean], cams[clean], j[clean]
-        if rows.size == 0:
-            return rows
-        proj, _ = project_ideal(self._P[cams], meas.X[others])  # (m, L, 2)
+        proj, depth = project_ideal(self._P[cams], meas.X[others])  # (m, L, 2), (m, L)
         sigma = np.sqrt(0.5 * (fr.S[cams, j, 0, 0] + fr.S[cams, j, 1, 1]))  # (m,) px
-        reach = np.maximum(self._cfg.repick_px, self._cfg.n_sigma * sigma)  # (a free blob this near is re-picked)
+        reach = np.maximum(cfg.repick_px, cfg.n_sigma * sigma)
         near = np.linalg.norm(proj - fr.D[cams, j][:, None], axis=2) < reach[:, None]
-        near &= (meas.asg[others[None, :], cams[:, None]] < 0) & (others[None, :] != rows[:, None])
+        near &= (depth > 0) & (meas.asg[others[None, :], cams[:, None]] < 0) & (others[None, :] != rows[:, None])
         k, q = np.nonzero(near)
-        loser, winner = rows[k], others[q]
-        pair = np.stack([loser, winner], axis=1)
-        mutual = (pair[:, None, :] == pair[None, :, ::-1]).all(axis=2).any(axis=1)
-        return np.unique(loser[~mutual])
+        explains = np.zeros((K, K), dtype=bool)  # [p, q]: q's point explains a blob of p's
+        explains[rows[k], others[q]] = True
+        return (explains & ~explains.T).any(axis=1)
 
     def _neighbour_shift(self, meas: _Measurements, play: np.ndarray) -> np.ndarray:
         """(K, 3) m: per track the median prediction error of the measured tracks within ``neighbour_m`` of it

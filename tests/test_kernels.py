@@ -424,6 +424,39 @@ def test_tracker_measurement_verdicts_are_the_numpy_ones(K, monkeypatch):
         assert results[0].out.any() and (results[0].ok & ~results[0].out).any()
 
 
+@pytest.mark.parametrize("repick_px", [1.5, 400.0])
+def test_two_view_ghosts_explained_elsewhere_are_the_numpy_ones(repick_px, monkeypatch):
+    """Which two-view points another point's third view refutes (``kernels.explained_elsewhere``), on the points of
+    :func:`_measurement_scene` (some dropped to two views, one put on another point's ray in a camera that point is
+    not seen in); with a 400 px reach most points explain each other's blobs, mutual pairs included."""
+    tracker, fr, asg, crowded = _measurement_scene(14)
+    tracker._cfg = dataclasses.replace(tracker._cfg, repick_px=repick_px)
+    meas = _Measurements.empty(14, len(fr.D))
+    meas.asg[:] = asg
+    tracker._measure(fr, crowded, meas)
+    rng = np.random.default_rng(5)
+    two = np.flatnonzero(meas.ok)[:6]
+    for k in two:  # two views left
+        seen = np.flatnonzero(meas.asg[k] >= 0)
+        meas.asg[k, seen[2:]] = -1
+    meas.out[rng.random(14) < 0.2] = False
+    p, q = two[0], np.flatnonzero(meas.ok & meas.out & ((meas.asg >= 0).sum(axis=1) >= 3))[0]
+    c = int(np.flatnonzero(meas.asg[p] >= 0)[0])
+    fr.merged[c, meas.asg[p, c]] = False
+    meas.asg[q, c] = -1
+    eye = -np.linalg.solve(tracker._P[c, :, :3], tracker._P[c, :, 3])
+    meas.X[q] = eye + 1.3 * (meas.X[p] - eye)  # behind p on camera c's ray: its image there is p's
+    fr.D[c, meas.asg[p, c]] = tracker._P[c, :2] @ np.r_[meas.X[p], 1.0] / (tracker._P[c, 2] @ np.r_[meas.X[p], 1.0])
+    results = []
+    for on in (False, True):
+        monkeypatch.setattr(kernels, "HAVE_NUMBA", on)
+        results.append(tracker._explained_elsewhere(fr, meas))
+    np.testing.assert_array_equal(results[1], results[0])
+    assert results[0][p]
+    if repick_px > 100:
+        assert results[0].sum() < (meas.ok & ((meas.asg >= 0).sum(axis=1) == 2)).sum()  # mutual pairs kept
+
+
 def test_the_tracker_keeps_the_same_state_on_both_paths(monkeypatch):
     """A marching body with ghosts, a camera black for a while and one broken throughout: after every frame
     the same tracks (identities, counters, locks, filters, running errors) and the same output."""
