@@ -991,11 +991,12 @@ def measured_points(X, used, crowded, split, merged, sigma, asg, depth, focal, x
 
 
 @_jit
-def explained_elsewhere(asg, ok, out, merged, D, S, P, X, repick_px, n_sigma):
+def explained_elsewhere(asg, ok, out, merged, D, S, P, X, reach_px, n_sigma, apart_m):
     """(K,) bool: the tracks whose measured point ``X`` (K, 3) m (``ok`` (K,)) rests on two views (``asg`` (K, C)
     into the (C, N) detections ``D`` ideal px, ``S`` px^2, ``merged``), one of them a clean blob that another
-    output (``out``) point of two views or more, not seen in that camera and in front of it, projects onto within
-    the larger of ``repick_px`` and ``n_sigma`` x the blob's std; not where the two explain a blob of each other
+    output (``out``) point of two views or more, ``apart_m`` away at least, not seen in that camera and in front of
+    it, projects onto within
+    the larger of ``reach_px`` and ``n_sigma`` x the blob's std; not where the two explain a blob of each other
     (``mocap.tracker.Tracker._explained_elsewhere``). ``P`` (C, 3, 4)."""
     K, C = asg.shape
     views = np.zeros(K, np.int64)
@@ -1011,9 +1012,12 @@ def explained_elsewhere(asg, ok, out, merged, D, S, P, X, repick_px, n_sigma):
             j = asg[p, c]
             if j < 0 or merged[c, j]:
                 continue
-            reach = max(repick_px, n_sigma * math.sqrt(0.5 * (S[c, j, 0, 0] + S[c, j, 1, 1])))
+            reach = max(reach_px, n_sigma * math.sqrt(0.5 * (S[c, j, 0, 0] + S[c, j, 1, 1])))
             for q in range(K):
                 if q == p or not (ok[q] and out[q]) or views[q] < 2 or asg[q, c] >= 0:
+                    continue
+                d0, d1, d2 = X[q, 0] - X[p, 0], X[q, 1] - X[p, 1], X[q, 2] - X[p, 2]
+                if not math.sqrt(d0 * d0 + d1 * d1 + d2 * d2) >= apart_m:
                     continue
                 w = X[q, 0] * P[c, 2, 0] + X[q, 1] * P[c, 2, 1] + X[q, 2] * P[c, 2, 2] + P[c, 2, 3]
                 if not w > 0:

@@ -163,8 +163,11 @@ class TrackerConfig:
             live track's image lies in too, is not output (it still updates its filter): its depth along that
             camera's ray rests on the merged centroid, up to a marker radius off (see ``_depth_on_merged_blobs``).
         yield_explained_blobs: a point seen by two cameras, one of whose blobs (not merged) another measured point
-            not seen in that camera projects onto, is a ghost: its track misses the frame (see
-            ``_explained_elsewhere``).
+            not seen in that camera projects onto (within ``explained_px`` or ``n_sigma`` blob stds), is a ghost: its
+            track misses the frame (see ``_explained_elsewhere``) ...
+        explained_px: ... px: the ghosts of the whole sprint (seed 1) lay 0.01-0.25 px from the other point's image,
+            while a real two-view marker whose image overlaps a neighbour's (one blob, not flagged merged) has it
+            0.6-1.5 px away.
         yield_outside_gate: a track's point outside its 3D search radius that an identity lost for at most
             ``yield_s`` holds inside its own, more tightly, is left to that identity (see ``_yield_outside_gate``) ...
         yield_s: ... seconds (at least one frame; the search radius of an identity lost for longer is wide enough
@@ -231,6 +234,7 @@ class TrackerConfig:
     deblend_px: float = 0.1
     withhold_merged_depth: bool = True
     yield_explained_blobs: bool = True
+    explained_px: float = 0.4
     yield_outside_gate: bool = True
     yield_s: float = 0.085
     attached_check: bool = True
@@ -874,16 +878,18 @@ class Tracker:
 
     def _explained_elsewhere(self, fr: _Frame, meas: _Measurements) -> np.ndarray:
         """(K,) bool: tracks whose point rests on two cameras, one of them a clean blob that another output point of
-        two views or more, not seen in that camera and in front of it, projects onto (within ``repick_px`` or
-        ``n_sigma`` x the blob's std: a free blob that near would be re-picked by it). The blob is that point's third
-        view, and the two-view point is a ghost (the sprint's forearm, markers 42 mm apart: the wrong pairing of two
-        cameras' blobs has an epipolar distance of 0.14 px, and its point lay 19 mm off both markers). Two two-view
-        points that each explain a blob of the other are both kept. One kernel call with numba
+        two views or more, a marker's diameter away at least (``marker_mm``: nearer, the two are one marker, which
+        ``_one_marker_one_track`` gives to one of them), not seen in that camera and in front of it, projects onto
+        (within ``explained_px`` or ``n_sigma`` x the blob's std). The blob is that point's third view, and the
+        two-view point is a ghost (the sprint's forearm, markers 42 mm apart: the wrong pairing of two cameras' blobs
+        has an epipolar distance of 0.14 px, and its point lay 19 mm off both markers). Two two-view points that each
+        explain a blob of the other are both kept. One kernel call with numba
         (:func:`mocap.kernels.explained_elsewhere`)."""
         cfg = self._cfg
         if kernels.HAVE_NUMBA:
             return kernels.explained_elsewhere(meas.asg, meas.ok, meas.out, fr.merged, fr.D, fr.S, self._P,
-                                               kernels.contiguous(meas.X), float(cfg.repick_px), float(cfg.n_sigma))
+                                               kernels.contiguous(meas.X), float(cfg.explained_px), float(cfg.n_sigma),
+                                               cfg.marker_mm / 1000.0)
         K = len(meas.ok)
         used = meas.asg >= 0
         views = used.sum(axis=1)
@@ -898,9 +904,10 @@ class Tracker:
         rows, cams, j = rows[clean], cams[clean], j[clean]
         proj, depth = project_ideal(self._P[cams], meas.X[others])  # (m, L, 2), (m, L)
         sigma = np.sqrt(0.5 * (fr.S[cams, j, 0, 0] + fr.S[cams, j, 1, 1]))  # (m,) px
-        reach = np.maximum(cfg.repick_px, cfg.n_sigma * sigma)
+        reach = np.maximum(cfg.explained_px, cfg.n_sigma * sigma)
         near = np.linalg.norm(proj - fr.D[cams, j][:, None], axis=2) < reach[:, None]
-        near &= (depth > 0) & (meas.asg[others[None, :], cams[:, None]] < 0) & (others[None, :] != rows[:, None])
+        apart = np.linalg.norm(meas.X[others][None, :] - meas.X[rows][:, None], axis=2) >= cfg.marker_mm / 1000.0
+        near &= apart & (depth > 0) & (meas.asg[others[None, :], cams[:, None]] < 0)
         k, q = np.nonzero(near)
         explains = np.zeros((K, K), dtype=bool)  # [p, q]: q's point explains a blob of p's
         explains[rows[k], others[q]] = True

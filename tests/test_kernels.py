@@ -424,13 +424,13 @@ def test_tracker_measurement_verdicts_are_the_numpy_ones(K, monkeypatch):
         assert results[0].out.any() and (results[0].ok & ~results[0].out).any()
 
 
-@pytest.mark.parametrize("repick_px", [1.5, 400.0])
-def test_two_view_ghosts_explained_elsewhere_are_the_numpy_ones(repick_px, monkeypatch):
+@pytest.mark.parametrize("explained_px", [0.4, 400.0])
+def test_two_view_ghosts_explained_elsewhere_are_the_numpy_ones(explained_px, monkeypatch):
     """Which two-view points another point's third view refutes (``kernels.explained_elsewhere``), on the points of
     :func:`_measurement_scene` (some dropped to two views, one put on another point's ray in a camera that point is
     not seen in); with a 400 px reach most points explain each other's blobs, mutual pairs included."""
     tracker, fr, asg, crowded = _measurement_scene(14)
-    tracker._cfg = dataclasses.replace(tracker._cfg, repick_px=repick_px)
+    tracker._cfg = dataclasses.replace(tracker._cfg, explained_px=explained_px)
     meas = _Measurements.empty(14, len(fr.D))
     meas.asg[:] = asg
     tracker._measure(fr, crowded, meas)
@@ -453,7 +453,7 @@ def test_two_view_ghosts_explained_elsewhere_are_the_numpy_ones(repick_px, monke
         results.append(tracker._explained_elsewhere(fr, meas))
     np.testing.assert_array_equal(results[1], results[0])
     assert results[0][p]
-    if repick_px > 100:
+    if explained_px > 100:
         assert results[0].sum() < (meas.ok & ((meas.asg >= 0).sum(axis=1) == 2)).sum()  # mutual pairs kept
 
 

@@ -40,9 +40,7 @@ def test_fast_swing_at_50_hz_keeps_identities():
     Constant-acceleration prediction from precise points turns one swap into an a, a, b, b swap cycle;
     the default constant-velocity prediction keeps every identity once the tracks are up. The take starts
     cold at full speed (185 mm per frame, no velocity known yet): identities are scored from frame 10, after
-    the 4-frame confirmation and the first turning point. The swaps of constant-acceleration prediction run
-    through two-view points of two neighbours' blobs: the rule that takes such a point for a ghost where a third
-    view of another point explains its blob keeps them to a few (570 switches without it, 3 with it)."""
+    the 4-frame confirmation and the first turning point."""
     take = simulate("swing", ring_rig(seed=1), scripted_motion(swing_positions(), 50.0), SynthSettings(seed=1),
                     seed=1)
     traj = _run(Tracker(take.rig, 50.0), take)[0]
@@ -51,13 +49,9 @@ def test_fast_swing_at_50_hz_keeps_identities():
     ours = evaluate(settled, take.truth)
     assert ours.switches == 0 and ours.output_tracks <= 10
     assert ours.idf1 > 0.99 and ours.completeness > 0.98
-    for rule in (False, True):
-        config = TrackerConfig(accel_damping=1.0, jerk_std_3d=200.0, yield_explained_blobs=rule)
-        ca = evaluate(_run(Tracker(take.rig, 50.0, config), take)[0], take.truth)
-        if rule:
-            assert ca.switches <= 10 and ca.idf1 > 0.98
-        else:
-            assert ca.switches >= 20 and ca.idf1 < 0.9
+    ca = evaluate(_run(Tracker(take.rig, 50.0, TrackerConfig(accel_damping=1.0, jerk_std_3d=200.0)), take)[0],
+                  take.truth)
+    assert ca.switches >= 20 and ca.idf1 < 0.9
 
 
 def test_a_swing_too_fast_for_its_frame_rate_keeps_identities_carried_by_the_turn():
@@ -75,11 +69,9 @@ def test_a_swing_too_fast_for_its_frame_rate_keeps_identities_carried_by_the_tur
                                             camera_masks=traj.camera_masks[10:], first_frame=traj.first_frame + 10),
                         take.truth)
 
-    carried = settled(TrackerConfig())
+    carried, nearest_off, median_only = (settled(TrackerConfig()), settled(TrackerConfig(carry_reach_m=0.0)),
+                                         settled(TrackerConfig(carry_m=0.0)))
     assert carried.switches == 0 and carried.idf1 > 0.99
-    # Without the carry (the two-view ghost rule off too: with it, 80 and 80 switches instead of 103 and 296)
-    nearest_off = settled(TrackerConfig(carry_reach_m=0.0, yield_explained_blobs=False))
-    median_only = settled(TrackerConfig(carry_m=0.0, yield_explained_blobs=False))
     assert nearest_off.switches > 50 and median_only.switches > 200 and median_only.idf1 < 0.5
 
 
