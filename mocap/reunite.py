@@ -22,7 +22,9 @@ On finished trajectories (after :mod:`mocap.relabel`), :func:`reunite_clusters`:
    last, each one's distances to the cluster's members centred on their mean (a joint's turn moves them all
    alike). The map whose context changed least (``context_max_m`` at most), by ``context_margin_m`` over every
    rival, is taken; otherwise all their candidates are left alone (a mirror image of a symmetric plate turns
-   its neighbours' distances round: a forearm's markers near the elbow stand far from the wrist);
+   its neighbours' distances round: a forearm's markers near the elbow stand far from the wrist). Rival maps that
+   differ only by earlier identities seen together in fewer than ``min_frames`` frames (pieces of one marker's
+   track, which the tracker left in a cluster's glimpses) are one candidate, the first found standing for them;
 4. joins each mapped pair into one identity, and repeats (``rounds``) so that a cluster away several
    times chains up.
 
@@ -294,8 +296,11 @@ def _matches(P: np.ndarray, fps: float, cfg: ReuniteConfig) -> list[tuple[int, i
                   and float(np.mean(c)) < float(np.mean(changes)) + cfg.margin_m and any(
                       (b in mapping and mapping[b] != a and matcher.rivals(mapping[b], a))
                       or (a in inverse and inverse[a] != b and matcher.rivals(inverse[a], b)) for b, a in m.items())]
-        choice = mapping if not (rivals or cfg.require_context) else _by_context(P, seen, [mapping, *rivals], window,
-                                                                                    cfg)
+        distinct: list[dict[int, int]] = []  # one map of each set that differs only by one marker's pieces
+        for m in [mapping, *rivals]:
+            if not any(_fragments_apart(kept, m, count, cfg.min_frames) for kept in distinct):
+                distinct.append(m)
+        choice = mapping if not (rivals or cfg.require_context) else _by_context(P, seen, distinct, window, cfg)
         if choice is not None and not (later_free[list(choice)].all() and earlier_free[list(choice.values())].all()):
             choice = None  # (a rival whose identities an earlier map took)
         for m in [mapping, *rivals]:  # an ambiguous shape (symmetric, or two alike): no other map takes its candidates
@@ -304,6 +309,16 @@ def _matches(P: np.ndarray, fps: float, cfg: ReuniteConfig) -> list[tuple[int, i
         if choice is not None:
             joined += list(choice.items())
     return joined
+
+
+def _fragments_apart(mapping: dict[int, int], rival: dict[int, int], count: np.ndarray, min_frames: int) -> bool:
+    """True where ``rival`` maps the same new identities as ``mapping`` and differs only by old identities seen
+    together (``count`` (M, M): frames seen together) in fewer than ``min_frames`` frames with ``mapping``'s (too few
+    to measure them as two markers): pieces of one marker's track (the tracker's glimpses in a cluster), not another
+    labelling of a symmetric shape, whose markers are seen together. The map found first (the better shape, the
+    nearer in time) stands for them."""
+    return mapping.keys() == rival.keys() and all(
+        mapping[b] == a or count[mapping[b], a] < min_frames for b, a in rival.items())
 
 
 def _by_context(P: np.ndarray, seen: np.ndarray, maps: list[dict[int, int]], window: int,

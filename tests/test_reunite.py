@@ -182,3 +182,23 @@ def test_a_skin_cluster_glimpsed_in_its_identities_gap_joins_them():
     traj = Trajectories([f"M{k + 1:03d}" for k in range(10)], 100.0, P)
     assert reunite_clusters(traj, SKIN_CLUSTERS) == 3
     assert sorted(columns_follow(traj, truth)) == list(range(7))
+
+
+def test_a_skin_cluster_whose_marker_left_two_pieces_before_the_gap_is_reunited():
+    """The whole sprint at seed 1: ForearmL:Marker4's track before the forearm's gap was left in pieces (the
+    tracker's glimpses in the hand's cluster), seen together in one frame. Maps of the return onto either piece fit
+    alike, shape and context, and were taken for a symmetric shape's two labellings: nothing was joined, and the
+    forearm's last 1,000 frames went to new identities. Pieces seen together in fewer frames than the pass measures a
+    pair over are one marker's: the return joins the later piece, and the others their identities."""
+    rng = np.random.default_rng(9)
+    truth = _arm(rng)
+    P = _split_at_the_gap(truth, np.arange(3)).positions
+    piece = np.full((FRAMES, 1, 3), np.nan)
+    piece[119:GONE.start, 0] = P[119:GONE.start, 0]  # marker 0 before the gap in two pieces, one frame shared
+    P[120:GONE.start, 0] = np.nan
+    traj = Trajectories([f"M{k + 1:03d}" for k in range(P.shape[1] + 1)], 100.0, np.concatenate([P, piece], axis=1))
+    assert reunite_clusters(traj, SKIN_CLUSTERS) == 3
+    follows = columns_follow(traj, truth)
+    assert sorted(follows) == [0, 0, *range(1, 7)]  # marker 0: its first piece, and its second with the return
+    back = np.isfinite(traj.positions[GONE.stop + 20, :, 0])
+    assert np.isfinite(traj.positions[GONE.start - 1, back, 0]).sum() == 7  # every return joined a track before
