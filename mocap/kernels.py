@@ -995,9 +995,8 @@ def explained_elsewhere(asg, ok, out, merged, D, S, P, X, reach_px, n_sigma, apa
     """(K,) bool: the tracks whose measured point ``X`` (K, 3) m (``ok`` (K,)) rests on two views (``asg`` (K, C)
     into the (C, N) detections ``D`` ideal px, ``S`` px^2, ``merged``), one of them a clean blob that another
     output (``out``) point of two views or more, ``apart_m`` away at least, not seen in that camera and in front of
-    it, projects onto within
-    the larger of ``reach_px`` and ``n_sigma`` x the blob's std; not where the two explain a blob of each other
-    (``mocap.tracker.Tracker._explained_elsewhere``). ``P`` (C, 3, 4)."""
+    it, projects onto within the larger of ``reach_px`` and ``n_sigma`` x the blob's std; not where the two explain a
+    blob of each other (``mocap.tracker.Tracker._explained_elsewhere``). ``P`` (C, 3, 4)."""
     K, C = asg.shape
     views = np.zeros(K, np.int64)
     for k in range(K):
@@ -1005,6 +1004,7 @@ def explained_elsewhere(asg, ok, out, merged, D, S, P, X, reach_px, n_sigma, apa
             if asg[k, c] >= 0:
                 views[k] += 1
     explains = np.zeros((K, K), dtype=np.bool_)
+    found = False
     for p in range(K):
         if not ok[p] or views[p] != 2:
             continue
@@ -1026,7 +1026,10 @@ def explained_elsewhere(asg, ok, out, merged, D, S, P, X, reach_px, n_sigma, apa
                 v = (X[q, 0] * P[c, 1, 0] + X[q, 1] * P[c, 1, 1] + X[q, 2] * P[c, 1, 2] + P[c, 1, 3]) / w
                 if math.hypot(u - D[c, j, 0], v - D[c, j, 1]) < reach:
                     explains[p, q] = True
+                    found = True
     loser = np.zeros(K, dtype=np.bool_)
+    if not found:  # (most frames: no pair to weigh)
+        return loser
     for p in range(K):
         for q in range(K):
             if explains[p, q] and not explains[q, p]:

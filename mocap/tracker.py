@@ -29,7 +29,8 @@ and steps 2-4 run again from the corrected predictions (fast swings at low frame
 Then a confirmed track's point that its identity's steady distances to the identities around it refute
 (:mod:`mocap.attached`), where a lost identity's distances fit it, is left to that identity, and tracks that took
 each other's markers (their points far off the extrapolation of their own last two points, each other's close by)
-exchange them back (``settle_hops``).
+exchange them back (``settle_hops``), and a point from two cameras whose blob in one of them another point, not seen
+there, projects onto is taken for a ghost: its track misses the frame (``yield_explained_blobs``).
 
 The output position of a marker in a frame is its multi-view triangulation (not the filter state);
 its residual is the RMS reprojection error back-projected to the marker's depth (px * depth / f).
