@@ -388,7 +388,7 @@ def distance_to_lost(points: np.ndarray, predicted: np.ndarray, last_seen: np.nd
 
 
 def reidentify(points: np.ndarray, predicted: np.ndarray, radius: np.ndarray, last_seen: np.ndarray | None = None,
-               allowed: np.ndarray | None = None, bias: np.ndarray | None = None) -> np.ndarray:
+               allowed: np.ndarray | None = None) -> np.ndarray:
     """Match new points to lost tracks inside each track's own (variable) search radius.
 
     The distance of a point to a track is the smaller of its distances to the track's prediction and
@@ -402,7 +402,6 @@ def reidentify(points: np.ndarray, predicted: np.ndarray, radius: np.ndarray, la
         radius: (T,) their search radii, m.
         last_seen: (T, 3) their last measured positions, m (optional).
         allowed: (L, T) bool, the pairs other evidence allows (optional; the rest are never matched).
-        bias: (L, T) added to the allowed pairs' cost (optional): other evidence for or against a pair.
 
     Returns:
         (L,) index of the lost track each point re-identifies, -1 for none.
@@ -416,7 +415,7 @@ def reidentify(points: np.ndarray, predicted: np.ndarray, radius: np.ndarray, la
         inside &= allowed
     if not inside.any():
         return out
-    r, c = linear_sum_assignment(np.where(inside, q if bias is None else q + bias, 1e6))
+    r, c = linear_sum_assignment(np.where(inside, q, 1e6))
     ok = inside[r, c]
     out[r[ok]] = c[ok]
     return out

@@ -19,11 +19,9 @@ Per frame, for all tracks at once (numpy arrays, no per-marker Python objects):
 6. **New markers** from the detections no track used: all-pairs epipolar matching, triangulation,
    multi-view support. A point near a track that missed this frame re-acquires it; a point inside
    the (widening) search radius of a lost identity starts a tentative track that inherits that
-   identity when confirmed (optimal assignment of distance over radius, less ``reid_fit_weight`` where the point
-   fits the identity's steady distances to the markers measured around it); any other starts a tentative track
-   that gets a new identity after ``confirm_frames`` consecutive frames. Lost identities are kept ``keep_lost_s``
-   seconds. A take shorter than that gives identities, when it ends, to the tentative tracks measured in all its
-   frames.
+   identity when confirmed; any other starts a tentative track that gets a new identity after
+   ``confirm_frames`` consecutive frames. Lost identities are kept ``keep_lost_s`` seconds. A take
+   shorter than that gives identities, when it ends, to the tentative tracks measured in all its frames.
 
 Between 4 and 5, where the measured neighbours of a track (markers within ``neighbour_m``) were
 mispredicted alike by more than ``gate_floor_m``, their median error shifts the track's prediction
@@ -184,11 +182,6 @@ class TrackerConfig:
             fits. A hidden marker's widening gates otherwise take the neighbour that comes into view where it
             vanished (the sprint's forearm: markers 45-75 mm apart hidden in turn).
         attached_slots, attached_reach_m, attached_tolerance_m, attached_steady_s: see ``attached_check``.
-        reid_fit_weight: a new point's cost of inheriting a lost identity (its distance to the identity's prediction
-            or last position over the identity's search radius, 0-1) is lowered by this where the point fits the
-            identity's steady attached distances: evidence before distance, where an identity lost longer (its
-            radius widened) would otherwise take a neighbour back from a short gap that its own, narrower gate
-            holds less tightly (the sprint's blinking forearm markers). 0: off.
         noisy_point_m: a track whose last point's std exceeds this (m) gets proportionally more 3D process
             noise (up to 10x ``jerk_std_3d``): noisy points (small, far markers) must not make the filter lag.
     """
@@ -250,7 +243,6 @@ class TrackerConfig:
     attached_reach_m: float = 0.5
     attached_tolerance_m: float = 0.01
     attached_steady_s: float = 0.1
-    reid_fit_weight: float = 0.5
 
     def __post_init__(self) -> None:
         for name in ("confirm_frames", "new_min_views"):
@@ -835,17 +827,6 @@ class Tracker:
         claimed = self._claimed_by_lost(points, t.ident[here], t.last_X[here], t.since >= 1)
         return ~misfit | ~claimed[:, None]
 
-    def _attached_bias(self, points: np.ndarray, tracks: np.ndarray) -> np.ndarray | None:
-        """(L, T) cost added to the re-identification of lost ``tracks`` (T,) by ``points`` (L, 3) m:
-        ``-reid_fit_weight`` where the point fits the identity's steady attached distances (most of two or more
-        neighbours measured this frame within tolerance, :meth:`AttachedDistances.judge`), else 0 (None: all 0)."""
-        t, cfg = self._t, self._cfg
-        if not cfg.attached_check or cfg.reid_fit_weight <= 0 or points.size == 0 or tracks.size == 0:
-            return None
-        here = np.flatnonzero((t.ident >= 0) & (t.since == 0))
-        _, fits = self._attached.judge_pairs(t.ident[tracks], points, t.ident[here], t.last_X[here])
-        return -cfg.reid_fit_weight * fits if fits.any() else None
-
     def _measure_again(self, fr: _Frame, crowded: np.ndarray, meas: _Measurements, rows: np.ndarray,
                        asg: np.ndarray) -> None:
         """Measure the tracks ``rows`` (sorted, unique) afresh from the detections ``asg`` (len(rows), C), into
@@ -1343,7 +1324,7 @@ class Tracker:
         cand = np.full(rest.size, -1, dtype=np.intp)
         if lost.size:
             match = reidentify(pts.X[rest], t.x3[lost, :3], self._radius3(lost), t.last_X[lost],
-                               self._attached_allow(pts.X[rest], lost), self._attached_bias(pts.X[rest], lost))
+                               self._attached_allow(pts.X[rest], lost))
             cand = np.where(match >= 0, t.ident[lost[np.maximum(match, 0)]], -1)
         self._start(fr, pts.subset(rest), cand, meas)
 

@@ -171,9 +171,3 @@ def test_reidentify_follows_each_tracks_own_radius():
     both = reidentify(np.array([[0.5, 0, 1.0], [0.05, 0, 1.0]]), np.array([[0.0, 0, 1.0], [0.55, 0, 1.0]]),
                       np.array([1.0, 1.0]))
     assert both.tolist() == [1, 0]
-    # other evidence added to the cost reorders the tracks inside their radii, and never reaches outside them
-    one = np.array([[0.1, 0.0, 1.0]])
-    two = np.array([[0.0, 0.0, 1.0], [0.3, 0.0, 1.0]])
-    assert reidentify(one, two, np.array([0.5, 0.5])).tolist() == [0]  # 0.2 against 0.4 of the radius
-    assert reidentify(one, two, np.array([0.5, 0.5]), bias=np.array([[0.0, -0.5]])).tolist() == [1]
-    assert reidentify(one, two, np.array([0.5, 0.1]), bias=np.array([[0.0, -5.0]])).tolist() == [0]

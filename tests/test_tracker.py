@@ -842,26 +842,3 @@ def test_a_two_view_point_whose_blob_a_third_view_of_another_point_explains_is_a
         assert np.isnan(traj.positions[split_at, a_col, 0])
     else:
         assert err_a[split_at, a_col] > 0.01  # for contrast: the ghost, output under A's identity
-
-
-@pytest.mark.parametrize("weight", [0.5, 0.0])
-def test_a_marker_back_from_a_short_gap_keeps_its_identity_where_its_attached_distances_fit(weight):
-    """The sprint's blinking forearm: of a rigid segment's four markers, A is hidden from frame 5 on (its identity
-    lost, its search radius widening) and D, 40 mm from A, for frames 60-70, while the segment speeds up at 4 m/s^2.
-    D comes back off its own extrapolation: 0.71 of its identity's radius away, 0.32 of A's. Its distances to B and
-    C fit D's identity, not A's, so D's identity takes it back (``reid_fit_weight``); by distance alone A's does."""
-    F, fps = 120, 120.0
-    t = np.arange(F) / fps
-    x = 0.5 * t + 2.0 * np.clip(t - 60 / fps, 0, None) ** 2
-    centre = np.stack([x - 0.5, 0.1 * np.cos(np.pi * t), np.ones(F)], axis=1)
-    offsets = np.array([[0.0, 0.0, 0.0], [-0.03, 0.07, 0.0], [-0.05, -0.03, 0.02], [0.04, 0.0, 0.0]])  # A B C D
-    hidden = np.zeros((F, 6, 4), dtype=bool)
-    hidden[5:, :, 0] = True
-    hidden[60:70, :, 3] = True
-    take = simulate("fit", ring_rig(seed=3), scripted_motion(centre[:, None, :] + offsets[None], fps),
-                    SynthSettings(seed=3, ghosts=0, dropout_rate=0.0), hidden=hidden, seed=3)
-    report = evaluate(_run(Tracker(take.rig, fps, TrackerConfig(reid_fit_weight=weight)), take)[0], take.truth)
-    if weight:
-        assert report.switches == 0 and report.idf1 > 0.99
-    else:
-        assert report.switches == 1 and report.idf1 < 0.9
