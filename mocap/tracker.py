@@ -521,13 +521,13 @@ class Tracker:
             if self._cfg.settle_hops:
                 self._settle_hops(meas)
             if self._cfg.yield_explained_blobs:
-                meas.miss(np.flatnonzero(self._explained_elsewhere(fr, meas)), C)
-            self._update(fr, meas, np.flatnonzero(meas.ok))
+                meas.miss(self._explained_elsewhere(fr, meas).nonzero()[0], C)
+            self._update(fr, meas, meas.ok.nonzero()[0])
             self._follow_residual_level(fr, meas)
         self._new_markers(fr, fr.valid & ~_taken(meas.asg, fr.valid.shape), meas)
         self._lifecycle(meas)
         if self._cfg.attached_check:
-            measured = np.flatnonzero((self._t.ident >= 0) & (self._t.since == 0))
+            measured = ((self._t.ident >= 0) & (self._t.since == 0)).nonzero()[0]
             self._attached.learn(self._t.ident[measured], self._t.last_X[measured])
         return self._record(frame_index, fr, meas)
 
@@ -587,7 +587,7 @@ class Tracker:
         for uid, p in self._records.peek("uid", "pos"):
             ident = self._uid_ident[uid]
             seen[ident[(ident >= 0) & np.isfinite(p[:, 0])]] = True
-        seen = np.flatnonzero(seen)
+        seen = seen.nonzero()[0]
         col_of = np.full(self._n_ident, -1, dtype=np.intp)  # identity -> output column
         col_of[seen] = np.arange(len(seen))
         S = len(seen)
@@ -628,7 +628,7 @@ class Tracker:
         t = self._t
         if frames >= self._cfg.confirm_frames or not len(t):
             return
-        whole = np.flatnonzero((t.ident < 0) & (t.since == 0) & (t.hits >= frames) & ~t.weak)
+        whole = ((t.ident < 0) & (t.since == 0) & (t.hits >= frames) & ~t.weak).nonzero()[0]
         t.ident[whole] = self._n_ident + np.arange(len(whole))
         self._n_ident += len(whole)
         self._uid_ident[t.uid[whole]] = t.ident[whole]
@@ -702,8 +702,8 @@ class Tracker:
         t = self._t
         pred, radius, depth = self._search_regions(lock)
         q = gate(pred, radius, fr.D)
-        conf = np.flatnonzero(play & (t.ident >= 0))
-        tent = np.flatnonzero(play & (t.ident < 0))
+        conf = (play & (t.ident >= 0)).nonzero()[0]
+        tent = (play & (t.ident < 0)).nonzero()[0]
         meas.asg[conf] = assign(q[conf], fr.valid)
         if tent.size:
             meas.asg[tent] = assign(q[tent], fr.valid & ~_taken(meas.asg, fr.valid.shape))
@@ -731,8 +731,8 @@ class Tracker:
         of 45-65 mm onto the marker whose identity had just been lost). A fast swing outside the gate that no
         recently lost identity explains is measured as before."""
         t = self._t
-        others = np.flatnonzero((t.ident >= 0) & (t.since >= 1) & (t.since <= self._yield_frames) & ~meas.ok)
-        rows = np.flatnonzero(meas.ok)
+        others = ((t.ident >= 0) & (t.since >= 1) & (t.since <= self._yield_frames) & ~meas.ok).nonzero()[0]
+        rows = meas.ok.nonzero()[0]
         if others.size == 0 or rows.size == 0:  # (most frames)
             return
         miss = np.linalg.norm(meas.X[rows] - (t.x3[rows, :3] + shift[rows]), axis=1)
@@ -752,7 +752,7 @@ class Tracker:
         fit it and its search radius holds it (``attached_check``), miss the frame: the point is left to the
         new-marker search, which gives it to that identity."""
         t = self._t
-        rows = np.flatnonzero(meas.ok & (t.ident >= 0))
+        rows = (meas.ok & (t.ident >= 0)).nonzero()[0]
         # (a refutation needs two measured neighbours, and a lost identity to take the point)
         if rows.size < 3 or not ((t.ident >= 0) & (t.since >= 1) & ~meas.ok).any():
             return
@@ -775,7 +775,7 @@ class Tracker:
         markers for 25 frames of slow motion (two-player seed 58, frames 332-356). The raw steps of the markers
         themselves, a few millimetres, tell which point is whose."""
         t, hop = self._t, self._hop_m
-        rows = np.flatnonzero(meas.ok & (t.ident >= 0) & (t.since == 1) & np.isfinite(t.last_v[:, 0]))
+        rows = (meas.ok & (t.ident >= 0) & (t.since == 1) & np.isfinite(t.last_v[:, 0])).nonzero()[0]
         if rows.size < 2:
             return
         X = meas.X[rows]
@@ -786,7 +786,7 @@ class Tracker:
         gap = X[None, :, :] - ext[:, None, :]
         miss = np.sqrt((gap * gap).sum(axis=2))  # (track, point) m
         hopped = np.diag(miss) > hop
-        near = np.flatnonzero(hopped | (miss[hopped].min(axis=0) < hop) | (miss[:, hopped].min(axis=1) < hop))
+        near = (hopped | (miss[hopped].min(axis=0) < hop) | (miss[:, hopped].min(axis=1) < hop)).nonzero()[0]
         sub = miss[np.ix_(near, near)]
         track, point = linear_sum_assignment(sub * sub)
         moved = track != point
@@ -806,7 +806,7 @@ class Tracker:
         holds inside its search radius and whose attached distances to ``here_ident`` (h,), measured at ``here_X``
         (h, 3) m, fit."""
         t = self._t
-        lost = np.flatnonzero((t.ident >= 0) & (t.since >= 1) & unmeasured)
+        lost = ((t.ident >= 0) & (t.since >= 1) & unmeasured).nonzero()[0]
         if lost.size == 0 or len(points) == 0:
             return np.zeros(len(points), dtype=bool)
         inside = distance_to_lost(points, t.x3[lost, :3], t.last_X[lost]) < self._radius3(lost)[None]
@@ -820,7 +820,7 @@ class Tracker:
         t = self._t
         if not self._cfg.attached_check or points.size == 0 or tracks.size == 0:
             return None
-        here = np.flatnonzero((t.ident >= 0) & (t.since == 0))
+        here = ((t.ident >= 0) & (t.since == 0)).nonzero()[0]
         misfit, _ = self._attached.judge_pairs(t.ident[tracks], points, t.ident[here], t.last_X[here])
         if not misfit.any():
             return None
@@ -846,9 +846,9 @@ class Tracker:
         blobs where it has none and is measured again, and the other misses the frame. Two tracks alike on both
         counts are left as they are: in a fast swing neither prediction tells (the identity repair sorts them)."""
         t, cfg = self._t, self._cfg
-        rows = np.flatnonzero(meas.ok)
+        rows = meas.ok.nonzero()[0]
         rank = 2 * (t.since[rows] != 1) + (t.ident[rows] < 0)  # lower: the better claim
-        weak = np.flatnonzero(rank > 0)  # (a pair of equal claims is left alone: one of two must be weaker)
+        weak = (rank > 0).nonzero()[0]  # (a pair of equal claims is left alone: one of two must be weaker)
         if rows.size < 2 or weak.size == 0:
             return
         X = meas.X[rows]
@@ -894,10 +894,10 @@ class Tracker:
         K = len(meas.ok)
         used = meas.asg >= 0
         views = used.sum(axis=1)
-        two = np.flatnonzero(meas.ok & (views == 2))
+        two = (meas.ok & (views == 2)).nonzero()[0]
         if two.size == 0:
             return np.zeros(K, dtype=bool)
-        others = np.flatnonzero(meas.ok & meas.out & (views >= 2))
+        others = (meas.ok & meas.out & (views >= 2)).nonzero()[0]
         p_i, cams = np.nonzero(used[two])
         rows = two[p_i]  # (m,) a two-view track, once per camera it is seen in
         j = meas.asg[rows, cams]
@@ -932,7 +932,7 @@ class Tracker:
         gap = t.x3[:, None, :3] - t.x3[None, good, :3]
         near = np.sqrt((gap * gap).sum(axis=2)) < self._cfg.neighbour_m  # (np.linalg.norm's sums, less overhead)
         cnt = near.sum(axis=1)
-        rows = np.flatnonzero(play & (cnt >= self._cfg.neighbour_min))
+        rows = (play & (cnt >= self._cfg.neighbour_min)).nonzero()[0]
         if rows.size:  # per-row median of the near ones: NaN sorts last, so the middle of the first cnt
             srt = np.sort(np.where(near[rows, :, None], y[None], np.nan), axis=1)
             r, n = np.arange(rows.size), cnt[rows]
@@ -950,18 +950,18 @@ class Tracker:
         fast = (shift * shift).sum(axis=1) > cfg.carry_m**2
         if not fast.any():  # (most frames: no fast swing)
             return shift
-        rows = np.flatnonzero(fast & play & (t.ident >= 0) & (t.since == 1))
-        here = np.flatnonzero(meas.ok & (t.ident >= 0))
+        rows = (fast & play & (t.ident >= 0) & (t.since == 1)).nonzero()[0]
+        here = (meas.ok & (t.ident >= 0)).nonzero()[0]
         if here.size < cfg.carry_neighbours or rows.size == 0:
             return shift
-        before = np.flatnonzero((t.ident >= 0) & (t.since == 1))
+        before = ((t.ident >= 0) & (t.since == 1)).nonzero()[0]
         ok, R, a, b = self._attached.turns(t.ident[rows], t.ident[before], t.last_X[before], t.ident[here],
                                            meas.X[here], cfg.carry_neighbours)
         if not ok.any():
             return shift
-        turned = np.flatnonzero(ok)
+        turned = ok.nonzero()[0]
         if not ok.all():  # the nearest carried track's turn, within reach
-            rest = np.flatnonzero(~ok)
+            rest = (~ok).nonzero()[0]
             gap = t.last_X[rows[rest], None] - t.last_X[rows[turned]][None]
             d2 = (gap * gap).sum(axis=2)
             near = d2.argmin(axis=1)
@@ -1053,7 +1053,7 @@ class Tracker:
         cfg = self._cfg
         asg = meas.asg
         tri, extra, sigma = self._triangulate_views(fr, crowded, asg)
-        more = np.flatnonzero((extra >= 0).any(axis=1))
+        more = (extra >= 0).any(axis=1).nonzero()[0]
         if more.size:
             asg[more] = np.where(extra[more] >= 0, extra[more], asg[more])
             sub = asg[more]
@@ -1126,10 +1126,10 @@ class Tracker:
         joined halos), is one marker's, and is left to the agreement test."""
         t = self._t
         merged_view = tri.used & _gather(fr.merged, asg)
-        rows = np.flatnonzero((clean.sum(axis=1) == 1) & merged_view.any(axis=1))
+        rows = ((clean.sum(axis=1) == 1) & merged_view.any(axis=1)).nonzero()[0]
         if rows.size == 0:
             return rows
-        live = np.flatnonzero(t.since <= 1)
+        live = (t.since <= 1).nonzero()[0]
         proj, depth = project_ideal(self._P, t.x3[live, :3])  # (C, L, 2), (C, L)
         r_i, cams = np.nonzero(merged_view[rows])
         j = asg[rows[r_i], cams]  # (m,) the merged blobs
@@ -1163,7 +1163,7 @@ class Tracker:
         k_all, c_all = np.nonzero(merged_view & good[:, None])
         if k_all.size == 0 or not (n_clean == 2).any():
             return out
-        partners = np.flatnonzero(good)
+        partners = good.nonzero()[0]
         uvp, depth = project_ideal(self._P, tri.X[partners])  # (C, P, 2), (C, P)
         rows, blobs, new_uv, new_S = [], [], [], []
         for k, c in zip(k_all, c_all, strict=True):
@@ -1175,7 +1175,7 @@ class Tracker:
             near = (np.linalg.norm(uvp[c] - u, axis=1) < reach) & (asg[partners, c] < 0) & (partners != k)
             if near.sum() != 1:
                 continue
-            p = partners[np.flatnonzero(near)[0]]
+            p = partners[near.nonzero()[0][0]]
             for target, source in ((k, p), (p, k)):  # either may be the one with two clean views only
                 if n_clean[target] == 2 and good[source] and (target, c) not in rows:
                     rows.append((target, c))
@@ -1273,7 +1273,7 @@ class Tracker:
         e2 = t.e2[tk, cc]
         fin = np.isfinite(err2)
         e2 = np.where(locked[:, None] & fin, self._running.step(e2, np.where(fin, err2, 0.0)), e2)
-        nl = np.flatnonzero(~locked)
+        nl = (~locked).nonzero()[0]
         if nl.size:  # (re)start image filters from the projected 3D state
             _, J = reprojection_jacobians(self._P, t.x3[tk[nl], :3])  # (C, n, 2, 3)
             vel = (J[cc[nl], np.arange(nl.size)] @ t.x3[tk[nl], 3:6, None])[..., 0]
@@ -1304,10 +1304,10 @@ class Tracker:
         if len(pts.X) == 0:
             return
         # 1) Tracks that missed this frame but still search: re-acquire them directly.
-        missing = np.flatnonzero((t.since >= 1) & self._in_play())
+        missing = ((t.since >= 1) & self._in_play()).nonzero()[0]
         match = reidentify(pts.X, t.x3[missing, :3], self._radius3(missing),
                            allowed=self._attached_allow(pts.X, missing))
-        got = np.flatnonzero(match >= 0)
+        got = (match >= 0).nonzero()[0]
         clean = _clean_views(fr.merged, pts.det) >= 2
         if got.size:
             rows = missing[match[got]]
@@ -1316,11 +1316,11 @@ class Tracker:
             self._update(fr, meas, rows)
         # 2) Tracks start only from points two clean cameras support: two blobs of merged markers (or a merged
         #    blob and a reflection) match across cameras at a point between the markers, which then moves.
-        rest = np.flatnonzero((match < 0) & clean)
+        rest = ((match < 0) & clean).nonzero()[0]
         if rest.size == 0:
             return
         # Identities not measured this frame: a tentative track inherits one if confirmed (_lifecycle).
-        lost = np.flatnonzero((t.ident >= 0) & (t.since >= 1))
+        lost = ((t.ident >= 0) & (t.since >= 1)).nonzero()[0]
         cand = np.full(rest.size, -1, dtype=np.intp)
         if lost.size:
             match = reidentify(pts.X[rest], t.x3[lost, :3], self._radius3(lost), t.last_X[lost],
@@ -1417,13 +1417,13 @@ class Tracker:
             t.weak &= np.linalg.norm(t.last_X - t.origin, axis=1) <= np.maximum(cfg.weak_motion_m,
                                                                                 cfg.weak_motion_sigma * noise)
         idle, busy = self._neighbour_motion(t.weak & (t.since == 0))
-        confirm = np.flatnonzero(tentative & (t.since == 0) & (t.hits >= cfg.confirm_frames) & (~t.weak | idle))
+        confirm = (tentative & (t.since == 0) & (t.hits >= cfg.confirm_frames) & (~t.weak | idle)).nonzero()[0]
         # A static point confirmed that way is a reflection once its neighbours move and it does not:
         # it is retired and its output withdrawn.
         retire = busy & (t.ident >= 0)
         self._uid_ident[t.uid[retire]] = -1
         for k in confirm:  # rare: once per new identity
-            owner = np.flatnonzero((t.ident == t.cand[k]) & (t.since >= 1)) if t.cand[k] >= 0 else []
+            owner = ((t.ident == t.cand[k]) & (t.since >= 1)).nonzero()[0] if t.cand[k] >= 0 else []
             if len(owner):
                 retire[owner] = True
                 t.ident[k] = t.cand[k]
@@ -1446,7 +1446,7 @@ class Tracker:
         ref = (t.ident >= 0) & (t.since == 0) & ~t.weak
         if not rows.any() or ref.sum() < cfg.neighbour_min:
             return idle, busy
-        k = np.flatnonzero(rows)
+        k = rows.nonzero()[0]
         gap = t.x3[k, None, :3] - t.x3[None, ref, :3]
         near = (gap * gap).sum(axis=2) < cfg.neighbour_m**2  # (k, R)
         enough = near.sum(axis=1) >= cfg.neighbour_min
@@ -1461,7 +1461,7 @@ class Tracker:
 
     def _record(self, frame_index: int, fr: _Frame, meas: _Measurements) -> FrameResult:
         t, C = self._t, self._C
-        rows = np.flatnonzero(meas.out & (t.since == 0))
+        rows = (meas.out & (t.since == 0)).nonzero()[0]
         X, asg = meas.X[rows], meas.asg[rows]
         bounds = list(accumulate(fr.counts, initial=0))  # all cameras' detections in one flat array
         if kernels.HAVE_NUMBA:
