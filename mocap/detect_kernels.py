@@ -76,16 +76,22 @@ def coarse_groups(image, t, cell):
     hot = np.zeros((hc, wc), np.bool_)
     hot_row = np.zeros(hc, np.bool_)
     level = np.uint8(min(t, 255))
-    for y in range(h):
-        src = image[y]
-        bright = False
-        for x in range(w):  # (a branch-free reduction the compiler vectorises: most rows hold no marker)
-            bright |= src[x] > level
-        if bright:
-            hot_row[y // cell] = True
+    column_max = np.zeros(w, np.uint8)  # each column's brightest pixel in the bright rows of a row of cells
+    for cy in range(hc):
+        for y in range(cy * cell, min(cy * cell + cell, h)):
+            src = image[y]
+            bright = False
+            for x in range(w):  # (branch-free loops the compiler vectorises: most rows hold no marker)
+                bright |= src[x] > level
+            if bright:
+                hot_row[cy] = True
+                for x in range(w):
+                    column_max[x] = max(column_max[x], src[x])
+        if hot_row[cy]:
             for x in range(w):
-                if src[x] > level:
-                    hot[y // cell, x // cell] = True
+                if column_max[x] > level:
+                    hot[cy, x // cell] = True
+                column_max[x] = 0
     rows = np.flatnonzero(hot_row)
     n_hot = 0
     for cy in rows:
