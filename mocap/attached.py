@@ -13,6 +13,9 @@ frames showed; a distance that really changed soon stops counting). A slot whose
 neighbour not yet held: the nearest the first time, the next nearer ones after each failure, so that a close
 neighbour across a joint does not keep the slot from a farther one on the same segment. Arrays indexed by
 identity, grown as identities are created.
+
+When an identity stops being measured, where its steady neighbours were in its last frame is kept: while it is
+lost, those measured now tell where their segment carried it (:meth:`AttachedDistances.carried`).
 """
 
 from __future__ import annotations
@@ -53,6 +56,10 @@ class AttachedDistances:
         self.held = np.zeros((0, slots), dtype=np.intp)  # (I, J) frames the distance has held
         self.last = np.zeros((0, slots), dtype=np.intp)  # (I, J) frame the two were last measured together
         self.tries = np.zeros((0, slots), dtype=np.intp)  # (I, J) times the slot was emptied
+        # where each identity's steady neighbours were in the last frame it was measured in:
+        self.left_with = np.full((0, slots), -1, dtype=np.intp)  # (I, J) the neighbouring identity, -1: none
+        self.left_at = np.zeros((0, slots, 3))  # (I, J, 3) its position then, m
+        self._previous = (np.zeros(0, dtype=np.intp), np.zeros((0, 3)))  # the last frame's identities, positions
 
     def _grow(self, n_ident: int) -> None:
         I = len(self.neighbour)
@@ -64,13 +71,18 @@ class AttachedDistances:
         self.held = np.concatenate([self.held, np.zeros((n, self._J), dtype=np.intp)])
         self.last = np.concatenate([self.last, np.zeros((n, self._J), dtype=np.intp)])
         self.tries = np.concatenate([self.tries, np.zeros((n, self._J), dtype=np.intp)])
+        self.left_with = np.concatenate([self.left_with, np.full((n, self._J), -1, dtype=np.intp)])
+        self.left_at = np.concatenate([self.left_at, np.zeros((n, self._J, 3))])
 
     def learn(self, ident: np.ndarray, X: np.ndarray) -> None:
         """One frame: the identities ``ident`` (n,) measured at ``X`` (n, 3) m (each identity once)."""
         self._frame += 1
+        if ident.size:
+            self._grow(int(ident.max()) + 1)
+        self._leave(ident)
+        self._previous = (ident, X)
         if ident.size == 0:
             return
-        self._grow(int(ident.max()) + 1)
         if kernels.HAVE_NUMBA:
             kernels.attached_learn(kernels.contiguous(ident, np.intp), kernels.contiguous(X), self.neighbour,
                                    self.distance, self.held, self.last, self.tries, self._frame, self._tol,
@@ -80,6 +92,42 @@ class AttachedDistances:
         rows = np.flatnonzero((self.neighbour[ident] < 0).any(axis=1))
         if rows.size:
             self._fill(ident, X, rows)
+
+    def _leave(self, ident: np.ndarray) -> None:
+        """The identities of the previous frame missing from ``ident`` (n,): where their steady neighbours were then
+        (before this frame's update of the slots)."""
+        was, X = self._previous
+        present = np.zeros(len(self.neighbour), dtype=bool)
+        present[ident] = True
+        gone = was[~present[was]]
+        if gone.size == 0:  # (most frames)
+            return
+        at, _, usable = self.steady_here(gone, was, X)
+        self.left_with[gone] = np.where(usable, self.neighbour[gone], -1)
+        self.left_at[gone] = at
+
+    def carried(self, ident: np.ndarray, last_X: np.ndarray, here_ident: np.ndarray, here_X: np.ndarray,
+                min_neighbours: int) -> tuple[np.ndarray, np.ndarray]:
+        """Where the lost identities ``ident`` (n,), last seen at ``last_X`` (n, 3) m, are now if they moved rigidly
+        with the steady neighbours they had when last seen, ``min_neighbours`` or more of them measured now (among
+        ``here_ident`` (h,) at ``here_X`` (h, 3) m), not in a line and fitted within ``tolerance_m`` RMS (as
+        :meth:`turns`). Returns (n,) bool (carried) and (n, 3) m (``last_X`` where not)."""
+        out = last_X.copy()
+        ok = np.zeros(len(ident), dtype=bool)
+        known = ident < len(self.left_with)
+        if not known.any() or here_ident.size == 0:
+            return ok, out
+        where = np.full(max(len(self.left_with), int(here_ident.max()) + 1), -1, dtype=np.intp)
+        where[here_ident] = np.arange(here_ident.size)
+        i = np.flatnonzero(known)
+        nb = self.left_with[ident[i]]  # (m, J)
+        row = np.where(nb >= 0, where[np.maximum(nb, 0)], -1)
+        good, R, a, b = _rigid_turns(self.left_at[ident[i]], here_X[np.maximum(row, 0)], row >= 0, min_neighbours,
+                                     self._tol)
+        ok[i] = good
+        rows = i[good]
+        out[rows] = np.einsum("nij,nj->ni", R[good], last_X[rows] - a[good]) + b[good]
+        return ok, out
 
     def _learn(self, ident: np.ndarray, X: np.ndarray) -> None:
         """The slots' update of :meth:`learn` (numpy; :func:`mocap.kernels.attached_learn` compiled)."""
@@ -180,28 +228,37 @@ class AttachedDistances:
         ``min_neighbours`` or more seen both times, not in a line: a turn about it would be free, a bar's row of
         markers; fitted within ``tolerance_m`` RMS) and R (n, 3, 3), a (n, 3) m, b (n, 3) m (the identity where
         not)."""
-        n = len(ident)
-        R, a, b = np.tile(np.eye(3), (n, 1, 1)), np.zeros((n, 3)), np.zeros((n, 3))
         at, _, usable = self.steady_here(ident, here_ident, here_X)
         was, _, usable_before = self.steady_here(ident, before_ident, before_X)
-        w = (usable & usable_before).astype(float)
-        ok = w.sum(axis=1) >= min_neighbours
-        if not ok.any():
-            return ok, R, a, b
-        P, Q, w = was[ok], at[ok], w[ok]
-        m = w.sum(axis=1)[:, None]
-        cp = (P * w[:, :, None]).sum(axis=1) / m
-        cq = (Q * w[:, :, None]).sum(axis=1) / m
-        P0, Q0 = P - cp[:, None], Q - cq[:, None]  # (k, J, 3) about the centroids
-        U, _, Vt = np.linalg.svd(np.einsum("mj,mji,mjk->mik", w, P0, Q0))
-        Vt[:, 2] *= np.sign(np.linalg.det(np.einsum("mij,mjk->mik", U, Vt)))[:, None]
-        turn = np.einsum("mij,mjk->mki", U, Vt)  # (V U^T, with the reflection removed)
-        miss = np.einsum("mik,mjk->mji", turn, P0) - Q0
-        rms = np.sqrt(((miss * miss).sum(axis=2) * w).sum(axis=1) / m[:, 0])
-        spread = np.einsum("mj,mji,mjk->mik", w, P0, P0) / m[:, :, None]
-        wide = np.linalg.eigvalsh(spread)[:, 1] >= _WIDE_M**2
-        rows = np.flatnonzero(ok)
-        ok[rows] = good = (rms <= self._tol) & wide
-        rows = rows[good]
-        R[rows], a[rows], b[rows] = turn[good], cp[good], cq[good]
+        return _rigid_turns(was, at, usable & usable_before, min_neighbours, self._tol)
+
+
+def _rigid_turns(P: np.ndarray, Q: np.ndarray, used: np.ndarray, min_points: int, tolerance_m: float
+                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Per set n, the rotation and translation (Kabsch) taking points ``P`` (n, J, 3) m to ``Q`` (n, J, 3) m over
+    the ``used`` (n, J) ones: p goes to R (p - a) + b. Returns (n,) bool (``min_points`` or more used, not in a
+    line: a turn about it would be free, a bar's row of markers; fitted within ``tolerance_m`` RMS) and
+    R (n, 3, 3), a (n, 3) m, b (n, 3) m (the identity where not)."""
+    n = len(P)
+    R, a, b = np.tile(np.eye(3), (n, 1, 1)), np.zeros((n, 3)), np.zeros((n, 3))
+    w = used.astype(float)
+    ok = w.sum(axis=1) >= min_points
+    if not ok.any():
         return ok, R, a, b
+    P, Q, w = P[ok], Q[ok], w[ok]
+    m = w.sum(axis=1)[:, None]
+    cp = (P * w[:, :, None]).sum(axis=1) / m
+    cq = (Q * w[:, :, None]).sum(axis=1) / m
+    P0, Q0 = P - cp[:, None], Q - cq[:, None]  # (k, J, 3) about the centroids
+    U, _, Vt = np.linalg.svd(np.einsum("mj,mji,mjk->mik", w, P0, Q0))
+    Vt[:, 2] *= np.sign(np.linalg.det(np.einsum("mij,mjk->mik", U, Vt)))[:, None]
+    turn = np.einsum("mij,mjk->mki", U, Vt)  # (V U^T, with the reflection removed)
+    miss = np.einsum("mik,mjk->mji", turn, P0) - Q0
+    rms = np.sqrt(((miss * miss).sum(axis=2) * w).sum(axis=1) / m[:, 0])
+    spread = np.einsum("mj,mji,mjk->mik", w, P0, P0) / m[:, :, None]
+    wide = np.linalg.eigvalsh(spread)[:, 1] >= _WIDE_M**2
+    rows = np.flatnonzero(ok)
+    ok[rows] = good = (rms <= tolerance_m) & wide
+    rows = rows[good]
+    R[rows], a[rows], b[rows] = turn[good], cp[good], cq[good]
+    return ok, R, a, b

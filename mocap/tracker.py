@@ -18,7 +18,8 @@ Per frame, for all tracks at once (numpy arrays, no per-marker Python objects):
 5. **Update** the filters and the running errors with the measurements.
 6. **New markers** from the detections no track used: all-pairs epipolar matching, triangulation,
    multi-view support. A point near a track that missed this frame re-acquires it; a point inside
-   the (widening) search radius of a lost identity starts a tentative track that inherits that
+   the (widening) search radius of a lost identity (around its prediction or last position, or where the
+   steady neighbours it had when last seen carried it) starts a tentative track that inherits that
    identity when confirmed; any other starts a tentative track that gets a new identity after
    ``confirm_frames`` consecutive frames. Lost identities are kept ``keep_lost_s`` seconds. A take
    shorter than that gives identities, when it ends, to the tentative tracks measured in all its frames.
@@ -151,6 +152,10 @@ class TrackerConfig:
             its steady attached neighbours (see ``attached_check``; ``carry_neighbours`` or more, measured in both
             frames, not in a line, fitted within ``attached_tolerance_m`` RMS) carry it; 0: off ...
         carry_neighbours: see ``carry_m``.
+        carry_lost: a lost identity is re-identified from where its steady attached neighbours, as they were in its
+            last frame and as ``carry_neighbours`` or more of them are measured now, carry it (a rigid turn fitted
+            within ``attached_tolerance_m`` RMS), instead of from its coasting prediction and last position (a marker
+            back after a gap in a fast swing: its neighbour, seen where it vanished, is nearer to those).
         carry_reach_m: a track without such neighbours (its distances broke: tracks stepping between a swinging
             segment's markers) is carried by the turn of the nearest carried track this close, m.
         settle_hops: where confirmed tracks measured in the previous frame too took points that their own last
@@ -230,6 +235,7 @@ class TrackerConfig:
     neighbour_min: int = 2
     carry_m: float = 0.03
     carry_neighbours: int = 3
+    carry_lost: bool = True
     carry_reach_m: float = 0.15
     settle_hops: bool = True
     hop_acc_m: float = 0.06
@@ -1326,7 +1332,13 @@ class Tracker:
         lost = ((t.ident >= 0) & (t.since >= 1)).nonzero()[0]
         cand = np.full(rest.size, -1, dtype=np.intp)
         if lost.size:
-            match = reidentify(pts.X[rest], t.x3[lost, :3], self._radius3(lost), t.last_X[lost],
+            predicted, last = t.x3[lost, :3], t.last_X[lost]
+            if self._cfg.attached_check and self._cfg.carry_lost:
+                here = ((t.ident >= 0) & (t.since == 0)).nonzero()[0]
+                carried, X = self._attached.carried(t.ident[lost], last, t.ident[here], t.last_X[here],
+                                                    self._cfg.carry_neighbours)
+                predicted, last = np.where(carried[:, None], X, predicted), X
+            match = reidentify(pts.X[rest], predicted, self._radius3(lost), last,
                                self._attached_allow(pts.X[rest], lost))
             cand = np.where(match >= 0, t.ident[lost[np.maximum(match, 0)]], -1)
         self._start(fr, pts.subset(rest), cand, meas)

@@ -116,3 +116,35 @@ def test_neighbours_in_a_line_give_no_turn():
     ok, turned, a, b = memory.turns(np.array([4]), ids, frames[-2][ids], ids, frames[-1][ids], 3)
     assert not ok[0]
     np.testing.assert_array_equal(turned[0], np.eye(3))
+
+
+def test_a_lost_identity_is_carried_by_the_neighbours_it_had_when_last_seen():
+    """Identity 0 (A) is last measured in frame 59; over the next 20 frames its plate goes on turning and moving.
+    The neighbours it had then, measured now, carry it to where it is (its last place is centimetres off); with
+    fewer of them measured than asked for, or for an identity never seen, it stays where it was last seen."""
+    frames = _frames(80)
+    memory = _learned(frames[:60])
+    for X in frames[60:]:
+        memory.learn(np.arange(1, 5), X[1:])
+    now = frames[-1]
+    last = frames[59][[0, 0]]
+    ok, where = memory.carried(np.array([0, 7]), last, np.arange(1, 5), now[1:], 3)
+    assert ok.tolist() == [True, False]
+    assert np.linalg.norm(where[0] - now[0]) < 0.002 < 0.02 < np.linalg.norm(last[0] - now[0])
+    np.testing.assert_array_equal(where[1], last[1])
+    ok, where = memory.carried(np.array([0]), last[:1], np.array([1, 2]), now[1:3], 3)
+    assert not ok[0] and np.array_equal(where[0], last[0])
+
+
+def test_an_identity_back_in_view_is_carried_from_its_newest_loss():
+    """Lost, found again, lost again: the neighbours' places are those of the last frame before the newest loss."""
+    frames = _frames(90)
+    memory = _learned(frames[:40])
+    for X in frames[40:50]:
+        memory.learn(np.arange(1, 5), X[1:])
+    for X in frames[50:70]:
+        memory.learn(np.arange(5), X)
+    for X in frames[70:90]:
+        memory.learn(np.arange(1, 5), X[1:])
+    ok, where = memory.carried(np.array([0]), frames[69][:1], np.arange(1, 5), frames[-1][1:], 3)
+    assert ok[0] and np.linalg.norm(where[0] - frames[-1][0]) < 0.002

@@ -842,3 +842,30 @@ def test_a_two_view_point_whose_blob_a_third_view_of_another_point_explains_is_a
         assert np.isnan(traj.positions[split_at, a_col, 0])
     else:
         assert err_a[split_at, a_col] > 0.01  # for contrast: the ghost, output under A's identity
+
+
+@pytest.mark.parametrize("carry", [True, False])
+def test_a_marker_back_from_a_gap_in_a_speeding_swing_is_found_where_its_neighbours_carried_it(carry):
+    """Five markers of a rigid segment 0.4 m from a pivot, swinging faster and faster from frame 50 on: A is hidden
+    from frame 5 on (its identity lost, its search radius at its widest) and D, 40 mm from A, in frames 60-71. D
+    comes back off its own extrapolation and last place, nearer (for its radius) to A's lost identity. Where the
+    three markers D had as steady neighbours when last seen carried it, it is a few millimetres off: D's identity
+    takes it back. From its extrapolation and last place alone (``carry_lost`` off) A's does."""
+    F, fps = 120, 120.0
+    t = np.arange(F) / fps
+    angle = 0.5 * t + 4.0 * np.clip(t - 50 / fps, 0, None) ** 2
+    offsets = np.array([[0.0, 0.0, 0.0], [-0.03, 0.07, 0.0], [-0.05, -0.03, 0.02], [0.04, 0.0, 0.0],
+                        [0.02, 0.06, -0.03]])  # A B C D E
+    x, y = 0.4 + offsets[:, 0], offsets[:, 1]
+    c, s = np.cos(angle)[:, None], np.sin(angle)[:, None]
+    pos = np.stack([c * x - s * y, s * x + c * y, np.broadcast_to(1.0 + offsets[:, 2], (F, 5))], axis=2)
+    hidden = np.zeros((F, 6, 5), dtype=bool)
+    hidden[5:, :, 0] = True
+    hidden[60:72, :, 3] = True
+    take = simulate("carry", ring_rig(seed=3), scripted_motion(pos, fps), SynthSettings(seed=3, ghosts=0,
+                    dropout_rate=0.0), hidden=hidden, seed=3)
+    report = evaluate(_run(Tracker(take.rig, fps, TrackerConfig(carry_lost=carry)), take)[0], take.truth)
+    if carry:
+        assert report.switches == 0 and report.idf1 > 0.99
+    else:
+        assert report.switches == 1 and report.idf1 < 0.92
