@@ -60,6 +60,10 @@ class BridgeConfig:
         neighbours: nearest identities the combination is of (3 at least are needed).
         reach_m: neighbours farther than this from the marker at the end are not used, m.
         ridge_m2: ridge of the combination's least squares, m^2 (a steady pose fits many combinations).
+        fit_m: the combination must give the ending piece's own samples over the fitted frames within this, m RMS;
+            else the miss is not measured (neighbours that do not carry the marker: a forearm marker's arm
+            neighbours all hidden, the wheelchair's and the hand's left, 0.1-0.2 m off it already; a serving arm's
+            skin markers fit their right links to a few centimetres).
         miss_m: a new link must miss by less than this, m; leaving a piece unlinked costs as much.
         keep_m: an existing link missing by more than this costs as much as no link, m.
         favour: an existing link's miss counts divided by this.
@@ -76,6 +80,7 @@ class BridgeConfig:
     neighbours: int = 8
     reach_m: float = 0.6
     ridge_m2: float = 1e-3
+    fit_m: float = 0.08
     miss_m: float = 0.16
     keep_m: float = 0.15
     favour: float = 2.0
@@ -104,8 +109,9 @@ def carried_miss(P: np.ndarray, end: np.ndarray, start: np.ndarray, cfg: BridgeC
 
     The marker's offsets from its neighbours' mean over the end's last ``fit_frames`` samples are fitted as one
     combination of the neighbours' offsets (ridge least squares), which is then applied to the neighbours at the
-    start's first ``check_frames`` samples: the mean distance to the start's samples there. ``seen``: (F, M) bool,
-    the samples of ``P`` (computed if not given)."""
+    start's first ``check_frames`` samples: the mean distance to the start's samples there; NaN too where the
+    combination misses the end's own samples by more than ``fit_m`` RMS. ``seen``: (F, M) bool, the samples of ``P``
+    (computed if not given)."""
     (ma, fa, la), (mb, fb, lb) = end, start
     if seen is None:
         seen = np.isfinite(P[..., 0])
@@ -127,6 +133,8 @@ def carried_miss(P: np.ndarray, end: np.ndarray, start: np.ndarray, cfg: BridgeC
     A = (N - centre).transpose(0, 2, 1).reshape(-1, near.size)  # (3T, n)
     y = (P[before, ma] - centre[:, 0]).reshape(-1)
     w = np.linalg.solve(A.T @ A + cfg.ridge_m2 * np.eye(near.size), A.T @ y)
+    if np.mean((A @ w - y) ** 2) * 3 > cfg.fit_m**2:  # (the mean over coordinates: x 3 for points)
+        return np.nan
     Nb = P[after][:, near]
     centre_b = Nb.mean(axis=1)
     carried = centre_b + np.einsum("tni,n->ti", Nb - centre_b[:, None], w)

@@ -81,6 +81,20 @@ def test_the_carried_prediction_is_millimetres_off_for_the_marker_and_far_for_an
     assert np.isnan(carried_miss(P[:, :3], np.array([0, 0, 99]), np.array([0, 120, 199]), cfg))  # 2 neighbours
 
 
+def test_neighbours_that_do_not_carry_the_marker_measure_no_miss():
+    """Marker 0 swings 0.15 m about the cluster's centre on a path of its own (a hand pushing a rim past the
+    forearm's markers): no combination of the others' offsets gives its last 15 frames (0.15 m RMS off), so its
+    prediction across the gap is not measured, where it would have been a number to link by."""
+    truth = _swinging_arm(3)
+    t = np.arange(len(truth)) / FPS
+    truth[:, 0] = truth[:, 1:].mean(axis=1) + 0.15 * np.stack([np.sin(7 * t), np.cos(11 * t), np.sin(5 * t)], axis=1)
+    P = _trajectories([[(m, 0, 99), (m, 120, 199)] for m in range(10)], truth).positions
+    end, start = np.array([0, 0, 99]), np.array([0, 120, 199])
+    assert np.isnan(carried_miss(P, end, start, BridgeConfig()))
+    assert np.isfinite(carried_miss(P, end, start, BridgeConfig(fit_m=np.inf)))
+    assert carried_miss(P, np.array([1, 0, 99]), np.array([1, 120, 199]), BridgeConfig()) < 0.005  # the others are
+
+
 def test_links_without_evidence_stay_and_a_take_without_gaps_is_untouched():
     """A link the neighbours cannot judge (a piece of two samples) is kept; pieces too far apart in time are not
     linked; a take without gaps comes back unchanged."""
