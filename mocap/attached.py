@@ -117,11 +117,8 @@ class AttachedDistances:
         known = ident < len(self.left_with)
         if not known.any() or here_ident.size == 0:
             return ok, out
-        where = np.full(max(len(self.left_with), int(here_ident.max()) + 1), -1, dtype=np.intp)
-        where[here_ident] = np.arange(here_ident.size)
         i = np.flatnonzero(known)
-        nb = self.left_with[ident[i]]  # (m, J)
-        row = np.where(nb >= 0, where[np.maximum(nb, 0)], -1)
+        row = _rows_in(self.left_with[ident[i]], here_ident)
         good, R, a, b = _rigid_turns(self.left_at[ident[i]], here_X[np.maximum(row, 0)], row >= 0, min_neighbours,
                                      self._tol)
         ok[i] = good
@@ -202,11 +199,8 @@ class AttachedDistances:
         known = ident < len(self.neighbour)
         if not known.any() or here_ident.size == 0:
             return at, mean, usable
-        where = np.full(max(len(self.neighbour), int(here_ident.max()) + 1), -1, dtype=np.intp)
-        where[here_ident] = np.arange(here_ident.size)
         i = np.flatnonzero(known)
-        nb = self.neighbour[ident[i]]  # (m, J)
-        row = np.where(nb >= 0, where[np.maximum(nb, 0)], -1)
+        row = _rows_in(self.neighbour[ident[i]], here_ident)
         usable[i] = (row >= 0) & (self.held[ident[i]] >= self._steady)
         at[i] = here_X[np.maximum(row, 0)]
         mean[i] = self.distance[ident[i]]
@@ -231,6 +225,15 @@ class AttachedDistances:
         at, _, usable = self.steady_here(ident, here_ident, here_X)
         was, _, usable_before = self.steady_here(ident, before_ident, before_X)
         return _rigid_turns(was, at, usable & usable_before, min_neighbours, self._tol)
+
+
+def _rows_in(neighbours: np.ndarray, here_ident: np.ndarray) -> np.ndarray:
+    """(m, J) the row of ``here_ident`` (h,) holding each identity of ``neighbours`` (m, J), -1 where it is not
+    there or the slot is empty (-1)."""
+    top = max(int(neighbours.max(initial=-1)), int(here_ident.max(initial=-1))) + 1
+    where = np.full(top, -1, dtype=np.intp)
+    where[here_ident] = np.arange(here_ident.size)
+    return np.where(neighbours >= 0, where[np.maximum(neighbours, 0)], -1)
 
 
 def _rigid_turns(P: np.ndarray, Q: np.ndarray, used: np.ndarray, min_points: int, tolerance_m: float
