@@ -27,7 +27,7 @@ from mocap import __version__, kernels
 from mocap.atomic import check_output_path
 from mocap.blind import BlindCameras
 from mocap.camera import Rig, rig_to_toml
-from mocap.detect import detect
+from mocap.detect import StreamDetector
 from mocap.detections import Detections
 from mocap.errors import MocapError
 from mocap.fitcheck import FitMonitor, FitReport
@@ -110,6 +110,7 @@ def _detection_frames(source: Any, kind: str, tracker: Tracker, opts: Reconstruc
         yield from source.centroids(opts.start, opts.stop)
         return
     every = _scan_every(opts, kind)
+    detectors = [StreamDetector() for _ in source.rig]
     for frame_index, images in source.images(opts.start, opts.stop):
         rois = None if (frame_index - opts.start) % every == 0 else tracker.predicted_rois()
         seeds = tracker.predicted_centres()
@@ -118,7 +119,7 @@ def _detection_frames(source: Any, kind: str, tracker: Tracker, opts: Reconstruc
             if image is None:  # undecodable frame: the take reader has logged it
                 dets.append(Detections.empty())
             else:
-                dets.append(detect(image, rois=None if rois is None else rois[c], seeds=seeds[c]))
+                dets.append(detectors[c](image, rois=None if rois is None else rois[c], seeds=seeds[c]))
         yield frame_index, dets
 
 

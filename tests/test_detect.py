@@ -7,7 +7,8 @@ import numpy as np
 import pytest
 from scipy.spatial import cKDTree
 
-from mocap.detect import _max_pool, background_level, detect, flattened_background
+import mocap.detect
+from mocap.detect import StreamDetector, _max_pool, background_level, detect, flattened_background
 from mocap.detections import MIN_CENTROID_STD_PX, Detections, floored_covariance
 from mocap.synth.render import Sensor
 
@@ -420,6 +421,57 @@ def test_lone_hot_pixels_in_heavy_noise_are_not_markers():
         sensor.draw(image, [[320.3, 240.6]], [1.1], [140.0], rng)
         det = detect(image)
         assert len(det) == 1 and np.hypot(det.xy[0, 0] - 320.3, det.xy[0, 1] - 240.6) < 1.0
+
+
+def _stream_frame(sensor: Sensor, rng: np.random.Generator, bright: np.ndarray, faint: np.ndarray) -> np.ndarray:
+    """A 200x200 frame of ``bright`` (n, 2) px markers (2.5 px radius) and ``faint`` (m, 2) px ones (1.1 px radius,
+    too faint for the raw threshold at noise 6)."""
+    image = sensor.background_frame((200, 200), rng)
+    sensor.draw(image, bright, np.full(len(bright), 2.5), np.full(len(bright), 400.0), rng)
+    sensor.draw(image, faint, np.full(len(faint), 1.1), np.full(len(faint), 120.0), rng)
+    return image
+
+
+def _found(det: Detections, uv: np.ndarray) -> np.ndarray:
+    """(m,) bool: which of the markers at ``uv`` (m, 2) px a detection lies within 2 px of."""
+    return cKDTree(det.xy).query(uv)[0] < 2 if len(det) else np.zeros(len(uv), dtype=bool)
+
+
+def test_a_stream_detector_runs_the_faint_pass_only_where_it_can_find_a_marker(monkeypatch):
+    """:class:`StreamDetector` skips the faint pass (the 3x3 mean image) where it would add nothing, and where it
+    runs, finds what :func:`detect` finds: a marker that fades under the raw threshold at once (the raw pass finds
+    fewer blobs than in the frame before), one that appears too faint for it within ``check_every`` frames, and
+    either in every frame after (it keeps the pass running)."""
+    runs = []
+    real = mocap.detect._faint_blobs
+    monkeypatch.setattr(mocap.detect, "_faint_blobs", lambda *a: runs.append(1) or real(*a))
+    sensor = Sensor(noise=6.0, blur_px=1.5)
+    rng = np.random.default_rng(11)
+    grid = np.stack(np.meshgrid([40.3, 100.6, 160.2], [40.7, 100.1, 160.4]), -1).reshape(-1, 2)
+    newcomer = np.array([[70.4, 70.8]])
+
+    stream = StreamDetector(check_every=4, hold=2)  # bright markers only: the pass runs in frames 0, 4, 8
+    for _ in range(12):
+        image = _stream_frame(sensor, rng, grid, np.zeros((0, 2)))
+        assert _found(stream(image), grid).all()
+    assert len(runs) == 3
+
+    stream = StreamDetector(check_every=4, hold=2)  # from frame 2 on, the first marker is faint
+    for k in range(12):
+        image = _stream_frame(sensor, rng, grid[int(k >= 2):], grid[:int(k >= 2)])
+        det, alone = stream(image), detect(image)
+        assert np.array_equal(det.xy, alone.xy)
+        assert _found(det, grid).all()
+
+    stream = StreamDetector(check_every=4, hold=2)  # from frame 1 on, a faint newcomer: found in frame 4 and after
+    for k in range(12):
+        image = _stream_frame(sensor, rng, grid, newcomer[: int(k >= 1)])
+        det, alone = stream(image), detect(image)
+        assert _found(alone, grid).all() and (k == 0 or _found(alone, newcomer).all())
+        if k >= 4 or k == 0:
+            assert np.array_equal(det.xy, alone.xy)
+        else:
+            assert not _found(det, newcomer).any() and _found(det, grid).all()
 
 
 @pytest.mark.parametrize("shape_of_light", ["ramp", "vignette"])
