@@ -492,7 +492,8 @@ def predict(x, P, F, Q):
     P_new = np.empty((K, n, n))
     FP = np.empty((n, n))
     one_q = Q.shape[0] == 1
-    for k in range(K):
+    PF = np.empty((n, n))
+    for k in range(K):  # (each sum in the order of F's columns, as written out: the innermost loops run along rows)
         q = 0 if one_q else k
         for i in range(n):
             s = 0.0
@@ -500,16 +501,21 @@ def predict(x, P, F, Q):
                 s += F[i, cols[i, m]] * x[k, cols[i, m]]
             x_new[k, i] = s
             for j in range(n):
-                s = 0.0
-                for m in range(nnz[i]):
-                    s += F[i, cols[i, m]] * P[k, cols[i, m], j]
-                FP[i, j] = s
+                FP[i, j] = 0.0
+            for m in range(nnz[i]):
+                f, c = F[i, cols[i, m]], cols[i, m]
+                for j in range(n):
+                    FP[i, j] += f * P[k, c, j]
+        for j in range(n):  # PF[j, i] = (F P F^T)[i, j]
+            for i in range(n):
+                PF[j, i] = 0.0
+            for m in range(nnz[j]):
+                f, c = F[j, cols[j, m]], cols[j, m]
+                for i in range(n):
+                    PF[j, i] += FP[i, c] * f
         for i in range(n):
             for j in range(n):
-                s = 0.0
-                for m in range(nnz[j]):
-                    s += FP[i, cols[j, m]] * F[j, cols[j, m]]
-                P_new[k, i, j] = s + Q[q, i, j]
+                P_new[k, i, j] = PF[j, i] + Q[q, i, j]
     return x_new, P_new
 
 
