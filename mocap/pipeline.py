@@ -306,7 +306,8 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--start", type=int, default=0, help="first frame to process (default 0)")
     parser.add_argument("--stop", type=int, help="frame to stop before (default: the end)")
     parser.add_argument("--roi-scan-every", type=int, default=0, metavar="N",
-                        help="search only predicted windows, with a full-frame scan every N frames (0: always scan)")
+                        help="search only predicted windows, with a full-frame scan every N frames (0: always scan; "
+                             "it ignores blobs outside the windows between scans, and saves no time)")
     parser.add_argument("--no-relabel", action="store_true",
                         help="keep the tracker's online identities (skip the offline swap repair and re-linking)")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
