@@ -69,7 +69,7 @@ from scipy.spatial import cKDTree
 from mocap import detect_kernels, kernels
 from mocap.detections import Detections, floored_covariance
 
-__all__ = ["background_level", "detect", "flattened_background", "K_SIGMA", "MIN_CONTRAST"]
+__all__ = ["background_level", "detect", "flattened_background", "StreamDetector", "K_SIGMA", "MIN_CONTRAST"]
 
 MIN_AREA = 2  # px above the threshold: fewer is a hot pixel (detect's default)
 MAX_AREA = 1000  # px: more is a reflection or a lamp (detect's default)
