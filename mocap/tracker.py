@@ -156,6 +156,12 @@ class TrackerConfig:
             last frame and as ``carry_neighbours`` or more of them are measured now, carry it (a rigid turn fitted
             within ``attached_tolerance_m`` RMS), instead of from its coasting prediction and last position (a marker
             back after a gap in a fast swing: its neighbour, seen where it vanished, is nearer to those).
+        carry_in_play: a confirmed track two or more frames into its gap that still searches (``coast_frames``) is
+            re-acquired, where its steady neighbours carry it (as ``carry_lost``), within its one-frame search radius
+            of the carried place instead of its widened radius around its coasting prediction: a marker glimpsed in
+            single frames of a fast swing (a serving hand's finger, 300 mm a frame at 50 Hz) is found again where
+            the extrapolation of its last glimpse misses it, and the tentative tracks its glimpses start cannot
+            follow it.
         carry_reach_m: a track without such neighbours (its distances broke: tracks stepping between a swinging
             segment's markers) is carried by the turn of the nearest carried track this close, m.
         settle_hops: where confirmed tracks measured in the previous frame too took points that their own last
@@ -236,6 +242,7 @@ class TrackerConfig:
     carry_m: float = 0.03
     carry_neighbours: int = 3
     carry_lost: bool = True
+    carry_in_play: bool = True
     carry_reach_m: float = 0.15
     settle_hops: bool = True
     hop_acc_m: float = 0.06
@@ -1314,8 +1321,8 @@ class Tracker:
             return
         # 1) Tracks that missed this frame but still search: re-acquire them directly.
         missing = ((t.since >= 1) & self._in_play()).nonzero()[0]
-        match = reidentify(pts.X, t.x3[missing, :3], self._radius3(missing),
-                           allowed=self._attached_allow(pts.X, missing))
+        predicted, radius = self._search_again(missing)
+        match = reidentify(pts.X, predicted, radius, allowed=self._attached_allow(pts.X, missing))
         got = (match >= 0).nonzero()[0]
         clean = _clean_views(fr.merged, pts.det) >= 2
         if got.size:
@@ -1342,6 +1349,30 @@ class Tracker:
                                self._attached_allow(pts.X[rest], lost))
             cand = np.where(match >= 0, t.ident[lost[np.maximum(match, 0)]], -1)
         self._start(fr, pts.subset(rest), cand, meas)
+
+    def _search_again(self, missing: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Where the tracks ``missing`` (m,), unmeasured this frame and still searching, are looked for among the
+        new points, and how far, m: (m, 3), (m,). The coasting prediction and the widened search radius; for a
+        confirmed track two or more frames into its gap that its steady neighbours carry (``carry_in_play``), the
+        carried place and the one-frame radius (the carry leaves no extrapolation to widen it for)."""
+        t, cfg = self._t, self._cfg
+        predicted, radius = t.x3[missing, :3], self._radius3(missing)
+        if not (cfg.attached_check and cfg.carry_in_play):
+            return predicted, radius
+        long = ((t.ident[missing] >= 0) & (t.since[missing] >= 2)).nonzero()[0]
+        if long.size == 0:
+            return predicted, radius
+        rows = missing[long]
+        here = ((t.ident >= 0) & (t.since == 0)).nonzero()[0]
+        carried, X = self._attached.carried(t.ident[rows], t.last_X[rows], t.ident[here], t.last_X[here],
+                                            cfg.carry_neighbours)
+        if not carried.any():
+            return predicted, radius
+        near = self._running.radius(*t.e3[rows].T, 1, self._dt, cfg.gate_floor_m)
+        predicted, radius = predicted.copy(), radius.copy()
+        predicted[long[carried]] = X[carried]
+        radius[long[carried]] = np.minimum(radius[long[carried]], near[carried])
+        return predicted, radius
 
     def _new_points(self, fr: _Frame, free: np.ndarray) -> NewPoints:
         """New points from the free detections (C, N) bool that pair with a fresh one, apart from the markers
