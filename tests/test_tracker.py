@@ -844,6 +844,18 @@ def test_a_two_view_point_whose_blob_a_third_view_of_another_point_explains_is_a
         assert err_a[split_at, a_col] > 0.01  # for contrast: the ghost, output under A's identity
 
 
+def _segment_take(name: str, angle: np.ndarray, fps: float, hidden: np.ndarray):
+    """Centroids of five markers A-E of a rigid segment about 0.4 m from a pivot, turned by ``angle`` (F,) rad about
+    the vertical axis, ``hidden`` (F, 6, 5) from the cameras of a six-camera ring (seed 3; no ghosts or dropouts)."""
+    offsets = np.array([[0.0, 0.0, 0.0], [-0.03, 0.07, 0.0], [-0.05, -0.03, 0.02], [0.04, 0.0, 0.0],
+                        [0.02, 0.06, -0.03]])  # A B C D E
+    x, y = 0.4 + offsets[:, 0], offsets[:, 1]
+    c, s = np.cos(angle)[:, None], np.sin(angle)[:, None]
+    pos = np.stack([c * x - s * y, s * x + c * y, np.broadcast_to(1.0 + offsets[:, 2], (len(angle), 5))], axis=2)
+    return simulate(name, ring_rig(seed=3), scripted_motion(pos, fps), SynthSettings(seed=3, ghosts=0,
+                    dropout_rate=0.0), hidden=hidden, seed=3)
+
+
 @pytest.mark.parametrize("carry", [True, False])
 def test_a_marker_back_from_a_gap_in_a_speeding_swing_is_found_where_its_neighbours_carried_it(carry):
     """Five markers of a rigid segment 0.4 m from a pivot, swinging faster and faster from frame 50 on: A is hidden
@@ -854,16 +866,10 @@ def test_a_marker_back_from_a_gap_in_a_speeding_swing_is_found_where_its_neighbo
     F, fps = 120, 120.0
     t = np.arange(F) / fps
     angle = 0.5 * t + 4.0 * np.clip(t - 50 / fps, 0, None) ** 2
-    offsets = np.array([[0.0, 0.0, 0.0], [-0.03, 0.07, 0.0], [-0.05, -0.03, 0.02], [0.04, 0.0, 0.0],
-                        [0.02, 0.06, -0.03]])  # A B C D E
-    x, y = 0.4 + offsets[:, 0], offsets[:, 1]
-    c, s = np.cos(angle)[:, None], np.sin(angle)[:, None]
-    pos = np.stack([c * x - s * y, s * x + c * y, np.broadcast_to(1.0 + offsets[:, 2], (F, 5))], axis=2)
     hidden = np.zeros((F, 6, 5), dtype=bool)
     hidden[5:, :, 0] = True
     hidden[60:72, :, 3] = True
-    take = simulate("carry", ring_rig(seed=3), scripted_motion(pos, fps), SynthSettings(seed=3, ghosts=0,
-                    dropout_rate=0.0), hidden=hidden, seed=3)
+    take = _segment_take("carry", angle, fps, hidden)
     report = evaluate(_run(Tracker(take.rig, fps, TrackerConfig(carry_lost=carry)), take)[0], take.truth)
     if carry:
         assert report.switches == 0 and report.idf1 > 0.99
@@ -881,16 +887,10 @@ def test_a_marker_glimpsed_in_single_frames_of_a_fast_swing_is_found_where_its_n
     F, fps = 48, 50.0
     t = np.arange(F) / fps
     angle = np.cumsum(0.3 + 40.0 * np.clip(t - 20 / fps, 0, None)) / fps
-    offsets = np.array([[0.0, 0.0, 0.0], [-0.03, 0.07, 0.0], [-0.05, -0.03, 0.02], [0.04, 0.0, 0.0],
-                        [0.02, 0.06, -0.03]])  # A B C D E
-    x, y = 0.4 + offsets[:, 0], offsets[:, 1]
-    c, s = np.cos(angle)[:, None], np.sin(angle)[:, None]
-    pos = np.stack([c * x - s * y, s * x + c * y, np.broadcast_to(1.0 + offsets[:, 2], (F, 5))], axis=2)
     hidden = np.zeros((F, 6, 5), dtype=bool)
     hidden[28:30, :, 3] = True
     hidden[31::2, :, 3] = True
-    take = simulate("glimpses", ring_rig(seed=3), scripted_motion(pos, fps), SynthSettings(seed=3, ghosts=0,
-                    dropout_rate=0.0), hidden=hidden, seed=3)
+    take = _segment_take("glimpses", angle, fps, hidden)
     report = evaluate(_run(Tracker(take.rig, fps, TrackerConfig(carry_in_play=carry)), take)[0], take.truth)
     if carry:
         assert report.switches == 0 and report.idf1 > 0.999 and report.completeness > 0.999
