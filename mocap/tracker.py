@@ -1341,14 +1341,21 @@ class Tracker:
         if lost.size:
             predicted, last = t.x3[lost, :3], t.last_X[lost]
             if self._cfg.attached_check and self._cfg.carry_lost:
-                here = ((t.ident >= 0) & (t.since == 0)).nonzero()[0]
-                carried, X = self._attached.carried(t.ident[lost], last, t.ident[here], t.last_X[here],
-                                                    self._cfg.carry_neighbours)
+                carried, X = self._carried(lost)
                 predicted, last = np.where(carried[:, None], X, predicted), X
             match = reidentify(pts.X[rest], predicted, self._radius3(lost), last,
                                self._attached_allow(pts.X[rest], lost))
             cand = np.where(match >= 0, t.ident[lost[np.maximum(match, 0)]], -1)
         self._start(fr, pts.subset(rest), cand, meas)
+
+    def _carried(self, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Where the unmeasured confirmed tracks ``rows`` (n,) are if they moved rigidly with the steady neighbours
+        they had when last measured, as those measured this frame say (:meth:`AttachedDistances.carried`): (n,) bool
+        (carried) and (n, 3) m (their last positions where not)."""
+        t = self._t
+        here = ((t.ident >= 0) & (t.since == 0)).nonzero()[0]
+        return self._attached.carried(t.ident[rows], t.last_X[rows], t.ident[here], t.last_X[here],
+                                      self._cfg.carry_neighbours)
 
     def _search_again(self, missing: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Where the tracks ``missing`` (m,), unmeasured this frame and still searching, are looked for among the
@@ -1363,9 +1370,7 @@ class Tracker:
         if long.size == 0:
             return predicted, radius
         rows = missing[long]
-        here = ((t.ident >= 0) & (t.since == 0)).nonzero()[0]
-        carried, X = self._attached.carried(t.ident[rows], t.last_X[rows], t.ident[here], t.last_X[here],
-                                            cfg.carry_neighbours)
+        carried, X = self._carried(rows)
         if not carried.any():
             return predicted, radius
         near = self._running.radius(*t.e3[rows].T, 1, self._dt, cfg.gate_floor_m)
