@@ -42,7 +42,7 @@ from __future__ import annotations
 import mmap
 from collections import deque
 from collections.abc import Iterator
-from dataclasses import dataclass, field, fields
+from dataclasses import dataclass, field, fields, replace
 from itertools import accumulate
 
 import numpy as np
@@ -198,6 +198,12 @@ class TrackerConfig:
         attached_slots, attached_reach_m, attached_tolerance_m, attached_steady_s: see ``attached_check``.
         noisy_point_m: a track whose last point's std exceeds this (m) gets proportionally more 3D process
             noise (up to 10x ``jerk_std_3d``): noisy points (small, far markers) must not make the filter lag.
+        rival_ratio: where the robust triangulation of a confirmed track's assigned blobs kept one group of views
+            and dropped two or more that make a point of their own (another marker's blobs, in a wide gate), the
+            track takes that dropped point instead if it lies within its search radius and under ``rival_ratio`` x
+            the kept point's distance from the prediction, and the kept point is a hop (over ``hop_acc_m`` off
+            it; see ``_nearer_rival``); 0: off. The triangulation's
+            consensus takes the group with most views, which a fast swing's widened gates fill with a neighbour's.
     """
 
     confirm_frames: int = 4
@@ -259,6 +265,7 @@ class TrackerConfig:
     attached_reach_m: float = 0.5
     attached_tolerance_m: float = 0.01
     attached_steady_s: float = 0.1
+    rival_ratio: float = 0.25
 
     def __post_init__(self) -> None:
         for name in ("confirm_frames", "new_min_views"):
@@ -272,6 +279,8 @@ class TrackerConfig:
             raise MocapError(f"tracker setting accel_damping = {self.accel_damping} must be in [0, 1]")
         if not 0 < self.error_alpha <= 1:
             raise MocapError(f"tracker setting error_alpha = {self.error_alpha} must be in (0, 1]")
+        if not 0 <= self.rival_ratio < 1:
+            raise MocapError(f"tracker setting rival_ratio = {self.rival_ratio} must be in [0, 1)")
 
 
 @dataclass
@@ -725,7 +734,10 @@ class Tracker:
             meas.asg[tent] = assign(q[tent], fr.valid & ~_taken(meas.asg, fr.valid.shape))
         crowded = self._crowded(pred, play, depth, meas.asg)
         self._clear_streaks(fr, meas.asg, crowded, depth, lock)
+        assigned = meas.asg[conf]
         self._measure(fr, crowded, meas)
+        if self._cfg.rival_ratio > 0:
+            self._nearer_rival(fr, crowded, meas, conf, assigned)
         # A confirmed track's claim that its pruning or fusion dropped may have been a tentative track's blob:
         # tentative tracks left with fewer than two cameras try again with the detections now free.
         short = tent[(meas.asg[tent] >= 0).sum(axis=1) < 2]
@@ -735,6 +747,32 @@ class Tracker:
             if enough.any():
                 self._measure_again(fr, crowded, meas, short[enough], again[enough])
         self._one_marker_one_track(fr, crowded, meas)
+
+    def _nearer_rival(self, fr: _Frame, crowded: np.ndarray, meas: _Measurements, conf: np.ndarray,
+                      assigned: np.ndarray) -> None:
+        """Confirmed tracks ``conf`` (n,) whose measurement dropped two or more of their ``assigned`` (n, C) blobs
+        that no other track took since are measured from those blobs alone; where that point (the rival) lies within
+        the track's search radius of its prediction and under ``rival_ratio`` x the kept point's distance from it,
+        and the kept point hops (lies over the hop acceleration off the prediction, see ``settle_hops``), the track
+        takes the rival and the blobs it kept go free (see ``TrackerConfig.rival_ratio``)."""
+        dropped = (assigned >= 0) & (meas.asg[conf] != assigned) & (meas.ok & (self._t.since == 1))[conf, None]
+        dropped &= ~_taken(meas.asg, fr.valid.shape)[np.arange(self._C)[None, :], np.maximum(assigned, 0)]
+        two = (dropped.sum(axis=1) >= 2).nonzero()[0]
+        if two.size == 0:
+            return
+        rows = conf[two]
+        rival = _Measurements.empty(len(self._t), self._C)
+        rival.asg[rows] = np.where(dropped[two], assigned[two], -1)
+        self._measure(replace(fr, valid=fr.valid & ~_taken(meas.asg, fr.valid.shape)), crowded, rival)
+        pred = self._t.x3[rows, :3]
+        near = np.linalg.norm(rival.X[rows] - pred, axis=1)
+        kept = np.linalg.norm(meas.X[rows] - pred, axis=1)
+        take = (rival.ok[rows] & ((rival.asg[rows] >= 0).sum(axis=1) >= self._cfg.new_min_views)
+                & (kept > self._hop_m) & (near < self._cfg.rival_ratio * kept) & (near < self._radius3(rows)))
+        if np.count_nonzero(take) == 0:
+            return
+        rival.keep(np.isin(np.arange(len(self._t)), rows[take]))
+        meas.put(rows[take], rival)
 
     def _yield_outside_gate(self, meas: _Measurements, shift: np.ndarray) -> None:
         """Tracks whose point lies outside their own 3D search radius (:meth:`_radius3`) around the prediction (plus

@@ -626,6 +626,8 @@ def test_bad_input_is_a_user_error(rig):
         TrackerConfig(confirm_frames=0)
     with pytest.raises(MocapError, match="accel_damping"):
         TrackerConfig(accel_damping=1.5)
+    with pytest.raises(MocapError, match="rival_ratio"):
+        TrackerConfig(rival_ratio=1.0)
     with pytest.raises(MocapError, match="2 detection sets for 6 cameras"):
         Tracker(rig, 100.0).step(0, [Detections.empty(), Detections.empty()])
 
@@ -896,3 +898,28 @@ def test_a_marker_glimpsed_in_single_frames_of_a_fast_swing_is_found_where_its_n
         assert report.switches == 0 and report.idf1 > 0.999 and report.completeness > 0.999
     else:
         assert report.switches == 0 and report.completeness < 0.985 and report.idf1 < 0.992
+
+
+@pytest.mark.parametrize("ratio", [0.25, 0.0])
+def test_a_track_seen_by_three_cameras_keeps_its_marker_when_its_wide_gates_fill_with_another(ratio):
+    """The serve's swinging arm at 50 Hz: a track whose search radius a fast swing widened to 0.3 m (here a 0.3 m
+    floor) sees its marker A in three cameras of eight; marker B, 0.2 m away, comes into view in all eight. The
+    other five cameras' wide gates hold B's blobs, and the triangulation's consensus takes the group with most
+    views: B, a hop off the prediction. The three views it dropped make a point of their own, A's, at the
+    prediction: the track takes it instead (``rival_ratio``), and B starts a track of its own. Without the rule
+    A's identity takes B."""
+    F, fps = 140, 100.0
+    t = np.arange(F) / fps
+    centre = np.stack([0.3 * np.cos(2 * t), 0.3 * np.sin(2 * t), np.ones(F)], axis=1)
+    pos = np.stack([centre, centre + [0.0, 0.0, 0.2]], axis=1)
+    hidden = np.zeros((F, 8, 2), dtype=bool)
+    hidden[60:, [1, 2, 4, 5, 7], 0] = True
+    hidden[:80, :, 1] = True
+    take = simulate("rival", ring_rig(n_cameras=8, seed=3), scripted_motion(pos, fps), SynthSettings(
+                    seed=3, ghosts=0, dropout_rate=0.0), hidden=hidden, seed=3)
+    config = TrackerConfig(gate_floor_m=0.3, rival_ratio=ratio)
+    report = evaluate(_run(Tracker(take.rig, fps, config), take)[0], take.truth)
+    if ratio:
+        assert report.switches == 0 and report.idf1 > 0.99 and report.completeness > 0.99
+    else:
+        assert report.switches == 1 and report.idf1 < 0.7
