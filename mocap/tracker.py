@@ -761,18 +761,15 @@ class Tracker:
         if two.size == 0:
             return
         rows = conf[two]
-        rival = _Measurements.empty(len(self._t), self._C)
-        rival.asg[rows] = np.where(dropped[two], assigned[two], -1)
-        self._measure(replace(fr, valid=fr.valid & ~_taken(meas.asg, fr.valid.shape)), crowded, rival)
+        rival = self._measured_from(fr, crowded, meas, rows, np.where(dropped[two], assigned[two], -1))
         pred = self._t.x3[rows, :3]
-        near = np.linalg.norm(rival.X[rows] - pred, axis=1)
+        near = np.linalg.norm(rival.X - pred, axis=1)
         kept = np.linalg.norm(meas.X[rows] - pred, axis=1)
-        take = (rival.ok[rows] & ((rival.asg[rows] >= 0).sum(axis=1) >= self._cfg.new_min_views)
+        take = (rival.ok & ((rival.asg >= 0).sum(axis=1) >= self._cfg.new_min_views)
                 & (kept > self._hop_m) & (near < self._cfg.rival_ratio * kept) & (near < self._radius3(rows)))
-        if np.count_nonzero(take) == 0:
-            return
-        rival.keep(np.isin(np.arange(len(self._t)), rows[take]))
-        meas.put(rows[take], rival)
+        if np.count_nonzero(take):
+            rival.keep(take)
+            meas.put(rows[take], rival)
 
     def _yield_outside_gate(self, meas: _Measurements, shift: np.ndarray) -> None:
         """Tracks whose point lies outside their own 3D search radius (:meth:`_radius3`) around the prediction (plus
@@ -885,11 +882,19 @@ class Tracker:
                        asg: np.ndarray) -> None:
         """Measure the tracks ``rows`` (sorted, unique) afresh from the detections ``asg`` (len(rows), C), into
         ``meas``."""
+        meas.put(rows, self._measured_from(fr, crowded, meas, rows, asg))
+
+    def _measured_from(self, fr: _Frame, crowded: np.ndarray, meas: _Measurements, rows: np.ndarray,
+                       asg: np.ndarray) -> _Measurements:
+        """The measurements (len(rows) of them) of the tracks ``rows`` (sorted, unique) from the detections ``asg``
+        (len(rows), C); the re-pick offers none that ``meas`` gives another track."""
+        others = meas.asg.copy()
+        others[rows] = -1
         again = _Measurements.empty(len(self._t), self._C)
         again.asg[rows] = asg
-        self._measure(fr, crowded, again)
+        self._measure(replace(fr, valid=fr.valid & ~_taken(others, fr.valid.shape)), crowded, again)
         again.keep(np.isin(np.arange(len(self._t)), rows))
-        meas.put(rows, again)
+        return again
 
     def _one_marker_one_track(self, fr: _Frame, crowded: np.ndarray, meas: _Measurements) -> None:
         """Two tracks whose points are one marker (closer than ``n_sigma`` x their combined noise, at least
