@@ -182,11 +182,26 @@ class AttachedDistances:
         identity's steady neighbours among ``here_ident`` (h,), measured this frame at ``here_X`` (h, 3) m, at
         least two of them: ``misfit``, every such neighbour's distance to the point is off by more than
         ``tolerance_m``; ``fits``, most are not (a neighbour across a joint may have moved)."""
-        at, mean, usable = self.steady_here(ident, here_ident, here_X)
-        d = np.linalg.norm(points[:, None, :] - at, axis=2)
-        off = np.abs(d - mean) > self._tol
-        n_off, n_ok = (usable & off).sum(axis=1), (usable & ~off).sum(axis=1)
+        n_ok, n_off = self._tally(ident, points, here_ident, here_X)
         return (n_off >= 2) & (n_ok == 0), (n_ok >= 2) & (n_ok > n_off)
+
+    def agree_pairs(self, ident: np.ndarray, points: np.ndarray, here_ident: np.ndarray, here_X: np.ndarray
+                    ) -> np.ndarray:
+        """(L, T) bool: the distances of point ``points[l]`` (L, 3) m to the steady neighbours of identity
+        ``ident[t]`` (T,) measured this frame (among ``here_ident`` (h,) at ``here_X`` (h, 3) m) hold, one of them
+        at least and none off (weaker than :meth:`judge`'s ``fits``: one neighbour is evidence)."""
+        L, T = len(points), len(ident)
+        n_ok, n_off = self._tally(np.tile(ident, L), np.repeat(points, T, axis=0), here_ident, here_X)
+        return ((n_ok >= 1) & (n_off == 0)).reshape(L, T)
+
+    def _tally(self, ident: np.ndarray, points: np.ndarray, here_ident: np.ndarray, here_X: np.ndarray
+               ) -> tuple[np.ndarray, np.ndarray]:
+        """(n,) int twice, for point ``points[i]`` (n, 3) m and identity ``ident[i]`` (n,): how many of the
+        identity's steady neighbours measured this frame hold their distance to it, and how many are off by more
+        than ``tolerance_m``."""
+        at, mean, usable = self.steady_here(ident, here_ident, here_X)
+        off = np.abs(np.linalg.norm(points[:, None, :] - at, axis=2) - mean) > self._tol
+        return (usable & ~off).sum(axis=1), (usable & off).sum(axis=1)
 
     def steady_here(self, ident: np.ndarray, here_ident: np.ndarray, here_X: np.ndarray
                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

@@ -204,6 +204,11 @@ class TrackerConfig:
             the kept point's distance from the prediction, and the kept point is a hop (over ``hop_acc_m`` off
             it; see ``_nearer_rival``); 0: off. The triangulation's
             consensus takes the group with most views, which a fast swing's widened gates fill with a neighbour's.
+        silent_yield: a new point that a lost identity's search radius holds and whose distance to one of that
+            identity's steady neighbours measured this frame holds (none off) may not go to a lost identity with no
+            steady neighbour measured (see ``_silent_yield``): the nearer last place of an identity nothing speaks
+            for does not outweigh a neighbour's distance (a heel marker back after a step took the identity of a toe
+            marker lost 117 frames before; its own was 364 mm off, its distance to the toe held to 1 mm).
     """
 
     confirm_frames: int = 4
@@ -266,6 +271,7 @@ class TrackerConfig:
     attached_tolerance_m: float = 0.01
     attached_steady_s: float = 0.1
     rival_ratio: float = 0.25
+    silent_yield: bool = True
 
     def __post_init__(self) -> None:
         for name in ("confirm_frames", "new_min_views"):
@@ -1386,10 +1392,26 @@ class Tracker:
             if self._cfg.attached_check and self._cfg.carry_lost:
                 carried, X = self._carried(lost)
                 predicted, last = np.where(carried[:, None], X, predicted), X
-            match = reidentify(pts.X[rest], predicted, self._radius3(lost), last,
-                               self._attached_allow(pts.X[rest], lost))
+            allowed = self._attached_allow(pts.X[rest], lost)
+            if self._cfg.attached_check and self._cfg.silent_yield:
+                allowed = self._silent_yield(pts.X[rest], lost, predicted, last, allowed)
+            match = reidentify(pts.X[rest], predicted, self._radius3(lost), last, allowed)
             cand = np.where(match >= 0, t.ident[lost[np.maximum(match, 0)]], -1)
         self._start(fr, pts.subset(rest), cand, meas)
+
+    def _silent_yield(self, points: np.ndarray, lost: np.ndarray, predicted: np.ndarray, last: np.ndarray,
+                      allowed: np.ndarray | None) -> np.ndarray:
+        """(L, T) bool: ``allowed`` (None: all) less the pairs where a lost identity of ``lost`` (T,) has no steady
+        neighbour measured this frame and another whose search radius (from ``predicted`` or ``last`` (T, 3) m)
+        holds the point ``points`` (L, 3) m has one whose distance to it holds, and none off
+        (``silent_yield``)."""
+        t = self._t
+        here = ((t.ident >= 0) & (t.since == 0)).nonzero()[0]
+        agree = self._attached.agree_pairs(t.ident[lost], points, t.ident[here], t.last_X[here])
+        agree &= distance_to_lost(points, predicted, last) < self._radius3(lost)[None]
+        silent = ~self._attached.steady_here(t.ident[lost], t.ident[here], t.last_X[here])[2].any(axis=1)
+        keep = ~(agree.any(axis=1)[:, None] & silent[None, :])
+        return keep if allowed is None else allowed & keep
 
     def _carried(self, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Where the unmeasured confirmed tracks ``rows`` (n,) are if they moved rigidly with the steady neighbours

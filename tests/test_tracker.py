@@ -864,7 +864,9 @@ def test_a_marker_back_from_a_gap_in_a_speeding_swing_is_found_where_its_neighbo
     from frame 5 on (its identity lost, its search radius at its widest) and D, 40 mm from A, in frames 60-71. D
     comes back off its own extrapolation and last place, nearer (for its radius) to A's lost identity. Where the
     three markers D had as steady neighbours when last seen carried it, it is a few millimetres off: D's identity
-    takes it back. From its extrapolation and last place alone (``carry_lost`` off) A's does."""
+    takes it back. From its extrapolation and last place alone (``carry_lost`` off) A's does, unless A's identity,
+    which has no steady neighbour (seen for 5 frames only), yields it to D's, whose neighbours' distances hold
+    (``silent_yield``, off here)."""
     F, fps = 120, 120.0
     t = np.arange(F) / fps
     angle = 0.5 * t + 4.0 * np.clip(t - 50 / fps, 0, None) ** 2
@@ -872,7 +874,8 @@ def test_a_marker_back_from_a_gap_in_a_speeding_swing_is_found_where_its_neighbo
     hidden[5:, :, 0] = True
     hidden[60:72, :, 3] = True
     take = _segment_take("carry", angle, fps, hidden)
-    report = evaluate(_run(Tracker(take.rig, fps, TrackerConfig(carry_lost=carry)), take)[0], take.truth)
+    config = TrackerConfig(carry_lost=carry, silent_yield=False)
+    report = evaluate(_run(Tracker(take.rig, fps, config), take)[0], take.truth)
     if carry:
         assert report.switches == 0 and report.idf1 > 0.99
     else:
@@ -923,3 +926,29 @@ def test_a_track_seen_by_three_cameras_keeps_its_marker_when_its_wide_gates_fill
         assert report.switches == 0 and report.idf1 > 0.99 and report.completeness > 0.99
     else:
         assert report.switches == 1 and report.idf1 < 0.7
+
+
+@pytest.mark.parametrize("rule", [True, False])
+def test_a_returning_marker_is_left_to_the_lost_identity_its_neighbour_vouches_for(rule):
+    """The two players' foot (seed 61, frame 411): A, 0.15 m from its neighbour N on one rigid body, is hidden for 40
+    frames while the body moves 0.3 m; B, a lone marker circling on its own (no distance to it holds: no steady
+    neighbour), was lost where A comes back. Both lost identities' radii hold A's return, and B's last place is the
+    nearer. A's distance to N holds, while B has no steady neighbour to speak for it: B's identity may not take the
+    point (``silent_yield``), A's does. Without the rule B's identity takes A."""
+    F, fps = 120, 100.0
+    t = np.arange(F) / fps
+    wobble = 0.05 * np.stack([np.sin(12 * t), np.cos(12 * t), np.zeros(F)], axis=1)
+    shift = np.clip((np.arange(F) - 40) / 20.0, 0, 1)[:, None] * [0.3, 0.0, 0.0]
+    n = np.array([-0.2, 0.0, 1.0]) + shift + wobble
+    b = np.array([0.25, 0.0, 1.0]) + 0.05 * np.stack([np.cos(12 * t), np.sin(12 * t), np.zeros(F)], axis=1)
+    pos = np.stack([n, n + [0.15, 0.0, 0.0], b], axis=1)
+    hidden = np.zeros((F, 6, 3), dtype=bool)
+    hidden[30:70, :, 1] = True
+    hidden[30:, :, 2] = True
+    take = simulate("silent", ring_rig(seed=3), scripted_motion(pos, fps), SynthSettings(seed=3, ghosts=0,
+                    dropout_rate=0.0), hidden=hidden, seed=3)
+    report = evaluate(_run(Tracker(take.rig, fps, TrackerConfig(silent_yield=rule)), take)[0], take.truth)
+    if rule:
+        assert report.switches == 0 and report.idf1 > 0.99
+    else:
+        assert report.switches == 1 and report.idf1 < 0.8
