@@ -209,6 +209,13 @@ class TrackerConfig:
             steady neighbour measured (see ``_silent_yield``): the nearer last place of an identity nothing speaks
             for does not outweigh a neighbour's distance (a heel marker back after a step took the identity of a toe
             marker lost 117 frames before; its own was 364 mm off, its distance to the toe held to 1 mm).
+        refuted_wide_m: a lost identity whose search radius has grown to this (m) or wider may not take a new point
+            that its steady neighbours measured this frame all refute (two or more; see ``attached_check``), even
+            where no other identity claims it: the point starts an identity of its own. After a long gap the
+            radius (up to ``reid_max_m``) holds any marker nearby, and the distance alone says little (a 50 Hz
+            serve's left-finger identity, lost 13 frames, took the tibia's return, which its hand's markers refute);
+            0: off. (With no floor on the radius the 120 Hz sprint's forearm, whose glimpsed markers refute each
+            other's identities in turn, lost 0.03 IDF1.)
     """
 
     confirm_frames: int = 4
@@ -272,6 +279,7 @@ class TrackerConfig:
     attached_steady_s: float = 0.1
     rival_ratio: float = 0.25
     silent_yield: bool = True
+    refuted_wide_m: float = 0.25
 
     def __post_init__(self) -> None:
         for name in ("confirm_frames", "new_min_views"):
@@ -285,6 +293,8 @@ class TrackerConfig:
             raise MocapError(f"tracker setting accel_damping = {self.accel_damping} must be in [0, 1]")
         if not 0 < self.error_alpha <= 1:
             raise MocapError(f"tracker setting error_alpha = {self.error_alpha} must be in (0, 1]")
+        if self.refuted_wide_m < 0:
+            raise MocapError(f"tracker setting refuted_wide_m = {self.refuted_wide_m} must be >= 0")
         if not 0 <= self.rival_ratio < 1:
             raise MocapError(f"tracker setting rival_ratio = {self.rival_ratio} must be in [0, 1)")
 
@@ -1393,11 +1403,23 @@ class Tracker:
                 carried, X = self._carried(lost)
                 predicted, last = np.where(carried[:, None], X, predicted), X
             allowed = self._attached_allow(pts.X[rest], lost)
+            if self._cfg.attached_check and self._cfg.refuted_wide_m > 0:
+                refuted = self._refuted_wide(pts.X[rest], lost)
+                allowed = ~refuted if allowed is None else allowed & ~refuted
             if self._cfg.attached_check and self._cfg.silent_yield:
                 allowed = self._silent_yield(pts.X[rest], lost, predicted, last, allowed)
             match = reidentify(pts.X[rest], predicted, self._radius3(lost), last, allowed)
             cand = np.where(match >= 0, t.ident[lost[np.maximum(match, 0)]], -1)
         self._start(fr, pts.subset(rest), cand, meas)
+
+    def _refuted_wide(self, points: np.ndarray, lost: np.ndarray) -> np.ndarray:
+        """(L, T) bool: the pairs of ``points`` (L, 3) m and lost identities ``lost`` (T,) whose search radius is
+        ``refuted_wide_m`` or wider and whose steady neighbours measured this frame all refute the point (two or
+        more, see :meth:`AttachedDistances.judge`)."""
+        t = self._t
+        here = ((t.ident >= 0) & (t.since == 0)).nonzero()[0]
+        misfit, _ = self._attached.judge_pairs(t.ident[lost], points, t.ident[here], t.last_X[here])
+        return misfit & (self._radius3(lost) >= self._cfg.refuted_wide_m)[None, :]
 
     def _silent_yield(self, points: np.ndarray, lost: np.ndarray, predicted: np.ndarray, last: np.ndarray,
                       allowed: np.ndarray | None) -> np.ndarray:

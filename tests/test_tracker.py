@@ -952,3 +952,28 @@ def test_a_returning_marker_is_left_to_the_lost_identity_its_neighbour_vouches_f
         assert report.switches == 0 and report.idf1 > 0.99
     else:
         assert report.switches == 1 and report.idf1 < 0.8
+
+
+@pytest.mark.parametrize("rule", [True, False])
+def test_a_new_marker_that_a_lost_identitys_neighbours_refute_starts_its_own(rule):
+    """The serve's left hand at 50 Hz (fresh seed 66, frame 232): A, on one body with N1 and N2 that swings 0.08 m
+    around, is hidden for 30 frames and its identity's search radius grows wide; X, a marker never seen before,
+    comes into view about 0.25 m from A, inside that radius. X's distances to N1 and N2 are off A's by far: A's identity may not
+    take it (``refuted_wide_m``), X starts its own, and A gets its identity back when it returns. Without the rule
+    A's identity takes X."""
+    F, fps = 120, 50.0
+    t = np.arange(F) / fps
+    base = np.array([0.0, 0.0, 1.0]) + 0.08 * np.stack([np.sin(9 * t), np.cos(9 * t), np.zeros(F)], axis=1)
+    x = np.broadcast_to(np.array([0.05, 0.1, 1.25]), (F, 3))
+    pos = np.stack([base, base + [0.12, 0.0, 0.0], base + [0.05, 0.1, 0.0], x], axis=1)
+    hidden = np.zeros((F, 6, 4), dtype=bool)
+    hidden[40:70, :, 2] = True
+    hidden[:55, :, 3] = True
+    take = simulate("refuted", ring_rig(seed=3), scripted_motion(pos, fps), SynthSettings(seed=3, ghosts=0,
+                    dropout_rate=0.0), hidden=hidden, seed=3)
+    config = TrackerConfig(refuted_wide_m=0.25 if rule else 0.0)
+    report = evaluate(_run(Tracker(take.rig, fps, config), take)[0], take.truth)
+    if rule:
+        assert report.switches == 0 and report.idf1 > 0.99
+    else:
+        assert report.switches == 1 and report.idf1 < 0.92
