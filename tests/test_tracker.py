@@ -958,9 +958,9 @@ def test_a_returning_marker_is_left_to_the_lost_identity_its_neighbour_vouches_f
 def test_a_new_marker_that_a_lost_identitys_neighbours_refute_starts_its_own(rule):
     """The serve's left hand at 50 Hz (fresh seed 66, frame 232): A, on one body with N1 and N2 that swings 0.08 m
     around, is hidden for 30 frames and its identity's search radius grows wide; X, a marker never seen before,
-    comes into view about 0.25 m from A, inside that radius. X's distances to N1 and N2 are off A's by far: A's identity may not
-    take it (``refuted_wide_m``), X starts its own, and A gets its identity back when it returns. Without the rule
-    A's identity takes X."""
+    comes into view about 0.25 m from A, inside that radius. X's distances to N1 and N2 are off A's by far: A's
+    identity may not take it (``refuted_wide_m``), X starts its own, and A gets its identity back when it returns.
+    Without the rule A's identity takes X."""
     F, fps = 120, 50.0
     t = np.arange(F) / fps
     base = np.array([0.0, 0.0, 1.0]) + 0.08 * np.stack([np.sin(9 * t), np.cos(9 * t), np.zeros(F)], axis=1)
