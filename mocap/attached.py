@@ -24,7 +24,7 @@ import numpy as np
 
 from mocap import kernels
 
-__all__ = ["AttachedDistances"]
+__all__ = ["AttachedDistances", "verdicts"]
 
 _WIDE_M = 0.02  # neighbours that carry an identity span at least this (RMS) across their main line, m
 
@@ -182,17 +182,16 @@ class AttachedDistances:
         identity's steady neighbours among ``here_ident`` (h,), measured this frame at ``here_X`` (h, 3) m, at
         least two of them: ``misfit``, every such neighbour's distance to the point is off by more than
         ``tolerance_m``; ``fits``, most are not (a neighbour across a joint may have moved)."""
-        n_ok, n_off = self._tally(ident, points, here_ident, here_X)
-        return (n_off >= 2) & (n_ok == 0), (n_ok >= 2) & (n_ok > n_off)
+        return verdicts(*self._tally(ident, points, here_ident, here_X))
 
-    def agree_pairs(self, ident: np.ndarray, points: np.ndarray, here_ident: np.ndarray, here_X: np.ndarray
-                    ) -> np.ndarray:
-        """(L, T) bool: the distances of point ``points[l]`` (L, 3) m to the steady neighbours of identity
-        ``ident[t]`` (T,) measured this frame (among ``here_ident`` (h,) at ``here_X`` (h, 3) m) hold, one of them
-        at least and none off (weaker than :meth:`judge`'s ``fits``: one neighbour is evidence)."""
+    def tally_pairs(self, ident: np.ndarray, points: np.ndarray, here_ident: np.ndarray, here_X: np.ndarray
+                    ) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`_tally` for every point of ``points`` (L, 3) m offered to every identity of ``ident`` (T,): how many
+        of the identity's steady neighbours measured this frame (among ``here_ident`` (h,) at ``here_X`` (h, 3) m)
+        hold their distance to the point, and how many are off, (L, T) int each."""
         L, T = len(points), len(ident)
         n_ok, n_off = self._tally(np.tile(ident, L), np.repeat(points, T, axis=0), here_ident, here_X)
-        return ((n_ok >= 1) & (n_off == 0)).reshape(L, T)
+        return n_ok.reshape(L, T), n_off.reshape(L, T)
 
     def _tally(self, ident: np.ndarray, points: np.ndarray, here_ident: np.ndarray, here_X: np.ndarray
                ) -> tuple[np.ndarray, np.ndarray]:
@@ -225,9 +224,7 @@ class AttachedDistances:
                     ) -> tuple[np.ndarray, np.ndarray]:
         """:meth:`judge` for every point of ``points`` (L, 3) m offered to every identity of ``ident`` (T,):
         ``misfit`` and ``fits``, (L, T) bool each."""
-        L, T = len(points), len(ident)
-        misfit, fits = self.judge(np.tile(ident, L), np.repeat(points, T, axis=0), here_ident, here_X)
-        return misfit.reshape(L, T), fits.reshape(L, T)
+        return verdicts(*self.tally_pairs(ident, points, here_ident, here_X))
 
     def turns(self, ident: np.ndarray, before_ident: np.ndarray, before_X: np.ndarray, here_ident: np.ndarray,
               here_X: np.ndarray, min_neighbours: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
@@ -240,6 +237,12 @@ class AttachedDistances:
         at, _, usable = self.steady_here(ident, here_ident, here_X)
         was, _, usable_before = self.steady_here(ident, before_ident, before_X)
         return _rigid_turns(was, at, usable & usable_before, min_neighbours, self._tol)
+
+
+def verdicts(n_ok: np.ndarray, n_off: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """:meth:`AttachedDistances.judge`'s ``misfit`` and ``fits`` from the counts of steady neighbours whose
+    distance holds (``n_ok``) and is off (``n_off``), any shape."""
+    return (n_off >= 2) & (n_ok == 0), (n_ok >= 2) & (n_ok > n_off)
 
 
 def _rows_in(neighbours: np.ndarray, here_ident: np.ndarray) -> np.ndarray:

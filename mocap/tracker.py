@@ -49,7 +49,7 @@ import numpy as np
 from scipy.optimize import linear_sum_assignment
 
 from mocap import kernels
-from mocap.attached import AttachedDistances
+from mocap.attached import AttachedDistances, verdicts
 from mocap.camera import Lenses, Rig
 from mocap.detect import MIN_SHAPE_AREA
 from mocap.detections import MIN_CENTROID_STD_PX, Detections, floored_covariance
@@ -206,7 +206,7 @@ class TrackerConfig:
             consensus takes the group with most views, which a fast swing's widened gates fill with a neighbour's.
         silent_yield: a new point that a lost identity's search radius holds and whose distance to one of that
             identity's steady neighbours measured this frame holds (none off) may not go to a lost identity with no
-            steady neighbour measured (see ``_silent_yield``): the nearer last place of an identity nothing speaks
+            steady neighbour measured (see ``_attached_allow``): the nearer last place of an identity nothing speaks
             for does not outweigh a neighbour's distance (a heel marker back after a step took the identity of a toe
             marker lost 117 frames before; its own was 364 mm off, its distance to the toe held to 1 mm).
         refuted_wide_m: a lost identity whose search radius has grown to this (m) or wider may not take a new point
@@ -880,19 +880,33 @@ class Tracker:
         _, fits = self._attached.judge_pairs(t.ident[lost], points, here_ident, here_X)
         return (fits & inside).any(axis=1)
 
-    def _attached_allow(self, points: np.ndarray, tracks: np.ndarray) -> np.ndarray | None:
+    def _attached_allow(self, points: np.ndarray, tracks: np.ndarray,
+                        lost_at: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None) -> np.ndarray | None:
         """(L, T) bool: which of the ``tracks`` (T,) may take which of the ``points`` (L, 3) m: a pair the track's
         identity's attached distances refute only where a lost identity fits the point (see
-        :meth:`_claimed_by_lost`; None: all, ``attached_check`` off)."""
-        t = self._t
-        if not self._cfg.attached_check or points.size == 0 or tracks.size == 0:
+        :meth:`_claimed_by_lost`; None: all, ``attached_check`` off). ``lost_at``: for lost identities being
+        re-identified, where their search radius is measured from (predictions and last places (T, 3) m) and the
+        radius (T,) m: a refuted pair is refused whoever claims the point where that radius is ``refuted_wide_m`` or
+        wider, and an identity with no steady neighbour measured may not take a point whose distance to a measured
+        steady neighbour of another one whose radius holds it holds, none off (``silent_yield``)."""
+        t, cfg = self._t, self._cfg
+        if not cfg.attached_check or points.size == 0 or tracks.size == 0:
             return None
         here = ((t.ident >= 0) & (t.since == 0)).nonzero()[0]
-        misfit, _ = self._attached.judge_pairs(t.ident[tracks], points, t.ident[here], t.last_X[here])
-        if not misfit.any():
-            return None
-        claimed = self._claimed_by_lost(points, t.ident[here], t.last_X[here], t.since >= 1)
-        return ~misfit | ~claimed[:, None]
+        n_ok, n_off = self._attached.tally_pairs(t.ident[tracks], points, t.ident[here], t.last_X[here])
+        misfit, _ = verdicts(n_ok, n_off)
+        refuse = misfit.copy()
+        if refuse.any():
+            refuse &= self._claimed_by_lost(points, t.ident[here], t.last_X[here], t.since >= 1)[:, None]
+        if lost_at is not None:
+            predicted, last, radius = lost_at
+            if cfg.refuted_wide_m > 0:
+                refuse |= misfit & (radius >= cfg.refuted_wide_m)[None, :]
+            if cfg.silent_yield:
+                vouched = (n_ok >= 1) & (n_off == 0) & (distance_to_lost(points, predicted, last) < radius[None])
+                silent = (n_ok + n_off == 0).all(axis=0)  # (T,) no steady neighbour measured
+                refuse |= vouched.any(axis=1)[:, None] & silent[None, :]
+        return ~refuse if refuse.any() else None
 
     def _measure_again(self, fr: _Frame, crowded: np.ndarray, meas: _Measurements, rows: np.ndarray,
                        asg: np.ndarray) -> None:
@@ -1402,38 +1416,11 @@ class Tracker:
             if self._cfg.attached_check and self._cfg.carry_lost:
                 carried, X = self._carried(lost)
                 predicted, last = np.where(carried[:, None], X, predicted), X
-            allowed = self._attached_allow(pts.X[rest], lost)
-            if self._cfg.attached_check and self._cfg.refuted_wide_m > 0:
-                refuted = self._refuted_wide(pts.X[rest], lost)
-                allowed = ~refuted if allowed is None else allowed & ~refuted
-            if self._cfg.attached_check and self._cfg.silent_yield:
-                allowed = self._silent_yield(pts.X[rest], lost, predicted, last, allowed)
-            match = reidentify(pts.X[rest], predicted, self._radius3(lost), last, allowed)
+            radius = self._radius3(lost)
+            match = reidentify(pts.X[rest], predicted, radius, last,
+                               self._attached_allow(pts.X[rest], lost, (predicted, last, radius)))
             cand = np.where(match >= 0, t.ident[lost[np.maximum(match, 0)]], -1)
         self._start(fr, pts.subset(rest), cand, meas)
-
-    def _refuted_wide(self, points: np.ndarray, lost: np.ndarray) -> np.ndarray:
-        """(L, T) bool: the pairs of ``points`` (L, 3) m and lost identities ``lost`` (T,) whose search radius is
-        ``refuted_wide_m`` or wider and whose steady neighbours measured this frame all refute the point (two or
-        more, see :meth:`AttachedDistances.judge`)."""
-        t = self._t
-        here = ((t.ident >= 0) & (t.since == 0)).nonzero()[0]
-        misfit, _ = self._attached.judge_pairs(t.ident[lost], points, t.ident[here], t.last_X[here])
-        return misfit & (self._radius3(lost) >= self._cfg.refuted_wide_m)[None, :]
-
-    def _silent_yield(self, points: np.ndarray, lost: np.ndarray, predicted: np.ndarray, last: np.ndarray,
-                      allowed: np.ndarray | None) -> np.ndarray:
-        """(L, T) bool: ``allowed`` (None: all) less the pairs where a lost identity of ``lost`` (T,) has no steady
-        neighbour measured this frame and another whose search radius (from ``predicted`` or ``last`` (T, 3) m)
-        holds the point ``points`` (L, 3) m has one whose distance to it holds, and none off
-        (``silent_yield``)."""
-        t = self._t
-        here = ((t.ident >= 0) & (t.since == 0)).nonzero()[0]
-        agree = self._attached.agree_pairs(t.ident[lost], points, t.ident[here], t.last_X[here])
-        agree &= distance_to_lost(points, predicted, last) < self._radius3(lost)[None]
-        silent = ~self._attached.steady_here(t.ident[lost], t.ident[here], t.last_X[here])[2].any(axis=1)
-        keep = ~(agree.any(axis=1)[:, None] & silent[None, :])
-        return keep if allowed is None else allowed & keep
 
     def _carried(self, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Where the unmeasured confirmed tracks ``rows`` (n,) are if they moved rigidly with the steady neighbours

@@ -682,6 +682,13 @@ def test_a_marker_whose_blobs_two_tracks_split_stays_with_the_track_that_followe
     assert old[split_at].sum() == 2  # for contrast: both identities output B at that frame
 
 
+def _scene_take(name: str, pos: np.ndarray, fps: float, hidden: np.ndarray, n_cameras: int = 6):
+    """Centroids of the markers at ``pos`` (F, M, 3) m, ``hidden`` (F, n_cameras, M) from the cameras of a ring (seed
+    3; no ghosts or dropouts)."""
+    return simulate(name, ring_rig(n_cameras=n_cameras, seed=3), scripted_motion(pos, fps), SynthSettings(
+                    seed=3, ghosts=0, dropout_rate=0.0), hidden=hidden, seed=3)
+
+
 @pytest.mark.parametrize("rule", [True, False])
 def test_a_marker_vanishing_as_its_lost_neighbour_reappears_leaves_the_neighbour_its_identity(rule):
     """The sprint's forearm: marker B, 40 mm from A, is hidden for 6 frames (its identity lost); in the frame A
@@ -695,8 +702,7 @@ def test_a_marker_vanishing_as_its_lost_neighbour_reappears_leaves_the_neighbour
     hidden = np.zeros((F, 6, 2), dtype=bool)
     hidden[60:66, :, 1] = True
     hidden[66:, :, 0] = True
-    take = simulate("yield", ring_rig(seed=3), scripted_motion(pos, fps), SynthSettings(seed=3, ghosts=0,
-                    dropout_rate=0.0), hidden=hidden, seed=3)
+    take = _scene_take("yield", pos, fps, hidden)
     traj = _run(Tracker(take.rig, fps, TrackerConfig(gate_floor_px=10.0, yield_outside_gate=rule)), take)[0]
     report = evaluate(traj, take.truth)
     if rule:
@@ -719,8 +725,7 @@ def test_a_neighbour_reappearing_where_a_marker_vanished_is_refuted_by_the_attac
     hidden = np.zeros((F, 6, 4), dtype=bool)
     hidden[60:66, :, 3] = True
     hidden[66:, :, 0] = True
-    take = simulate("attached", ring_rig(seed=3), scripted_motion(pos, fps), SynthSettings(seed=3, ghosts=0,
-                    dropout_rate=0.0), hidden=hidden, seed=3)
+    take = _scene_take("attached", pos, fps, hidden)
     config = TrackerConfig(gate_floor_px=10.0, gate_floor_m=0.05, yield_outside_gate=False, attached_check=check)
     report = evaluate(_run(Tracker(take.rig, fps, config), take)[0], take.truth)
     if check:
@@ -854,8 +859,7 @@ def _segment_take(name: str, angle: np.ndarray, fps: float, hidden: np.ndarray):
     x, y = 0.4 + offsets[:, 0], offsets[:, 1]
     c, s = np.cos(angle)[:, None], np.sin(angle)[:, None]
     pos = np.stack([c * x - s * y, s * x + c * y, np.broadcast_to(1.0 + offsets[:, 2], (len(angle), 5))], axis=2)
-    return simulate(name, ring_rig(seed=3), scripted_motion(pos, fps), SynthSettings(seed=3, ghosts=0,
-                    dropout_rate=0.0), hidden=hidden, seed=3)
+    return _scene_take(name, pos, fps, hidden)
 
 
 @pytest.mark.parametrize("carry", [True, False])
@@ -918,8 +922,7 @@ def test_a_track_seen_by_three_cameras_keeps_its_marker_when_its_wide_gates_fill
     hidden = np.zeros((F, 8, 2), dtype=bool)
     hidden[60:, [1, 2, 4, 5, 7], 0] = True
     hidden[:80, :, 1] = True
-    take = simulate("rival", ring_rig(n_cameras=8, seed=3), scripted_motion(pos, fps), SynthSettings(
-                    seed=3, ghosts=0, dropout_rate=0.0), hidden=hidden, seed=3)
+    take = _scene_take("rival", pos, fps, hidden, n_cameras=8)
     config = TrackerConfig(gate_floor_m=0.3, rival_ratio=ratio)
     report = evaluate(_run(Tracker(take.rig, fps, config), take)[0], take.truth)
     if ratio:
@@ -945,8 +948,7 @@ def test_a_returning_marker_is_left_to_the_lost_identity_its_neighbour_vouches_f
     hidden = np.zeros((F, 6, 3), dtype=bool)
     hidden[30:70, :, 1] = True
     hidden[30:, :, 2] = True
-    take = simulate("silent", ring_rig(seed=3), scripted_motion(pos, fps), SynthSettings(seed=3, ghosts=0,
-                    dropout_rate=0.0), hidden=hidden, seed=3)
+    take = _scene_take("silent", pos, fps, hidden)
     report = evaluate(_run(Tracker(take.rig, fps, TrackerConfig(silent_yield=rule)), take)[0], take.truth)
     if rule:
         assert report.switches == 0 and report.idf1 > 0.99
@@ -969,8 +971,7 @@ def test_a_new_marker_that_a_lost_identitys_neighbours_refute_starts_its_own(rul
     hidden = np.zeros((F, 6, 4), dtype=bool)
     hidden[40:70, :, 2] = True
     hidden[:55, :, 3] = True
-    take = simulate("refuted", ring_rig(seed=3), scripted_motion(pos, fps), SynthSettings(seed=3, ghosts=0,
-                    dropout_rate=0.0), hidden=hidden, seed=3)
+    take = _scene_take("refuted", pos, fps, hidden)
     config = TrackerConfig(refuted_wide_m=0.25 if rule else 0.0)
     report = evaluate(_run(Tracker(take.rig, fps, config), take)[0], take.truth)
     if rule:
