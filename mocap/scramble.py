@@ -42,8 +42,10 @@ jointly, by every distance of every marker involved at once.
    than the elbow's), where it does so by ``drift_gap_m`` over the next; else the one that moves the fewest
    identities (the tracker's choice stands where nothing tells). It is applied where it beats keeping the tails by
    ``margin_nats`` and, scored against the frames before ending ``recheck_s`` earlier, is still tied with the best
-   and no worse than keeping the tails (frames right before a burst can hold the recording's own garbled labels), and
-   where it moves no steady member: one seen from two frames before the burst to two after whose acceleration
+   and no worse than keeping the tails (frames right before a burst can hold the recording's own garbled labels;
+   where it is not, the earlier window's own choice is applied instead if the window before ties it with its best and
+   it beats keeping the tails there by ``margin_nats``: an identity that held another marker until a few frames
+   before the burst is told by the earlier window alone), and where it moves no steady member: one seen from two frames before the burst to two after whose acceleration
    changes by ``jump_acc`` at most from each sample to the next (it made no hop: an identity hopping onto a marker d
    away accelerates by d, then by -d, a change of 2d). Such an identity kept its marker through the burst, however
    fast (the serve's finger at the swing, 50 Hz, accelerates 110 mm/frame^2 against a threshold of 100, changing by
@@ -185,11 +187,8 @@ def unscramble_bursts(traj: Trajectories, jump_acc: float, config: ScrambleConfi
             if order is not None and first - recheck - window >= 0:  # the frames before must not be the only witness
                 earlier = _tables(P, ids, slice(max(0, first - recheck - span), first - recheck), now, seen, need, cfg,
                                   gap)
-                least = None if earlier is None else _least(earlier.costs, earlier.costs, np.inf, 1)
                 if earlier is not None:
-                    cost = earlier.cost(np.stack([np.arange(ids.size), order]))  # keeping the tails, the choice
-                    if least is None or cost[1] - least[0][0] >= cfg.tie_nats or cost[1] > cost[0]:
-                        order = None
+                    order = _rechecked(order, tables, earlier, cfg)
             break
         if order is not None and (order != np.arange(ids.size))[_steady(P, first, last, ids, jump_acc)].any():
             order = None  # (an identity that made no hop kept its marker)
@@ -453,6 +452,27 @@ def _choose(tables: _Tables, cfg: ScrambleConfig) -> np.ndarray | None:
     if np.array_equal(perm, keep) or cost[0] - cost[1] < cfg.margin_nats:
         return None
     return perm
+
+
+def _rechecked(order: np.ndarray, tables: _Tables, earlier: _Tables, cfg: ScrambleConfig) -> np.ndarray | None:
+    """The permutation (g,) to apply of a burst whose window before chose ``order`` (:func:`_choose` of ``tables``),
+    rechecked against the window ending ``recheck_s`` earlier (``earlier``): ``order`` where it is tied with the best
+    there and no worse than keeping the tails; else the earlier window's own choice where the window before ties it
+    with its best and it beats keeping the tails there by ``margin_nats`` (the two windows differ only on which of
+    the tied permutations to take: a member seen in the frames between them on another marker); else None."""
+    keep = np.arange(order.size)
+    least = _least(earlier.costs, earlier.costs, np.inf, 1)
+    if least is None:
+        return None
+    cost = earlier.cost(np.stack([keep, order]))
+    if cost[1] - least[0][0] < cfg.tie_nats and cost[1] <= cost[0]:
+        return order
+    other = _choose(earlier, cfg)
+    best = _least(tables.costs, tables.costs, np.inf, 1)
+    if other is None or best is None:
+        return None
+    cost = tables.cost(np.stack([keep, other]))
+    return other if cost[1] - best[0][0] < cfg.tie_nats and cost[0] - cost[1] >= cfg.margin_nats else None
 
 
 def _least(objective: tuple[np.ndarray, np.ndarray], cost: tuple[np.ndarray, np.ndarray], limit: float, count: int
