@@ -45,18 +45,18 @@ jointly, by every distance of every marker involved at once.
    and no worse than keeping the tails (frames right before a burst can hold the recording's own garbled labels;
    where it is not, the earlier window's own choice is applied instead if the window before ties it with its best and
    it beats keeping the tails there by ``margin_nats``: an identity that held another marker until a few frames
-   before the burst is told by the earlier window alone), and where it moves no steady member: one seen from two frames before the burst to two after whose acceleration
-   changes by ``jump_acc`` at most from each sample to the next (it made no hop: an identity hopping onto a marker d
-   away accelerates by d, then by -d, a change of 2d). Such an identity kept its marker through the burst, however
-   fast (the serve's finger at the swing, 50 Hz, accelerates 110 mm/frame^2 against a threshold of 100, changing by
-   72 at most: a reference exchanged just after its burst had swapped it with the wrist's identity; the serve's
-   5 %-hidden seed 41: a burst of seven with a newcomer and a leaver, whose best permutation shifted five arm
-   identities by one marker, the wrist's and the finger's among them, IDF1 0.9753). It is applied from
-   the frame of the burst that gives the tracks the smoothest paths through it. (A distance's drift is how far it
-   left its range, or changed from its median over the window.) Then each frame of the burst gives its samples of
-   the burst's identities to those whose paths through it (cubic Hermite curves from their last two samples before
-   it to their first two after) they lie nearest, where that makes the tracks smoother: the tracker's hops between
-   the first hop and the frame the tails were permuted from.
+   before the burst is told by the earlier window alone), and where it moves no steady member: one seen from two
+   frames before the burst to two after whose acceleration changes by ``jump_acc`` at most from each sample to the
+   next (it made no hop: an identity hopping onto a marker d away accelerates by d, then by -d, a change of 2d). Such
+   an identity kept its marker through the burst, however fast (the serve's finger at the swing, 50 Hz, accelerates
+   110 mm/frame^2 against a threshold of 100, changing by 72 at most: a reference exchanged just after its burst had
+   swapped it with the wrist's identity; the serve's 5 %-hidden seed 41: a burst of seven with a newcomer and a
+   leaver, whose best permutation shifted five arm identities by one marker, the wrist's and the finger's among them,
+   IDF1 0.9753). It is applied from the frame of the burst that gives the tracks the smoothest paths through it. (A
+   distance's drift is how far it left its range, or changed from its median over the window.) Then each frame of the
+   burst gives its samples of the burst's identities to those whose paths through it (cubic Hermite curves from their
+   last two samples before it to their first two after) they lie nearest, where that makes the tracks smoother: the
+   tracker's hops between the first hop and the frame the tails were permuted from.
 
 Steps 3 and 4 choose what scoring all g! permutations would, without trying them all: each choice (the least
 cost; the least drift among those near it, and the next; the fewest moves) is found by branch and bound, since a
