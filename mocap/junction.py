@@ -35,7 +35,9 @@ when every member's tail is mapped at once, the references among them included.
    whose last sample before it is within ``widen_s`` (or, with none, whose first after it), within ``near_m`` of a
    member seen in that frame, and drops the members whose windows have fewer than two references each;
    ``max_widened`` members at most. The windows then span the swing's bending, so no link is held to ``worst_fit``;
-   instead the best matching must also score at most ``ratio`` times every matching that makes other new links. The
+   instead the best matching must also score at most ``ratio`` times every matching that makes other new links, and
+   none of its new links may fit at the clip (no reference fits it one way: the serve's 5 %-hidden seed 62, where the
+   forearm's identity, ended at the follow-through by the hip, took the hip's marker back from a 1 s gap). The
    repair widens only at rates where a body's own accelerations reach the jump threshold
    (:meth:`mocap.relabel.RelabelConfig.hops_clear`: 50 Hz, not 100): there a swing hides an arm's markers in turn.
 
@@ -270,7 +272,7 @@ def _decide(prof: _Profiles, cfg: JunctionConfig, widened: bool = False) -> list
         return None
     if widened:
         others = [s[0] for s in scored if {link for link in s[3] if link[0] != link[1]} != new]
-        if others and best[0] > cfg.fit.ratio * min(others):
+        if (others and best[0] > cfg.fit.ratio * min(others)) or best[2] >= cfg.fit.clip:
             return None
     elif best[2] > cfg.worst_fit:
         return None

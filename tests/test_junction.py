@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import numpy as np
-from helpers_rigid import FRAMES, moving
+from helpers_rigid import FRAMES, PLATE, moving
 
 from mocap.junction import JunctionConfig, undo_junctions
 from mocap.trajectories import Trajectories
@@ -98,3 +98,20 @@ def test_a_junction_whose_markers_hid_in_turn_before_it_is_widened_to_their_iden
     np.testing.assert_array_equal(traj.positions[302:, :6], truth[302:])
     assert np.isnan(traj.positions[302:, 6:]).all()
     assert np.isfinite(traj.positions[..., 0]).sum() == samples  # no sample lost
+
+
+def test_a_widened_junction_makes_no_link_none_of_whose_references_fits():
+    """The serve's 5 %-hidden seed 62: the forearm's identity ended at the follow-through by the hip, and the hip's
+    marker, back 0.1 s later under its own identity, was the only identity the widened junction could join it to: the
+    forearm's identity took the hip's marker, every reference off by the clip. Here marker 0 is hidden for good from
+    frame 300 (markers 1 and 2 blink there), and a marker of another body 0.1 m beside comes back at 305: no link."""
+    hand = moving(HAND, np.random.default_rng(5), 0.0)
+    other = moving(PLATE + [0.1, 0.15, 0.0], np.random.default_rng(6), 0.1)  # (its own turn)
+    P = np.concatenate([hand, other], axis=1)
+    P[300:, 0] = np.nan
+    P[300:302, 1] = np.nan
+    P[301:303, 2] = np.nan
+    P[200:305, 6] = np.nan
+    traj = Trajectories([f"M{k + 1:03d}" for k in range(10)], 100.0, P.copy())
+    assert undo_junctions(traj, jump_acc=JUMP_ACC) == 0
+    np.testing.assert_array_equal(traj.positions, P)
