@@ -334,3 +334,26 @@ def test_a_skin_marker_whose_anchors_spread_a_few_millimetres_rejoins_after_a_lo
     traj = _columns(truth, pieces)
     assert rejoin_by_anchors(traj) == 1
     assert _holder(traj, truth, 3) == {3: 480}
+
+
+def test_the_samples_of_the_held_neighbour_in_the_frames_the_fragment_misses_move_out_with_the_others():
+    """The whole sprint at seed 1, ForearmL Marker3 and Marker4 (frames 1911-1959): X's identity holds Y from frame
+    153; X, back under a new identity in every other frame from 160 (hidden in between), is joined to it, and in
+    the shared frames X's sample replaces Y's, which moves out. Y's samples in the frames between, which X misses,
+    continue the moved-out ones (a frame away, nearer them than X's) and move out with them: X's identity no longer
+    alternates between X and Y (17 switches in that window of the sprint); where no anchor is seen (153-185) the
+    shared frames go with the nearest told one, as before."""
+    truth = _segment(FOREARM, seed=3)
+    traj = _columns(truth, [
+        [(A1, 0, 153), (A1, 186, F)], [(A2, 0, 153), (A2, 186, F)],
+        [(X, 0, 153), (Y, 153, 191), (X, 191, 300)],
+        [(Y, 150, 153)] + [(X, f, f + 1) for f in range(160, 191, 2)] + [(X, 500, 540)],
+        [(Y, 0, 150), (Y, 191, F)],
+    ])
+    before = np.isfinite(traj.positions[..., 0]).sum()
+    assert rejoin_by_anchors(traj, AnchorConfig(loose_spread_m=0.0)) == 1
+    on_x = np.linalg.norm(traj.positions[170:191, 2] - truth[170:191, Y], axis=1) < 1e-9
+    assert not on_x.any()  # (without the rule: Y in every odd frame 171-189)
+    spill = traj.positions[170:191, -1]
+    np.testing.assert_array_equal(spill[np.isfinite(spill[:, 0])], truth[170:191, Y][np.isfinite(spill[:, 0])])
+    assert np.isfinite(traj.positions[..., 0]).sum() == before
