@@ -261,7 +261,7 @@ def _continuing(P: np.ndarray, target: int, fragment: int, entered: np.ndarray, 
         return entered
     span = np.arange(entered[0], entered[-1] + 1)
     alone = span[np.isfinite(P[span, target, 0]) & np.isnan(P[span, fragment, 0])]
-    nearest = entered[np.abs(alone[:, None] - entered[None, :]).argmin(axis=1)] if alone.size else alone
+    nearest = entered[np.abs(alone[:, None] - entered[None, :]).argmin(axis=1)]  # (n,) the nearest replaced frame
     to_moved = np.linalg.norm(P[alone, target] - moved[nearest], axis=1)
     to_fragment = np.linalg.norm(P[alone, target] - P[nearest, target], axis=1)
     return alone[(np.abs(alone - nearest) <= cfg.follow_frames) & (to_moved < cfg.follow_ratio * to_fragment)]

@@ -23,6 +23,11 @@ def _run(tracker, take):
     return tracker.finish(), results
 
 
+def _tracked(take, fps: float, config: TrackerConfig | None = None):
+    """The evaluation of the tracker alone (``config``, or the defaults) run on ``take`` at ``fps``."""
+    return evaluate(_run(Tracker(take.rig, fps, config), take)[0], take.truth)
+
+
 def test_crossing_markers_keep_their_identities():
     """Paper 004: two markers crossing and occluding each other repeatedly are tracked correctly."""
     motion = scripted_motion(crossing_positions(300, 100.0, crossings=6, gap_m=0.016), 100.0)
@@ -49,8 +54,7 @@ def test_fast_swing_at_50_hz_keeps_identities():
     ours = evaluate(settled, take.truth)
     assert ours.switches == 0 and ours.output_tracks <= 10
     assert ours.idf1 > 0.99 and ours.completeness > 0.98
-    ca = evaluate(_run(Tracker(take.rig, 50.0, TrackerConfig(accel_damping=1.0, jerk_std_3d=200.0)), take)[0],
-                  take.truth)
+    ca = _tracked(take, 50.0, TrackerConfig(accel_damping=1.0, jerk_std_3d=200.0))
     assert ca.switches >= 20 and ca.idf1 < 0.9
 
 
@@ -130,9 +134,8 @@ def test_motion_blur_streaks_are_not_taken_for_merged_markers():
     flagged = np.mean([d.merged.mean() for dets in frames for d in dets if len(d)])
     # (without the carry by the neighbours' turn, which keeps the coasting markers near their predictions: taken
     # for merges, 0.96 complete with it)
-    streaks = evaluate(_run(Tracker(take.rig, 50.0, TrackerConfig(carry_m=0.0)), take)[0], take.truth)
-    merges = evaluate(_run(Tracker(take.rig, 50.0, TrackerConfig(smear_fraction=0.0, carry_m=0.0)), take)[0],
-                      take.truth)
+    streaks = _tracked(take, 50.0, TrackerConfig(carry_m=0.0))
+    merges = _tracked(take, 50.0, TrackerConfig(smear_fraction=0.0, carry_m=0.0))
     print(f"{flagged:.0%} of blobs flagged; completeness: streaks cleared {streaks.completeness:.4f}, "
           f"taken for merges {merges.completeness:.4f}")
     assert flagged > 0.1 and streaks.switches <= merges.switches
@@ -157,7 +160,7 @@ def test_lost_marker_is_reidentified_where_fixed_threshold_nearest_neighbour_fai
     pos, hidden = _circle_with_losses()
     take = simulate("reappear", ring_rig(seed=3), scripted_motion(pos, 100.0), SynthSettings(seed=3, ghosts=2),
                     hidden=hidden, seed=3)
-    ours = evaluate(_run(Tracker(take.rig, 100.0), take)[0], take.truth)
+    ours = _tracked(take, 100.0)
     assert ours.switches == 0 and ours.output_tracks == 2
     assert ours.completeness > 0.98 and ours.idf1 > 0.98
     baseline = evaluate(_run(ReferenceTracker(take.rig, 100.0), take)[0], take.truth)
@@ -178,9 +181,9 @@ def test_a_lone_marker_hidden_for_15_s_gets_its_identity_back():
     hidden[60:360, :, 0] = True
     take = simulate("lone", ring_rig(seed=4), scripted_motion(pos, fps), SynthSettings(seed=4, ghosts=0),
                     hidden=hidden, seed=4)
-    report = evaluate(_run(Tracker(take.rig, fps), take)[0], take.truth)
+    report = _tracked(take, fps)
     assert report.output_tracks == 2 and report.switches == 0
-    shorter = evaluate(_run(Tracker(take.rig, fps, TrackerConfig(keep_lost_s=10.0)), take)[0], take.truth)
+    shorter = _tracked(take, fps, TrackerConfig(keep_lost_s=10.0))
     assert shorter.output_tracks == 3 and shorter.switches == 1
 
 
@@ -277,9 +280,8 @@ def test_flat_blob_is_treated_as_merged(body):
             roundness[j] = 0.6
             dets[0] = Detections(xy, area, roundness, d.cov, d.merged)
     take = dataclasses.replace(body, frames=frames)
-    flagged = evaluate(_run(Tracker(take.rig, take.truth.fps), take)[0], take.truth).per_marker[0]
-    ignored = evaluate(_run(Tracker(take.rig, take.truth.fps, TrackerConfig(round_merged=0.0)), take)[0],
-                       take.truth).per_marker[0]
+    flagged = _tracked(take, take.truth.fps).per_marker[0]
+    ignored = _tracked(take, take.truth.fps, TrackerConfig(round_merged=0.0)).per_marker[0]
     print(f"marker RMSE: flat blob flagged {flagged.rmse_mm:.4f} mm, not flagged {ignored.rmse_mm:.4f} mm")
     assert flagged.rmse_mm < 0.6 * ignored.rmse_mm and flagged.completeness > 0.99
 
@@ -369,7 +371,7 @@ def test_many_flickering_reflections_make_no_markers():
     certain when the rig has more: it must move, or stand still next to markers that stand still too."""
     take = body_take(frames=150, fps=120.0, markers=40, seed=2, settings=SynthSettings(seed=2, ghosts=40,
                                                                                         ghost_blink=0.8))
-    report = evaluate(_run(Tracker(take.rig, take.truth.fps), take)[0], take.truth)
+    report = _tracked(take, take.truth.fps)
     assert report.ghosts == 0 and report.output_tracks == 40
     assert report.completeness > 0.99 and report.switches == 0
 
@@ -386,7 +388,7 @@ def test_degenerate_centroid_covariances_do_not_break_the_triangulation(body):
             cov[1::2] = 0.0
             dets[c] = Detections(d.xy, d.area, d.roundness, cov, d.merged)
     take = dataclasses.replace(body, frames=frames)
-    report = evaluate(_run(Tracker(take.rig, take.truth.fps), take)[0], take.truth)
+    report = _tracked(take, take.truth.fps)
     assert report.completeness > 0.99 and report.switches == 0 and report.ghosts == 0
     assert report.rmse_mm < 0.1
 
@@ -400,7 +402,7 @@ def test_four_camera_rig_keeps_two_view_markers_next_to_hidden_ones(seed):
     gets it back in the same frame (seed 3: 98.5 % without that)."""
     take = simulate("body4", ring_rig(n_cameras=4, seed=seed), marching_motion(240, 120.0, 40, seed),
                     SynthSettings(seed=seed), seed=seed)
-    report = evaluate(_run(Tracker(take.rig, 120.0), take)[0], take.truth)
+    report = _tracked(take, 120.0)
     assert report.completeness > 0.99 and report.rmse_mm < 0.1  # (seed 3: 1.68 x its CRLB, a few biased points)
     assert report.ghosts == 0 and report.switches == 0
 
@@ -727,7 +729,7 @@ def test_a_neighbour_reappearing_where_a_marker_vanished_is_refuted_by_the_attac
     hidden[66:, :, 0] = True
     take = _scene_take("attached", pos, fps, hidden)
     config = TrackerConfig(gate_floor_px=10.0, gate_floor_m=0.05, yield_outside_gate=False, attached_check=check)
-    report = evaluate(_run(Tracker(take.rig, fps, config), take)[0], take.truth)
+    report = _tracked(take, fps, config)
     if check:
         assert report.switches == 0 and report.idf1 > 0.97
     else:
@@ -879,7 +881,7 @@ def test_a_marker_back_from_a_gap_in_a_speeding_swing_is_found_where_its_neighbo
     hidden[60:72, :, 3] = True
     take = _segment_take("carry", angle, fps, hidden)
     config = TrackerConfig(carry_lost=carry, silent_yield=False)
-    report = evaluate(_run(Tracker(take.rig, fps, config), take)[0], take.truth)
+    report = _tracked(take, fps, config)
     if carry:
         assert report.switches == 0 and report.idf1 > 0.99
     else:
@@ -900,7 +902,7 @@ def test_a_marker_glimpsed_in_single_frames_of_a_fast_swing_is_found_where_its_n
     hidden[28:30, :, 3] = True
     hidden[31::2, :, 3] = True
     take = _segment_take("glimpses", angle, fps, hidden)
-    report = evaluate(_run(Tracker(take.rig, fps, TrackerConfig(carry_in_play=carry)), take)[0], take.truth)
+    report = _tracked(take, fps, TrackerConfig(carry_in_play=carry))
     if carry:
         assert report.switches == 0 and report.idf1 > 0.999 and report.completeness > 0.999
     else:
@@ -924,7 +926,7 @@ def test_a_track_seen_by_three_cameras_keeps_its_marker_when_its_wide_gates_fill
     hidden[:80, :, 1] = True
     take = _scene_take("rival", pos, fps, hidden, n_cameras=8)
     config = TrackerConfig(gate_floor_m=0.3, rival_ratio=ratio)
-    report = evaluate(_run(Tracker(take.rig, fps, config), take)[0], take.truth)
+    report = _tracked(take, fps, config)
     if ratio:
         assert report.switches == 0 and report.idf1 > 0.99 and report.completeness > 0.99
     else:
@@ -949,7 +951,7 @@ def test_a_returning_marker_is_left_to_the_lost_identity_its_neighbour_vouches_f
     hidden[30:70, :, 1] = True
     hidden[30:, :, 2] = True
     take = _scene_take("silent", pos, fps, hidden)
-    report = evaluate(_run(Tracker(take.rig, fps, TrackerConfig(silent_yield=rule)), take)[0], take.truth)
+    report = _tracked(take, fps, TrackerConfig(silent_yield=rule))
     if rule:
         assert report.switches == 0 and report.idf1 > 0.99
     else:
@@ -973,7 +975,7 @@ def test_a_new_marker_that_a_lost_identitys_neighbours_refute_starts_its_own(rul
     hidden[:55, :, 3] = True
     take = _scene_take("refuted", pos, fps, hidden)
     config = TrackerConfig(refuted_wide_m=0.25 if rule else 0.0)
-    report = evaluate(_run(Tracker(take.rig, fps, config), take)[0], take.truth)
+    report = _tracked(take, fps, config)
     if rule:
         assert report.switches == 0 and report.idf1 > 0.99
     else:
