@@ -1223,23 +1223,31 @@ class Tracker:
         joined halos), is one marker's, and is left to the agreement test. A blob a ``crowded`` (K, C) track holds
         that is flatter than ``round_crowded`` allows counts as merged too, its partner the crowding track: two
         markers under a pixel apart, which the shape flag misses."""
-        t = self._t
         one_clean = clean.sum(axis=1) == 1
         flat = (one_clean & (tri.used & crowded & self._flat(fr, asg)).any(axis=1)).nonzero()[0]
         merged_view = tri.used & _gather(fr.merged, asg)
         rows = (one_clean & merged_view.any(axis=1)).nonzero()[0]
         if rows.size == 0:
             return flat
+        return np.union1d(flat, rows[self._shared(fr, asg, rows, merged_view[rows])])
+
+    def _shared(self, fr: _Frame, asg: np.ndarray, rows: np.ndarray, views: np.ndarray) -> np.ndarray:
+        """(n,) bool: track ``rows[i]`` holds, in one of its ``views`` (n, C) bool (blobs ``asg[rows]``; ``asg``
+        (K, C) every track's this frame), a blob that another live track's predicted image lies in too (within a
+        marker's image diameter + ``merge_px``), that track holding no other blob there."""
+        t = self._t
         live = (t.since <= 1).nonzero()[0]
         proj, depth = project_ideal(self._P, t.x3[live, :3])  # (C, L, 2), (C, L)
-        r_i, cams = np.nonzero(merged_view[rows])
-        j = asg[rows[r_i], cams]  # (m,) the merged blobs
+        r_i, cams = np.nonzero(views)
+        j = asg[rows[r_i], cams]  # (m,) the blobs
         blob = fr.D[cams, j]  # (m, 2) px
         reach = self._merge_reach(self._focal[cams, None], depth[cams])  # (m, L)
         partner = (np.linalg.norm(proj[cams] - blob[:, None], axis=2) < reach) & (live[None] != rows[r_i, None])
         own = asg[live[None], cams[:, None]]  # (m, L) the partners' blobs there
         partner &= (own < 0) | (own == j[:, None])  # (a partner with a blob of its own: two blobs, not one merged)
-        return np.union1d(flat, rows[np.unique(r_i[partner.any(axis=1)])])
+        shared = np.zeros(len(rows), dtype=bool)
+        shared[r_i[partner.any(axis=1)]] = True
+        return shared
 
     def _flat(self, fr: _Frame, asg: np.ndarray) -> np.ndarray:
         """(K, C) bool: the blob each track holds (``asg`` (K, C)) is flatter than ``round_crowded`` x a sphere's
@@ -1419,10 +1427,17 @@ class Tracker:
         predicted, radius = self._search_again(missing)
         match = reidentify(pts.X, predicted, radius, allowed=self._attached_allow(pts.X, missing))
         got = (match >= 0).nonzero()[0]
-        clean = _clean_views(fr.merged, pts.det) >= 2
+        n_clean = _clean_views(fr.merged, pts.det)
+        clean = n_clean >= 2
         if got.size:
             rows = missing[match[got]]
-            meas.put(rows, _Measurements(np.ones(got.size, dtype=bool), clean[got], pts.X[got],
+            out = clean[got]
+            if self._cfg.withhold_merged_depth:  # two clean views, one a flat blob another track lies in
+                asg = meas.asg.copy()
+                asg[rows] = pts.det[got]
+                flat = self._flat(fr, asg)[rows] & ~_gather(fr.merged, asg[rows])
+                out &= ~((n_clean[got] == 2) & self._shared(fr, asg, rows, flat))
+            meas.put(rows, _Measurements(np.ones(got.size, dtype=bool), out, pts.X[got],
                                          pts.cov[got], pts.rms_px[got], pts.det[got]))
             self._update(fr, meas, rows)
         # 2) Tracks start only from points two clean cameras support: two blobs of merged markers (or a merged
