@@ -1224,7 +1224,10 @@ class Tracker:
         that is flatter than ``round_crowded`` allows counts as merged too, its partner the crowding track: two
         markers under a pixel apart, which the shape flag misses."""
         one_clean = clean.sum(axis=1) == 1
-        flat = (one_clean & (tri.used & crowded & self._flat(fr, asg)).any(axis=1)).nonzero()[0]
+        if not np.count_nonzero(one_clean):  # (most frames)
+            return np.zeros(0, dtype=np.intp)
+        k, c = np.nonzero(one_clean[:, None] & tri.used & crowded)
+        flat = np.unique(k[self._flat(fr, c, asg[k, c])]) if k.size else k
         merged_view = tri.used & _gather(fr.merged, asg)
         rows = (one_clean & merged_view.any(axis=1)).nonzero()[0]
         if rows.size == 0:
@@ -1249,15 +1252,11 @@ class Tracker:
         shared[r_i[partner.any(axis=1)]] = True
         return shared
 
-    def _flat(self, fr: _Frame, asg: np.ndarray) -> np.ndarray:
-        """(K, C) bool: the blob each track holds (``asg`` (K, C)) is flatter than ``round_crowded`` x a sphere's
-        image at its field angle."""
-        k, c = np.nonzero(asg >= 0)
-        j = asg[k, c]
-        ray = (fr.D[c, j] - self._centre[c]) / self._focal_xy[c]
-        flat = np.zeros(asg.shape, dtype=bool)
-        flat[k, c] = fr.roundness[c, j] < self._cfg.round_crowded / np.sqrt(1.0 + (ray * ray).sum(axis=1))
-        return flat
+    def _flat(self, fr: _Frame, cams: np.ndarray, blobs: np.ndarray) -> np.ndarray:
+        """(n,) bool: blob ``blobs[i]`` of camera ``cams[i]`` is flatter than ``round_crowded`` x a sphere's image at
+        its field angle."""
+        ray = (fr.D[cams, blobs] - self._centre[cams]) / self._focal_xy[cams]
+        return fr.roundness[cams, blobs] < self._cfg.round_crowded / np.sqrt(1.0 + (ray * ray).sum(axis=1))
 
     def _deblend(self, fr: _Frame, crowded: np.ndarray, asg: np.ndarray, tri: Triangulated) -> np.ndarray:
         """Two markers merged into one blob, one of them well measured elsewhere: the other's image is the blob's
@@ -1435,8 +1434,11 @@ class Tracker:
             if self._cfg.withhold_merged_depth:  # two clean views, one a flat blob another track lies in
                 asg = meas.asg.copy()
                 asg[rows] = pts.det[got]
-                flat = self._flat(fr, asg)[rows] & ~_gather(fr.merged, asg[rows])
-                out &= ~((n_clean[got] == 2) & self._shared(fr, asg, rows, flat))
+                r, c = np.nonzero(out[:, None] & (n_clean[got] == 2)[:, None] & (asg[rows] >= 0))
+                flat = np.zeros(asg[rows].shape, dtype=bool)
+                flat[r, c] = self._flat(fr, c, asg[rows[r], c]) & ~fr.merged[c, asg[rows[r], c]]
+                if np.count_nonzero(flat):
+                    out &= ~self._shared(fr, asg, rows, flat)
             meas.put(rows, _Measurements(np.ones(got.size, dtype=bool), out, pts.X[got],
                                          pts.cov[got], pts.rms_px[got], pts.det[got]))
             self._update(fr, meas, rows)
