@@ -133,12 +133,11 @@ class TrackerConfig:
             longer, behind the body, merges with nothing there).
         round_merged: a blob (of at least ``mocap.detect.MIN_SHAPE_AREA`` pixels) whose roundness is below this
             times cos(field angle), the roundness of a sphere's image there, is treated as merged.
-        round_crowded: a blob flatter than this times cos(field angle) that a ``crowded`` track holds (another track
-            predicted close enough to share it, holding none of its own) counts as merged for
-            ``withhold_merged_depth``: two markers under a pixel apart flatten their blob less than ``round_merged``
-            catches (0.73-0.92 as two leg markers merged in the whole walking, 5 % hidden, seed 71; 99 % of the lone
-            blobs there are 0.94 or rounder), and its centroid is up to half a pixel off. A marker seen alone beside
-            a hidden neighbour stays round.
+        round_crowded: a blob flatter than this times cos(field angle) that another track is predicted close enough to
+            share, holding none of its own, counts as merged for ``withhold_merged_depth``: two markers under a pixel
+            apart flatten their blob less than ``round_merged`` catches (0.73-0.92 as two leg markers merged in the
+            whole walking, 5 % hidden, seed 71; 99 % of the lone blobs there are 0.94 or rounder), and its centroid is
+            up to half a pixel off. A marker seen alone beside a hidden neighbour stays round.
         smear_fraction: a flat blob a track takes alone is a streak of motion blur, not a merge, when a smear over
             this fraction of the track's image motion per frame (a shutter open that long) explains its shape.
         merged_variance_scale: centroid variance multiplier of blobs flagged as merged (by the detector,
@@ -1234,6 +1233,20 @@ class Tracker:
             return flat
         return np.union1d(flat, rows[self._shared(fr, asg, rows, merged_view[rows])])
 
+    def _flat_and_shared(self, fr: _Frame, asg: np.ndarray, tracks: np.ndarray, views: np.ndarray) -> np.ndarray:
+        """Indices of the ``tracks`` (K,) bool one of whose ``views`` (K, C) bool holds a blob flatter than
+        ``round_crowded`` allows that another live track's image lies in too (:meth:`_shared`)."""
+        if not np.count_nonzero(fr.roundness < self._cfg.round_crowded):  # (cos(field angle) <= 1: none is flat)
+            return np.zeros(0, dtype=np.intp)
+        k, c = np.nonzero(tracks[:, None] & views)
+        flat = self._flat(fr, c, asg[k, c]) if k.size else np.zeros(0, dtype=bool)
+        if not np.count_nonzero(flat):  # (most frames)
+            return np.zeros(0, dtype=np.intp)
+        rows, first = np.unique(k[flat], return_inverse=True)
+        flat_views = np.zeros((rows.size, asg.shape[1]), dtype=bool)
+        flat_views[first, c[flat]] = True
+        return rows[self._shared(fr, asg, rows, flat_views)]
+
     def _shared(self, fr: _Frame, asg: np.ndarray, rows: np.ndarray, views: np.ndarray) -> np.ndarray:
         """(n,) bool: track ``rows[i]`` holds, in one of its ``views`` (n, C) bool (blobs ``asg[rows]``; ``asg``
         (K, C) every track's this frame), a blob that another live track's predicted image lies in too (within a
@@ -1434,11 +1447,9 @@ class Tracker:
             if self._cfg.withhold_merged_depth:  # two clean views, one a flat blob another track lies in
                 asg = meas.asg.copy()
                 asg[rows] = pts.det[got]
-                r, c = np.nonzero(out[:, None] & (n_clean[got] == 2)[:, None] & (asg[rows] >= 0))
-                flat = np.zeros(asg[rows].shape, dtype=bool)
-                flat[r, c] = self._flat(fr, c, asg[rows[r], c]) & ~fr.merged[c, asg[rows[r], c]]
-                if np.count_nonzero(flat):
-                    out &= ~self._shared(fr, asg, rows, flat)
+                two = np.zeros(len(asg), dtype=bool)
+                two[rows[n_clean[got] == 2]] = True
+                out &= ~np.isin(rows, self._flat_and_shared(fr, asg, two, (asg >= 0) & ~_gather(fr.merged, asg)))
             meas.put(rows, _Measurements(np.ones(got.size, dtype=bool), out, pts.X[got],
                                          pts.cov[got], pts.rms_px[got], pts.det[got]))
             self._update(fr, meas, rows)

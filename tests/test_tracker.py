@@ -516,12 +516,12 @@ def test_a_point_whose_depth_rests_on_a_blob_merged_with_a_neighbour_is_withheld
 
 
 def test_a_point_whose_depth_rests_on_a_slightly_flat_blob_a_neighbour_is_predicted_in_is_withheld(rig):
-    """As above, but camera 0's blob is only slightly flat (roundness 0.88: two markers under a pixel apart, which
-    the shape flag misses). Camera 0 sees B alone until frame 36, then the merged blob, then A alone from frame 46;
-    A is seen by camera 1 alone besides from frame 36. Its points in frames 36-45 rest on the merged blob's centroid
-    in B's company: withheld, where without ``round_crowded`` they were output millimetres off (the whole walking,
-    5 % hidden, seed 71: Leg_Marker3 3.6 mm off). Where camera 0 sees A alone (round) while B, just hidden there,
-    still counts as near, A's points are output: the shape is what tells a merge from a marker beside a hidden one."""
+    """As above, but camera 0's blob is only slightly flat (roundness 0.88: two markers under a pixel apart, which the
+    shape flag misses). Camera 0 sees B alone until frame 36, then the merged blob, then A alone from frame 46; A is
+    seen by camera 1 alone besides from frame 36. Its points in frames 36-45 rest on the merged blob's centroid in B's
+    company: withheld, where without ``round_crowded`` they were output millimetres off (the whole walking, 5 % hidden,
+    seed 71: Leg_Marker3 3.6 mm off). Where camera 0 sees A alone (round) while B, just hidden there, still counts as
+    near, A's points are output: the shape is what tells a merge from a marker beside a hidden one."""
     def a_points(round_crowded, **scene):
         frames, A, _ = _merged_pair_scene(rig, frames=80, a_weight=0.6, a_alone_from=36, roundness=0.88, **scene)
         tracker = Tracker(rig, 100.0, TrackerConfig(round_crowded=round_crowded))
