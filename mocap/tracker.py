@@ -779,6 +779,8 @@ class Tracker:
         and the kept point hops (lies over the hop acceleration off the prediction, see ``settle_hops``), the track
         takes the rival and the blobs it kept go free (see ``TrackerConfig.rival_ratio``)."""
         dropped = (assigned >= 0) & (meas.asg[conf] != assigned) & (meas.ok & (self._t.since == 1))[conf, None]
+        if not np.count_nonzero(dropped.sum(axis=1) >= 2):  # (most frames)
+            return
         dropped &= ~_taken(meas.asg, fr.valid.shape)[np.arange(self._C)[None, :], np.maximum(assigned, 0)]
         two = (dropped.sum(axis=1) >= 2).nonzero()[0]
         if two.size == 0:
