@@ -717,9 +717,8 @@ class Tracker:
                                         1.0)
             # A sphere's image is an ellipse of axis ratio cos(field angle); a blob much flatter than that is two
             # markers merged without a saddle, or one partly hidden: its centroid is off by up to a radius.
-            ray = (D - self._centre[:, None, :]) / self._focal_xy[:, None, :]
-            tan2 = ray[..., 0] * ray[..., 0] + ray[..., 1] * ray[..., 1]  # (the sum over an axis of 2, ~3x faster)
-            merged |= round_ < self._cfg.round_merged / np.sqrt(1.0 + tan2)
+            merged |= round_ < self._cfg.round_merged / _secant_field_angle(D, self._centre[:, None, :],
+                                                                            self._focal_xy[:, None, :])
             var = 0.5 * (S[..., 0, 0] + S[..., 1, 1])  # (C, N) px^2; vague: cut by the image border, or faint
         valid = np.isfinite(D[..., 0]) & np.isfinite(D[..., 1])  # (reductions over an axis of 2 are slow)
         if np.count_nonzero(valid):
@@ -1235,19 +1234,16 @@ class Tracker:
             return flat
         return np.union1d(flat, rows[self._shared(fr, asg, rows, merged_view[rows])])
 
-    def _flat_and_shared(self, fr: _Frame, asg: np.ndarray, tracks: np.ndarray, views: np.ndarray) -> np.ndarray:
-        """Indices of the ``tracks`` (K,) bool one of whose ``views`` (K, C) bool holds a blob flatter than
+    def _flat_and_shared(self, fr: _Frame, asg: np.ndarray, rows: np.ndarray, views: np.ndarray) -> np.ndarray:
+        """(n,) bool: track ``rows[i]`` holds, in one of its ``views`` (n, C) bool, a blob flatter than
         ``round_crowded`` allows that another live track's image lies in too (:meth:`_shared`)."""
-        if not np.count_nonzero(fr.roundness < self._cfg.round_crowded):  # (cos(field angle) <= 1: none is flat)
-            return np.zeros(0, dtype=np.intp)
-        k, c = np.nonzero(tracks[:, None] & views)
-        flat = self._flat(fr, c, asg[k, c]) if k.size else np.zeros(0, dtype=bool)
+        r, c = np.nonzero(views)
+        flat = self._flat(fr, c, asg[rows[r], c])
         if not np.count_nonzero(flat):  # (most frames)
-            return np.zeros(0, dtype=np.intp)
-        rows, first = np.unique(k[flat], return_inverse=True)
-        flat_views = np.zeros((rows.size, asg.shape[1]), dtype=bool)
-        flat_views[first, c[flat]] = True
-        return rows[self._shared(fr, asg, rows, flat_views)]
+            return np.zeros(len(rows), dtype=bool)
+        flat_views = np.zeros(views.shape, dtype=bool)
+        flat_views[r[flat], c[flat]] = True
+        return self._shared(fr, asg, rows, flat_views)
 
     def _shared(self, fr: _Frame, asg: np.ndarray, rows: np.ndarray, views: np.ndarray) -> np.ndarray:
         """(n,) bool: track ``rows[i]`` holds, in one of its ``views`` (n, C) bool (blobs ``asg[rows]``; ``asg``
@@ -1270,8 +1266,8 @@ class Tracker:
     def _flat(self, fr: _Frame, cams: np.ndarray, blobs: np.ndarray) -> np.ndarray:
         """(n,) bool: blob ``blobs[i]`` of camera ``cams[i]`` is flatter than ``round_crowded`` x a sphere's image at
         its field angle."""
-        ray = (fr.D[cams, blobs] - self._centre[cams]) / self._focal_xy[cams]
-        return fr.roundness[cams, blobs] < self._cfg.round_crowded / np.sqrt(1.0 + (ray * ray).sum(axis=1))
+        secant = _secant_field_angle(fr.D[cams, blobs], self._centre[cams], self._focal_xy[cams])
+        return fr.roundness[cams, blobs] < self._cfg.round_crowded / secant
 
     def _deblend(self, fr: _Frame, crowded: np.ndarray, asg: np.ndarray, tri: Triangulated) -> np.ndarray:
         """Two markers merged into one blob, one of them well measured elsewhere: the other's image is the blob's
@@ -1448,10 +1444,9 @@ class Tracker:
             out = clean[got]
             if self._cfg.withhold_merged_depth:  # two clean views, one a flat blob another track lies in
                 asg = meas.asg.copy()
-                asg[rows] = pts.det[got]
-                two = np.zeros(len(asg), dtype=bool)
-                two[rows[n_clean[got] == 2]] = True
-                out &= ~np.isin(rows, self._flat_and_shared(fr, asg, two, (asg >= 0) & ~_gather(fr.merged, asg)))
+                asg[rows] = det = pts.det[got]
+                views = (det >= 0) & ~_gather(fr.merged, det) & (n_clean[got] == 2)[:, None]
+                out &= ~self._flat_and_shared(fr, asg, rows, views)
             meas.put(rows, _Measurements(np.ones(got.size, dtype=bool), out, pts.X[got],
                                          pts.cov[got], pts.rms_px[got], pts.det[got]))
             self._update(fr, meas, rows)
@@ -1661,6 +1656,13 @@ class Tracker:
         flat[np.array(bounds)[cc] + asg[conf][kk, cc]] = ids[kk]
         assignments = [flat[a:b] for a, b in zip(bounds[:-1], bounds[1:], strict=True)]
         return FrameResult(frame_index, ids, X[conf], res[conf], mask[conf], assignments)
+
+
+def _secant_field_angle(xy: np.ndarray, centre: np.ndarray, focal_xy: np.ndarray) -> np.ndarray:
+    """(...) 1 / cos(field angle) at ideal pixel ``xy`` (..., 2) of a camera with principal point ``centre`` and
+    focal lengths ``focal_xy`` (each broadcast to (..., 2)), px: a sphere's image there has axis ratio cos."""
+    ray = (xy - centre) / focal_xy
+    return np.sqrt(1.0 + ray[..., 0] * ray[..., 0] + ray[..., 1] * ray[..., 1])  # (~3x faster than a sum)
 
 
 def _gather(values: np.ndarray, asg: np.ndarray) -> np.ndarray:
