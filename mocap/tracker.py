@@ -462,7 +462,8 @@ class _Measurements(_Rows):
 
     def miss(self, rows: np.ndarray, C: int) -> None:
         """The tracks ``rows`` (of C cameras) are not measured this frame."""
-        self.put(rows, _Measurements.empty(len(rows), C))
+        if rows.size:  # (most frames: none)
+            self.put(rows, _Measurements.empty(len(rows), C))
 
     def put(self, rows: np.ndarray, other: _Measurements) -> None:
         """Copy ``other``'s rows (len(rows) of them) into ``rows``."""
@@ -1346,7 +1347,8 @@ class Tracker:
         """Running average (``error_alpha``) of each frame's median reprojection RMS (px) over its points with
         three or more clean cameras, and the camera rejection floor that follows it (``outlier_rms_factor``)."""
         cfg = self._cfg
-        rms = meas.rms_px[meas.ok & (_clean_views(fr.merged, meas.asg) >= 3) & np.isfinite(meas.rms_px)]
+        ok = meas.ok.nonzero()[0]
+        rms = meas.rms_px[ok][(_clean_views(fr.merged, meas.asg[ok]) >= 3) & np.isfinite(meas.rms_px[ok])]
         if rms.size < 3:
             return
         self._rms_px += cfg.error_alpha * (quick_median(rms) - self._rms_px)
