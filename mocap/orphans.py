@@ -183,8 +183,10 @@ def rejoin_orphans(traj: Trajectories, config: OrphanConfig | None = None) -> in
 
 
 def _rejoin_once(traj: Trajectories, cfg: OrphanConfig) -> int:
-    """One round of :func:`rejoin_orphans`: the joins the identities as they are allow."""
-    P = traj.positions
+    """One round of :func:`rejoin_orphans`: the joins the identities as they are allow (all measured on the round's
+    starting state: a join moves samples, and a later measurement on the moved ones would find missing neighbours
+    where ``seen`` has them)."""
+    P = traj.positions.copy()
     seen = np.isfinite(P[..., 0])  # (F, M)
     F = len(seen)
     size = seen.sum(axis=0)
@@ -221,7 +223,7 @@ def _rejoin_once(traj: Trajectories, cfg: OrphanConfig) -> int:
         if any(own_miss(r) > measured[i, r] for r in close):
             continue
         a, b = home[ends[i]], cols[k]
-        traj.move_samples(frames[k] + np.flatnonzero(np.isfinite(P[frames[k]:, b, 0])), b, a)
+        traj.move_samples(frames[k] + np.flatnonzero(np.isfinite(traj.positions[frames[k]:, b, 0])), b, a)
         if prior[k] < 0:
             home[home == b] = a
         moved.add(int(b))

@@ -76,3 +76,22 @@ def test_a_return_after_more_than_the_longest_gap_is_left():
     pieces = _whole(range(10), {0}) + [(0, 0, 199), (0, 350, FRAMES - 1)]
     assert rejoin_orphans(_identities(truth, pieces), OrphanConfig(max_gap_s=1.0)) == 0
     assert rejoin_orphans(_identities(truth, pieces), OrphanConfig(max_gap_s=2.0)) == 1
+
+
+@pytest.mark.parametrize("seed", [1, 2])
+def test_a_return_measured_after_a_join_moved_one_of_its_neighbours_does_not_crash_the_round(seed):
+    """Marker 0 comes back as a new identity at frame 350, and marker 1 comes back under its own identity at 450
+    after a 0.5 s gap. The round joins marker 0's return first (its frame comes first), moving its samples; marker
+    1's return is then measured against its rigid neighbours, marker 0's new identity among them. That measurement
+    once read the moved (now empty) column where the round's record of what is seen still had samples: NaN into an
+    SVD, which raised "SVD did not converge" out of ``mocap reconstruct`` (the whole sprint replayed from frame
+    2000, seed 0). Every measurement of a round is now made on the state the round started from."""
+    truth = _scene(seed)
+    pieces = _whole(range(10), {0, 1}) + [(0, 0, 199), (0, 350, FRAMES - 1), (1, 0, 399)]
+    traj = _identities(truth, pieces)
+    traj.positions[450:, -1] = truth[450:, 1]  # marker 1's own identity, back after 0.5 s
+    traj.residuals[450:, -1], traj.camera_masks[450:, -1] = 0.1, 1
+    samples = np.isfinite(traj.positions[..., 0]).sum()
+    assert rejoin_orphans(traj) == 1
+    assert sorted(columns_follow(traj, truth)) == list(range(10))
+    assert np.isfinite(traj.positions[..., 0]).sum() == samples
