@@ -31,9 +31,9 @@ from mocap.detect import StreamDetector
 from mocap.detections import Detections
 from mocap.errors import MocapError
 from mocap.fitcheck import FitMonitor, FitReport
-from mocap.relabel import RelabelConfig, repair_identities
+from mocap.relabel import RelabelConfig, RelabelStats, repair_identities
 from mocap.tracker import Tracker, TrackerConfig
-from mocap.trajectories import Trajectories
+from mocap.trajectories import Trajectories, UnconfirmedPoints
 
 __all__ = ["ReconstructOptions", "reconstruct", "write_outputs"]
 
@@ -235,22 +235,9 @@ def reconstruct(take: str | os.PathLike, options: ReconstructOptions | None = No
     if opts.relabel:
         before = traj.n_markers
         log.info("identity repair: %d identities over %d frames ...", before, traj.n_frames)
-        stats = repair_identities(traj, RelabelConfig(confirm_frames=confirm), unconfirmed=tracker.unconfirmed())
-        log.info("identity repair: %d duplicate samples dropped; %d swaps undone; %d identities -> %d (fragments "
-                 "re-linked, tracks cut where they jumped; %d joined by the shapes of rigid clusters); %d exchanges "
-                 "undone where markers passed close; %d bursts of hops unscrambled; %d samples labelled by rigid "
-                 "plates' shapes; %d fragments joined by their distances to rigid neighbours, %d samples moved to the "
-                 "identity whose neighbours they fit; %d unconfirmed points joined identities' paths; %d gaps "
-                 "bridged by where the neighbours carry a marker; %d exchanges undone where two markers came back "
-                 "from a shared gap; %d junctions of three or more identities undone; %d exchanges undone in "
-                 "skin-mounted clusters; %d samples withheld off their identity's path; %d pairs of identities of "
-                 "one marker that took turns or followed each other merged; %d identities that ended joined to "
-                 "their marker's return by its rigid neighbours; %d scattered identities (no %d frames running) "
-                 "withdrawn",
-                 stats.duplicates, stats.swaps, before, traj.n_markers, stats.reunited, stats.exchanges,
-                 stats.unscrambled, stats.plate_samples, stats.rejoined, stats.anchor_moves, stats.filled,
-                 stats.bridged, stats.gap_exchanges, stats.junctions, stats.skin_exchanges, stats.off_path,
-                 stats.merged, stats.orphans, stats.withdrawn, confirm)
+        stats = _repair_or_keep(traj, confirm, tracker.unconfirmed(), path)
+        if stats is not None:
+            _report_repair(stats, before, traj.n_markers, confirm)
     traj.camera_names = rig.names
     traj.metadata.update({"source": str(path), "software": f"mocap {__version__}", "cameras": len(rig)})
     if traj.n_markers == 0 and blobs == 0:
@@ -264,6 +251,50 @@ def reconstruct(take: str | os.PathLike, options: ReconstructOptions | None = No
                     "the blobs are markers, not noise or reflections", path,
                     blobs / (len(rig) * max(traj.n_frames, 1)), confirm)
     return traj
+
+
+def _report_repair(stats: RelabelStats, before: int, after: int, confirm: int) -> None:
+    """Log what the identity repair did (``before`` -> ``after`` identities)."""
+    log.info("identity repair: %d duplicate samples dropped; %d swaps undone; %d identities -> %d (fragments "
+             "re-linked, tracks cut where they jumped; %d joined by the shapes of rigid clusters); %d exchanges "
+             "undone where markers passed close; %d bursts of hops unscrambled; %d samples labelled by rigid "
+             "plates' shapes; %d fragments joined by their distances to rigid neighbours, %d samples moved to the "
+             "identity whose neighbours they fit; %d unconfirmed points joined identities' paths; %d gaps "
+             "bridged by where the neighbours carry a marker; %d exchanges undone where two markers came back "
+             "from a shared gap; %d junctions of three or more identities undone; %d exchanges undone in "
+             "skin-mounted clusters; %d samples withheld off their identity's path; %d pairs of identities of "
+             "one marker that took turns or followed each other merged; %d identities that ended joined to "
+             "their marker's return by its rigid neighbours; %d scattered identities (no %d frames running) "
+             "withdrawn",
+             stats.duplicates, stats.swaps, before, after, stats.reunited, stats.exchanges,
+             stats.unscrambled, stats.plate_samples, stats.rejoined, stats.anchor_moves, stats.filled,
+             stats.bridged, stats.gap_exchanges, stats.junctions, stats.skin_exchanges, stats.off_path,
+             stats.merged, stats.orphans, stats.withdrawn, confirm)
+
+
+def _repair_or_keep(traj: Trajectories, confirm: int, unconfirmed: UnconfirmedPoints, path: Path
+                    ) -> RelabelStats | None:
+    """The offline identity repair of ``traj``, in place; where a pass of it fails (a fault of this software, not of
+    the take), the trajectories are kept as that pass left them, with an error logged, instead of the whole run
+    lost: every pass only moves or withholds whole samples, so they are a valid result, with the tracker's
+    identities where the repair had not yet reached. Returns the repair's figures, or None where it failed."""
+    try:
+        return repair_identities(traj, RelabelConfig(confirm_frames=confirm), unconfirmed=unconfirmed)
+    except MocapError:
+        raise
+    except Exception as err:  # noqa: BLE001 (any fault of a pass: the take's trajectories are kept)
+        log.error("%s: the identity repair failed (%s: %s), a fault of this software: the outputs keep the identities "
+                  "as they stood then (some markers may change identity after gaps; --no-relabel gives the tracker's "
+                  "own). Please report it with the run's --mcap log, which reproduces it", path, type(err).__name__,
+                  err)
+        log.debug("identity repair failure", exc_info=True)
+        empty = ~np.isfinite(traj.positions[..., 0]).any(axis=0)  # (columns a join emptied)
+        if empty.any():
+            keep = ~empty
+            traj.positions, traj.residuals, traj.camera_masks = (traj.positions[:, keep], traj.residuals[:, keep],
+                                                                 traj.camera_masks[:, keep])
+            traj.labels = [f"M{k + 1:03d}" for k in range(int(keep.sum()))]
+        return None
 
 
 def _open_mcap_logger(mcap: str | os.PathLike, rig: Rig, fps: float, take: Path) -> Any:
