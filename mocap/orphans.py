@@ -186,14 +186,14 @@ def _rejoin_once(traj: Trajectories, cfg: OrphanConfig) -> int:
     """One round of :func:`rejoin_orphans`: the joins the identities as they are allow (all measured on the round's
     starting state: a join moves samples, and a later measurement on the moved ones would find missing neighbours
     where ``seen`` has them)."""
-    P = traj.positions.copy()
-    seen = np.isfinite(P[..., 0])  # (F, M)
+    seen = np.isfinite(traj.positions[..., 0])  # (F, M)
     F = len(seen)
     size = seen.sum(axis=0)
     first, last = seen.argmax(axis=0), F - 1 - seen[::-1].argmax(axis=0)
     ends = np.flatnonzero((size >= cfg.min_frames) & (last < F - 1))
     if ends.size == 0:
         return 0
+    P = traj.positions.copy()  # (the joins below move samples of traj.positions)
     cols, frames, prior = _starts(seen, first, size, traj.fps, cfg)
     rigid = _Rigidities(P, seen, max(3, int(round(cfg.window_s * traj.fps))))
     max_gap = int(round(cfg.max_gap_s * traj.fps))

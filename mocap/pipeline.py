@@ -288,12 +288,7 @@ def _repair_or_keep(traj: Trajectories, confirm: int, unconfirmed: UnconfirmedPo
                   "own). Please report it with the run's --mcap log, which reproduces it", path, type(err).__name__,
                   err)
         log.debug("identity repair failure", exc_info=True)
-        empty = ~np.isfinite(traj.positions[..., 0]).any(axis=0)  # (columns a join emptied)
-        if empty.any():
-            keep = ~empty
-            traj.positions, traj.residuals, traj.camera_masks = (traj.positions[:, keep], traj.residuals[:, keep],
-                                                                 traj.camera_masks[:, keep])
-            traj.labels = [f"M{k + 1:03d}" for k in range(int(keep.sum()))]
+        traj.drop_empty()  # (columns a join emptied)
         return None
 
 

@@ -981,8 +981,5 @@ def repair_identities(traj: Trajectories, config: RelabelConfig | None = None,
     stats.withdrawn = withdraw_scattered(traj, limits)
     if (stats.reunited or stats.rejoined or stats.plate_samples or stats.anchor_moves or stats.bridged
             or stats.junctions or stats.off_path or stats.merged or stats.orphans or stats.withdrawn):
-        keep = np.isfinite(traj.positions[..., 0]).any(axis=0)
-        traj.positions, traj.residuals, traj.camera_masks = (traj.positions[:, keep], traj.residuals[:, keep],
-                                                             traj.camera_masks[:, keep])
-        traj.labels = [f"M{k + 1:03d}" for k in range(int(keep.sum()))]
+        traj.drop_empty()  # (the re-linked identities are named M001 ... already: only a drop renames them)
     return stats

@@ -1439,16 +1439,16 @@ class Tracker:
         predicted, radius = self._search_again(missing)
         match = reidentify(pts.X, predicted, radius, allowed=self._attached_allow(pts.X, missing))
         got = (match >= 0).nonzero()[0]
-        n_clean = _clean_views(fr.merged, pts.det)
+        clean_view = (pts.det >= 0) & ~_gather(fr.merged, pts.det)  # (P, C)
+        n_clean = clean_view.sum(axis=1)
         clean = n_clean >= 2
         if got.size:
             rows = missing[match[got]]
             out = clean[got]
             if self._cfg.withhold_merged_depth:  # two clean views, one a flat blob another track lies in
                 asg = meas.asg.copy()
-                asg[rows] = det = pts.det[got]
-                views = (det >= 0) & ~_gather(fr.merged, det) & (n_clean[got] == 2)[:, None]
-                out &= ~self._flat_and_shared(fr, asg, rows, views)
+                asg[rows] = pts.det[got]
+                out &= ~self._flat_and_shared(fr, asg, rows, clean_view[got] & (n_clean[got] == 2)[:, None])
             meas.put(rows, _Measurements(np.ones(got.size, dtype=bool), out, pts.X[got],
                                          pts.cov[got], pts.rms_px[got], pts.det[got]))
             self._update(fr, meas, rows)

@@ -72,6 +72,17 @@ class Trajectories:
         """(F,) capture time of each frame, seconds from the take's first frame."""
         return (np.arange(self.n_frames) + self.first_frame) / self.fps
 
+    def drop_empty(self) -> int:
+        """Drop, in place, the columns without a sample (identities whose samples all moved elsewhere) and name the
+        rest ``M001``, ``M002`` ... in column order; returns how many were dropped (none: nothing changes)."""
+        keep = np.isfinite(self.positions[..., 0]).any(axis=0)
+        dropped = int(keep.size - np.count_nonzero(keep))
+        if dropped:
+            self.positions, self.residuals, self.camera_masks = (self.positions[:, keep], self.residuals[:, keep],
+                                                                 self.camera_masks[:, keep])
+            self.labels = [f"M{k + 1:03d}" for k in range(self.n_markers)]
+        return dropped
+
     def move_samples(self, rows: np.ndarray | int, source: int, target: int) -> None:
         """Column ``source``'s samples in frames ``rows`` (index, bool mask or one frame) go to column ``target``
         (positions, residuals and camera masks together) and leave ``source`` missing there, in place."""
