@@ -17,7 +17,11 @@ piece's marker from its ``neighbours`` nearest identities (within ``reach_m``, s
 frames of the ending piece and the first ``check_frames`` of the starting one; ridge ``ridge_m2``) and measures the
 miss. Then one optimal assignment of ends to starts per group of competing pieces:
 
-* a link the identities already make costs its miss / ``favour`` (a miss over ``keep_m``: as much as no link), or
+* a link the identities already make across a gap of a few frames (``coast_s``) that the marker's own path
+  crosses (its constant-velocity extrapolation lands within ``coast_m`` per frame of the gap) stands, and neither of
+  its pieces is linked otherwise: a wheelchair marker's nearest neighbours are the pushing arm's, which do not
+  carry it;
+* another link the identities already make costs its miss / ``favour`` (a miss over ``keep_m``: as much as no link), or
   nothing where no miss can be measured (an ending piece too short to fit, too few neighbours): the repair's links
   stand unless the neighbours refute them. A starting piece of one sample is measured on that sample: a lost
   identity that took one glimpse of another marker in its gap kept that link for free, and the marker's own return
@@ -71,6 +75,11 @@ class BridgeConfig:
             miss is under ``short_ratio`` times every other candidate's, its own link's too (a fit over a few
             frames tells a marker from its near neighbours less surely: a forearm cluster's flicker).
         short_ratio: see ``short_frames``.
+        coast_s: a link the identities make across a gap this short at most, s, ...
+        coast_m: ... whose marker coasts into its next piece (constant velocity from its last two samples) within
+            this per frame of the gap, m, stands, and neither piece is linked otherwise: over a few frames the
+            marker's own path tells more than neighbours that may not carry it (a wheelchair's marker, whose nearest
+            neighbours are the pushing arm's).
     """
 
     min_gap: int = 2
@@ -86,6 +95,8 @@ class BridgeConfig:
     favour: float = 2.0
     short_frames: int = 5
     short_ratio: float = 0.5
+    coast_s: float = 0.05
+    coast_m: float = 0.005
 
 
 def _pieces(seen: np.ndarray, min_gap: int, jumped: np.ndarray) -> np.ndarray:
@@ -141,6 +152,18 @@ def carried_miss(P: np.ndarray, end: np.ndarray, start: np.ndarray, cfg: BridgeC
     return float(np.linalg.norm(carried - P[after, mb], axis=1).mean())
 
 
+def _coasts(P: np.ndarray, end: np.ndarray, start: np.ndarray, max_gap: int, cfg: BridgeConfig) -> bool:
+    """Whether the marker of piece ``end`` coasts into piece ``start`` (both (column, first, last) in ``P`` (F, M, 3))
+    across a gap of ``max_gap`` frames at most: its constant-velocity extrapolation from its last two samples misses
+    the start's first sample by less than ``coast_m`` per frame of the gap."""
+    (ma, fa, la), (mb, fb, _) = end, start
+    gap = fb - la
+    if gap > max_gap or la - 1 < fa:
+        return False
+    coasted = P[la, ma] + (P[la, ma] - P[la - 1, ma]) * gap
+    return bool(np.linalg.norm(coasted - P[fb, mb]) < cfg.coast_m * gap)
+
+
 def _own_cost(miss: float, long_gap: bool, cfg: BridgeConfig) -> float:
     """Cost of keeping a link the identities make, whose ``miss`` (m; NaN: not measurable) is over a gap of at most
     ``max_gap_s`` or, ``long_gap``, longer (a link the repair's distance rules made, which the bridge does not search
@@ -163,6 +186,7 @@ def _links(P: np.ndarray, pieces: np.ndarray, fps: float, cfg: BridgeConfig) -> 
     F = len(P)
     seen = np.isfinite(P[..., 0])
     max_gap = int(round(cfg.max_gap_s * fps))
+    coast_gap = max(2, int(round(cfg.coast_s * fps)))
     following = _own_links(pieces)
     ends = np.flatnonzero(pieces[:, 2] < F - 1)
     starts = np.flatnonzero(pieces[:, 1] > 0)
@@ -170,15 +194,21 @@ def _links(P: np.ndarray, pieces: np.ndarray, fps: float, cfg: BridgeConfig) -> 
     first = pieces[starts, 1]
     column = {int(b): k for k, b in enumerate(starts)}  # a start piece's column in the assignment
     length = pieces[:, 2] - pieces[:, 1] + 1
+    coasting = {a: b for a, b in following.items() if _coasts(P, pieces[a], pieces[b], coast_gap, cfg)}
     rows, cols, costs = [], [], []
     for i, a in enumerate(ends):
+        if a in coasting:  # (the link stands: no other is weighed against it)
+            rows.append(i)
+            cols.append(column[coasting[a]])
+            costs.append(0.0)
+            continue
         la = pieces[a, 2]
         candidates = set()
         if length[a] >= cfg.short_frames:  # new links: from a piece long enough to fit, to one as long as the check
             lo = np.searchsorted(first, la + 1, side="left")
             hi = np.searchsorted(first, la + max_gap, side="right")
             window = starts[lo:hi]
-            candidates = set(window[length[window] >= cfg.check_frames].tolist())
+            candidates = set(window[length[window] >= cfg.check_frames].tolist()) - set(coasting.values())
         if a in following:
             candidates.add(following[a])
         misses = {b: carried_miss(P, pieces[a], pieces[b], cfg, seen) for b in candidates}

@@ -15,7 +15,9 @@ exchange they step by as much as the two markers' distances to them differ.
    (exchanged);
 3. exchanges the two identities' tails where the exchanged distances fit (mean change below ``fit_m``) and the
    kept ones do not (mean change above ``step_m``), from the passage's frame, or the one before or after it,
-   whichever gives the two tracks the smoother accelerations there.
+   whichever gives the two tracks the smoother accelerations there. Both identities must hold a marker in both
+   windows: one that starts (or ends) at the passage exchanged nothing (a hand turning away from the wrist as a
+   forearm marker comes into view beside it, at the hand's old distance from the wrist).
 
 Only whole samples move between identity columns; positions are never changed.
 """
@@ -96,6 +98,8 @@ def _exchanged(P: np.ndarray, frame: int, a: int, b: int, cfg: ExchangeConfig) -
         return False
     pair = [a, b]
     enough = cfg.window - 2  # samples a window needs
+    if min(np.isfinite(P[window, pair, 0]).sum(axis=0).min() for window in (before, after)) < enough:
+        return False  # (one of them held no marker on one side: nothing to exchange)
     others = np.flatnonzero((np.isfinite(P[before, :, 0]).sum(axis=0) >= enough)
                             & (np.isfinite(P[after, :, 0]).sum(axis=0) >= enough))  # (n,) those that can be attached
     others = others[(others != a) & (others != b)]

@@ -24,9 +24,13 @@ On finished trajectories (after :mod:`mocap.relabel` and :mod:`mocap.reunite`), 
    gives a tracklet whose votes all name one member (``min_votes``, and ``vote_fraction`` of its samples) to
    that member; a tracklet without enough votes goes with the nearest voted tracklet of its identity (the
    tracker followed one marker through it), unless the nearest before and after disagree and neither its own
-   votes nor a short gap (``near_frames``, the other side farther) side with one;
+   votes nor a short gap (``near_frames``, the other side farther) side with one; a tracklet whose own few votes all
+   name another member follows them (a plate whose shape changed a little over the take matches only some of its
+   triangles);
 4. moves each tracklet given to a member into that member's identity where it is free over those frames,
-   longest first;
+   longest first; a tracklet that would end in a member's identity without votes of its own for it, while that
+   member's marker is voted elsewhere in its frames (another segment's marker the tracker put on the identity while
+   the plate was hidden), leaves for an identity of its own (one per identity it leaves);
 5. gives the tracker's unconfirmed points (:meth:`mocap.tracker.Tracker.unconfirmed`: a marker the recording
    has only every other frame never makes the tracker's confirmation), voted alongside in step 2, to the
    member they were voted for, where its identity has no sample and the point would not make it jump (an
@@ -314,18 +318,23 @@ def _tracklets(seen: np.ndarray, vote: np.ndarray) -> list[tuple[int, np.ndarray
     return runs
 
 
-def _destinations(runs: list[tuple[int, np.ndarray]], vote: np.ndarray, cfg: PlateConfig) -> list[int]:
-    """Step 3: the identity each tracklet is given (-1: none). A tracklet with too few votes of its own follows
-    the nearest voted tracklets of its identity; where those before and after it disagree, it follows the one
-    its own votes name, if any, else, without votes of its own, the one within ``near_frames`` of it when the
-    other is farther."""
-    dest, few = [], []
+def _destinations(runs: list[tuple[int, np.ndarray]], vote: np.ndarray,
+                  cfg: PlateConfig) -> tuple[list[int], list[bool]]:
+    """Step 3: the identity each tracklet is given (-1: none), and whether its own votes back it (``min_votes``
+    of them at least, all for it). A tracklet with
+    too few votes of its own follows the nearest voted tracklets of its identity; where those before and after it
+    disagree, it follows the one its own votes name, if any, else, without votes of its own, the one within
+    ``near_frames`` of it when the other is farther; where its own votes all name another member than they do, it
+    follows its votes (a plate whose shape changed a little over the take: its markers matched only some of its
+    triangles)."""
+    dest, few, count = [], [], []
     for col, run in runs:
         v = vote[run, col]
         named = np.unique(v[v >= 0])
         enough = (v >= 0).sum() >= max(cfg.min_votes, cfg.vote_fraction * run.size)
         dest.append(int(named[0]) if named.size == 1 and enough else -1)
         few.append(int(named[0]) if named.size == 1 else -1 if named.size == 0 else -2)  # (-2: votes disagree)
+        count.append(int((v >= 0).sum()))
     before, after = _nearest_voted(runs, dest, True), _nearest_voted(runs, dest, False)
     out = []
     for d, f, (b, b_gap), (a, a_gap) in zip(dest, few, before, after, strict=True):
@@ -337,8 +346,10 @@ def _destinations(runs: list[tuple[int, np.ndarray]], vote: np.ndarray, cfg: Pla
                 named = {b}  # (the identity's own continuity across a short gap, against a re-identification)
             elif f == -1 and a_gap <= cfg.near_frames < b_gap:
                 named = {a}
+        elif d < 0 and f >= 0 and named and f not in named:
+            named = {f}
         out.append(d if d >= 0 or len(named) != 1 else named.pop())
-    return out
+    return out, [d == f and n >= cfg.min_votes for d, f, n in zip(out, few, count, strict=True)]
 
 
 def _nearest_voted(runs: list[tuple[int, np.ndarray]], dest: list[int], forward: bool) -> list[tuple[int, int]]:
@@ -358,12 +369,28 @@ def _nearest_voted(runs: list[tuple[int, np.ndarray]], dest: list[int], forward:
     return out
 
 
-def _settle(runs: list[tuple[int, np.ndarray]], dest: list[int], shape: tuple[int, int]) -> list[int]:
-    """Step 4: the identity every tracklet ends in. A tracklet moves to its destination unless that collides
-    there with a tracklet that stays or with a longer one moving in (then it stays, which may make others
-    collide with it in turn: passes repeated until nothing collides). Rotations of identities resolve together."""
-    final = [d if d >= 0 else col for (col, _), d in zip(runs, dest, strict=True)]
-    order = sorted(range(len(runs)), key=lambda i: -runs[i][1].size)
+def _evicted(runs: list[tuple[int, np.ndarray]], dest: list[int], own: list[bool],
+             shape: tuple[int, int]) -> list[bool]:
+    """Tracklets that would end in a plate member's identity (given it by their neighbours, or staying in it)
+    without votes of their own to back it, while a tracklet of another identity, given that member and backed by
+    its own votes (``own``), is seen in the same frames: the member's marker is that one. (A marker of another
+    segment that the tracker put on a plate member's identity while the plate was hidden.)"""
+    claimed = np.zeros(shape, dtype=bool)  # (F, M) frames in which each identity's member is voted elsewhere
+    for (col, run), d, voted in zip(runs, dest, own, strict=True):
+        if voted and d != col:
+            claimed[run, d] = True
+    return [not voted and bool(claimed[run, d if d >= 0 else col].any())
+            for (col, run), d, voted in zip(runs, dest, own, strict=True)]
+
+
+def _settle(runs: list[tuple[int, np.ndarray]], dest: list[int], evicted: list[bool],
+            shape: tuple[int, int]) -> list[int]:
+    """Step 4: the identity every tracklet ends in (-1: an identity of its own, for the ``evicted``). A tracklet
+    moves to its destination unless that collides there with a tracklet that stays or with a longer one moving in
+    (then it stays, which may make others collide with it in turn: passes repeated until nothing collides).
+    Rotations of identities resolve together."""
+    final = [-1 if out else d if d >= 0 else col for (col, _), d, out in zip(runs, dest, evicted, strict=True)]
+    order = [i for i in sorted(range(len(runs)), key=lambda i: -runs[i][1].size) if not evicted[i]]
     while True:
         owner = np.full(shape, -1, dtype=np.intp)
         for i in order:  # stayers first, then movers longest first
@@ -417,8 +444,13 @@ def label_plates(traj: Trajectories, config: PlateConfig | None = None, extra: U
     mine = v_col < M  # the identities' own samples are resolved first: an unconfirmed point never takes their votes
     vote = _resolve(v_frame[mine], v_col[mine], v_member[mine], shape=(F, M))
     runs = _tracklets(seen, vote)
-    dest = _destinations(runs, vote, cfg)
-    final = _settle(runs, dest, (F, M))
+    dest, own = _destinations(runs, vote, cfg)
+    final = _settle(runs, dest, _evicted(runs, dest, own, (F, M)), (F, M))
+    leaving = sorted({col for (col, _), target in zip(runs, final, strict=True) if target < 0})
+    if leaving:  # (one new identity for the tracklets that leave each identity)
+        fresh = dict(zip(leaving, traj.add_empty(len(leaving)), strict=True))
+        final = [fresh[col] if target < 0 else target for (col, _), target in zip(runs, final, strict=True)]
+        vote = np.pad(vote, ((0, 0), (0, len(leaving))), constant_values=-1)
     movers = [(run, col, target) for (col, run), target in zip(runs, final, strict=True) if target != col]
     held = vote.copy()  # the member each sample is voted for, moved along with the samples
     for array, empty in ((traj.positions, np.nan), (traj.residuals, np.nan), (traj.camera_masks, 0), (held, -1)):
@@ -437,7 +469,7 @@ def label_plates(traj: Trajectories, config: PlateConfig | None = None, extra: U
         free = ~np.isfinite(traj.positions[rows, member, 0])
         for step in (-1, 0, 1):  # another identity holds that member's marker next to it: it would interleave
             near = np.clip(rows + step, 0, F - 1)
-            other = (held[near] == member[:, None]) & (np.arange(M)[None, :] != member[:, None])
+            other = (held[near] == member[:, None]) & (np.arange(held.shape[1])[None, :] != member[:, None])
             free &= ~other.any(axis=1)
         k, member = k[free], member[free]
         calm = ~placement_jumps(traj.positions, extra.rows[k], member, extra.positions[k], jump_acc)

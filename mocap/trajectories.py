@@ -83,6 +83,16 @@ class Trajectories:
             self.labels = [f"M{k + 1:03d}" for k in range(self.n_markers)]
         return dropped
 
+    def add_empty(self, n: int) -> range:
+        """Append, in place, ``n`` identity columns without samples (named after the last, ``M...``); returns
+        their column indices."""
+        first = self.n_markers
+        self.positions = np.concatenate([self.positions, np.full((self.n_frames, n, 3), np.nan)], axis=1)
+        self.residuals = np.concatenate([self.residuals, np.full((self.n_frames, n), np.nan)], axis=1)
+        self.camera_masks = np.concatenate([self.camera_masks, np.zeros((self.n_frames, n), np.uint32)], axis=1)
+        self.labels += [f"M{k + 1:03d}" for k in range(first, first + n)]
+        return range(first, first + n)
+
     def move_samples(self, rows: np.ndarray | int, source: int, target: int) -> None:
         """Column ``source``'s samples in frames ``rows`` (index, bool mask or one frame) go to column ``target``
         (positions, residuals and camera masks together) and leave ``source`` missing there, in place."""

@@ -53,3 +53,19 @@ def test_markers_that_pass_close_without_an_exchange_are_left_alone():
     strict = _traj(seen)  # the same exchange, with a step too small to trust
     assert undo_exchanges(strict, ExchangeConfig(step_m=0.2)) == 0
     np.testing.assert_array_equal(strict.positions, seen)
+
+
+def test_an_identity_that_starts_at_the_passage_exchanged_nothing():
+    """A hand 44 mm from a wrist marker (steady) turns out to 72 mm as a forearm marker, hidden until then, comes
+    into view 46 mm from the wrist and within 40 mm of the hand. The hand's distance stepped and the newcomer's fits
+    the hand's old one, but the newcomer's identity held no marker before: nothing was exchanged."""
+    frames = 40
+    wrist = np.tile([0.0, 0.0, 1.0], (frames, 1))
+    reach = np.interp(np.arange(frames), [0, 17, 22, frames - 1], [0.044, 0.044, 0.072, 0.072])
+    hand = wrist + reach[:, None] * [1.0, 0.0, 0.0]
+    newcomer = wrist + [0.03, 0.035, 0.0]
+    P = np.stack([hand, newcomer, wrist], axis=1)
+    P[:19, 1] = np.nan
+    traj = _traj(P)
+    assert undo_exchanges(traj) == 0
+    np.testing.assert_array_equal(traj.positions, P)

@@ -182,7 +182,7 @@ def test_a_short_tracklet_between_disagreeing_neighbours_follows_the_one_its_own
     runs = [(0, np.arange(0, 10)), (0, np.arange(11, 14)), (0, np.arange(80, 90))]
     for own, expected in ((5, 5), (7, 7), (9, -1)):
         vote[13, 0] = own
-        assert _destinations(runs, vote, PlateConfig()) == [5, expected, 7]
+        assert _destinations(runs, vote, PlateConfig())[0] == [5, expected, 7]
 
 
 @pytest.mark.parametrize("late", [False, True])
@@ -193,8 +193,8 @@ def test_a_short_tracklet_without_votes_follows_the_neighbour_a_short_gap_away(l
     vote = np.full((100, 1), -1)
     vote[0:10, 0], vote[80:90, 0] = 5, 7
     runs = [(0, np.arange(0, 10)), (0, np.arange(76, 79) if late else np.arange(11, 14)), (0, np.arange(80, 90))]
-    assert _destinations(runs, vote, PlateConfig()) == [5, 7 if late else 5, 7]
-    assert _destinations(runs, vote, PlateConfig(near_frames=1)) == [5, -1, 7]
+    assert _destinations(runs, vote, PlateConfig())[0] == [5, 7 if late else 5, 7]
+    assert _destinations(runs, vote, PlateConfig(near_frames=1))[0] == [5, -1, 7]
 
 
 def test_the_distances_are_those_of_every_pair_of_points():
@@ -240,3 +240,38 @@ def test_of_two_overlapping_plates_as_large_the_one_of_the_earlier_identities_is
     seen[:50, 0] = False
     plates = _plates(median[np.ix_(order, order)], rigid[np.ix_(order, order)], seen[:, order], 0.002)
     assert [sorted(np.array(order)[p.members].tolist()) for p in plates] == [[1, 2, 3, 4]]
+
+
+def test_another_marker_on_a_plate_identity_while_the_plate_was_hidden_gives_it_back():
+    """The plate is hidden from frame 360; a skin marker, lost at 360 too, is re-identified as the plate's first
+    marker's identity from 400, and the plate comes back at 400 under new identities. The plate's shape names the
+    returning markers; the skin marker has no vote for a member its identity would give it, while that member's
+    marker is voted elsewhere: it leaves for an identity of its own, and the plate takes its identities back."""
+    rng = np.random.default_rng(12)
+    truth = np.concatenate([moving(PLATE, rng, 0.0), moving(TRIANGLE, rng, 0.6), skin(3, rng)], axis=1)
+    P = np.concatenate([truth, np.full((FRAMES, 4, 3), np.nan)], axis=1)
+    P[HIDDEN:, :4] = np.nan
+    P[HIDDEN:, 7] = np.nan
+    P[BACK:, 0] = truth[BACK:, 7]  # the skin marker on the plate's first identity
+    P[BACK:, 10:14] = truth[BACK:, :4]  # the plate back under new identities
+    traj = Trajectories([f"M{k + 1:03d}" for k in range(P.shape[1])], 100.0, P)
+    before = _samples_per_frame(traj)
+    label_plates(traj)
+    follows = columns_follow(traj, truth)
+    assert follows[:4] == [0, 1, 2, 3]  # each plate identity holds its own marker before and after the gap
+    assert sorted(follows) == [0, 1, 2, 3, 4, 5, 6, 7, 7, 8, 9]  # the skin marker: two identities, one its own
+    after = _samples_per_frame(traj)
+    assert all(np.array_equal(a, b) for a, b in zip(before, after, strict=True))
+
+
+def test_a_tracklet_whose_own_few_votes_name_another_member_than_its_neighbour_follows_them():
+    """A plate whose shape changed a little after a gap (the recording's plate shifted on the skin): its marker's
+    tracklet matches only some triangles, 4 votes in 40 samples, all for member 9, while the identity's voted
+    tracklet after it names member 5. Its own votes decide; without them it follows the neighbour."""
+    vote = np.full((100, 1), -1)
+    vote[60:70, 0] = 5
+    runs = [(0, np.arange(10, 50)), (0, np.arange(60, 70))]
+    assert _destinations(runs, vote, PlateConfig())[0] == [5, 5]
+    vote[[12, 20, 30, 40], 0] = 9
+    dest, backed = _destinations(runs, vote, PlateConfig())
+    assert dest == [9, 5] and backed == [True, True]
