@@ -71,6 +71,10 @@ class PlateConfig:
         tolerance_m: points match a plate when each of their distances is within this of the plate's, m.
         min_votes: fewest votes a tracklet needs to be given to a member ...
         vote_fraction: ... and fewest, as a fraction of its samples.
+        backing_fraction: a tracklet's votes, all for one member, back it when they are ``min_votes`` and this
+            fraction of its samples at least (fewer than it needs to be given the member by its votes alone): it
+            follows them rather than a neighbour naming another member, and another segment's marker on that
+            member's identity in its frames gives it way.
         near_frames: a tracklet with too few votes, between voted tracklets of its identity that name different
             members, follows the one at most this many frames away when the other is farther (a marker back after
             a short gap, then the identity carried on to another marker after a long one).
@@ -83,6 +87,7 @@ class PlateConfig:
     min_votes: int = 3
     vote_fraction: float = 0.5
     near_frames: int = 12
+    backing_fraction: float = 0.2
 
 
 def _cliques(adjacent: np.ndarray) -> list[list[int]]:
@@ -320,24 +325,24 @@ def _tracklets(seen: np.ndarray, vote: np.ndarray) -> list[tuple[int, np.ndarray
 
 def _destinations(runs: list[tuple[int, np.ndarray]], vote: np.ndarray,
                   cfg: PlateConfig) -> tuple[list[int], list[bool]]:
-    """Step 3: the identity each tracklet is given (-1: none), and whether its own votes back it (``min_votes``
-    of them at least, all for it). A tracklet with
-    too few votes of its own follows the nearest voted tracklets of its identity; where those before and after it
-    disagree, it follows the one its own votes name, if any, else, without votes of its own, the one within
-    ``near_frames`` of it when the other is farther; where its own votes all name another member than they do, it
-    follows its votes (a plate whose shape changed a little over the take: its markers matched only some of its
-    triangles)."""
-    dest, few, count = [], [], []
+    """Step 3: the identity each tracklet is given (-1: none), and whether its own votes back it (all for it,
+    ``min_votes`` and ``backing_fraction`` of its samples at least). A tracklet with too few votes of its own
+    follows the nearest voted tracklets of its identity; where those before and after it disagree, it follows the
+    one its own votes name, if any, else, without votes of its own, the one within ``near_frames`` of it when the
+    other is farther; where its own votes back another member than they name, it follows its votes (a plate whose
+    shape changed a little over the take: its markers matched only some of its triangles)."""
+    dest, few, backing = [], [], []
     for col, run in runs:
         v = vote[run, col]
         named = np.unique(v[v >= 0])
-        enough = (v >= 0).sum() >= max(cfg.min_votes, cfg.vote_fraction * run.size)
+        votes = int((v >= 0).sum())
+        enough = votes >= max(cfg.min_votes, cfg.vote_fraction * run.size)
         dest.append(int(named[0]) if named.size == 1 and enough else -1)
         few.append(int(named[0]) if named.size == 1 else -1 if named.size == 0 else -2)  # (-2: votes disagree)
-        count.append(int((v >= 0).sum()))
+        backing.append(named.size == 1 and votes >= max(cfg.min_votes, cfg.backing_fraction * run.size))
     before, after = _nearest_voted(runs, dest, True), _nearest_voted(runs, dest, False)
     out = []
-    for d, f, (b, b_gap), (a, a_gap) in zip(dest, few, before, after, strict=True):
+    for d, f, backed, (b, b_gap), (a, a_gap) in zip(dest, few, backing, before, after, strict=True):
         named = {x for x in (b, a) if x >= 0}  # the nearest voted before and after: none, one, or two alike
         if d < 0 and len(named) == 2:  # they disagree: its own few votes, else (none) a short gap, may side
             if f in named:
@@ -346,10 +351,10 @@ def _destinations(runs: list[tuple[int, np.ndarray]], vote: np.ndarray,
                 named = {b}  # (the identity's own continuity across a short gap, against a re-identification)
             elif f == -1 and a_gap <= cfg.near_frames < b_gap:
                 named = {a}
-        elif d < 0 and f >= 0 and named and f not in named:
+        elif d < 0 and backed and named:
             named = {f}
         out.append(d if d >= 0 or len(named) != 1 else named.pop())
-    return out, [d == f and n >= cfg.min_votes for d, f, n in zip(out, few, count, strict=True)]
+    return out, [backed and d == f for d, f, backed in zip(out, few, backing, strict=True)]
 
 
 def _nearest_voted(runs: list[tuple[int, np.ndarray]], dest: list[int], forward: bool) -> list[tuple[int, int]]:
