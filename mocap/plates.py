@@ -58,6 +58,7 @@ MAX_MEMBERS = 8  # larger cliques of rigid pairs are not taken for plates
 TWIN_FRAMES = 10  # frames two structures of one shape must be seen together to be two structures
 WINDOW_SPAN = 3  # plates are also learned from stretches of this many times min_frames frames ...
 WINDOW_FIT = 0.75  # ... when their members keep the shape, in some order, in this fraction of the take's frames
+EVICT_COVER = 0.5  # a tracklet leaves a member's identity where the member is voted elsewhere in this much of it
 
 
 @dataclass(frozen=True)
@@ -378,13 +379,14 @@ def _evicted(runs: list[tuple[int, np.ndarray]], dest: list[int], own: list[bool
              shape: tuple[int, int]) -> list[bool]:
     """Tracklets that would end in a plate member's identity (given it by their neighbours, or staying in it)
     without votes of their own to back it, while a tracklet of another identity, given that member and backed by
-    its own votes (``own``), is seen in the same frames: the member's marker is that one. (A marker of another
-    segment that the tracker put on a plate member's identity while the plate was hidden.)"""
+    its own votes (``own``), is seen in ``EVICT_COVER`` of its frames at least: the member's marker is that one. (A
+    marker of another segment that the tracker put on a plate member's identity while the plate was hidden; not the
+    member's own long track, which a marker voted for it by chance overlaps for a few frames.)"""
     claimed = np.zeros(shape, dtype=bool)  # (F, M) frames in which each identity's member is voted elsewhere
     for (col, run), d, voted in zip(runs, dest, own, strict=True):
         if voted and d != col:
             claimed[run, d] = True
-    return [not voted and bool(claimed[run, d if d >= 0 else col].any())
+    return [not voted and claimed[run, d if d >= 0 else col].mean() >= EVICT_COVER
             for (col, run), d, voted in zip(runs, dest, own, strict=True)]
 
 

@@ -10,7 +10,7 @@ from helpers_rigid import FRAMES, PLATE, SQUARE, TRIANGLE, columns_follow, movin
 
 from mocap.errors import MocapError
 from mocap.evaluate import evaluate
-from mocap.plates import PlateConfig, _destinations, _distances, _plates, _SortedPairs, label_plates
+from mocap.plates import PlateConfig, _destinations, _distances, _evicted, _plates, _SortedPairs, label_plates
 from mocap.relabel import repair_identities
 from mocap.rigid import placement_jumps
 from mocap.synth import SynthSettings, ring_rig
@@ -277,3 +277,13 @@ def test_a_tracklet_whose_own_few_votes_name_another_member_than_its_neighbour_f
     assert _destinations(runs, vote, PlateConfig()) == ([5, 5], [False, True])
     vote[14:40:4, 0] = 9
     assert _destinations(runs, vote, PlateConfig()) == ([9, 5], [True, True])
+
+
+def test_a_member_voted_elsewhere_for_a_few_frames_of_its_identity_s_long_track_leaves_it_in_place():
+    """Member 5's identity holds a track of 100 samples without votes (a skin marker of the plate, a few
+    millimetres off its shape); another identity's 9 samples are voted member 5 by chance. The long track stays;
+    a 10-sample tracklet in the same frames, which the vote covers, leaves for an identity of its own."""
+    claimant = (3, np.arange(40, 49))
+    assert _evicted([(5, np.arange(100)), claimant], [-1, 5], [False, True], (100, 8)) == [False, False]
+    assert _evicted([(5, np.arange(40, 50)), claimant], [-1, 5], [False, True], (100, 8)) == [True, False]
+    assert _evicted([(5, np.arange(40, 50)), claimant], [-1, 5], [True, True], (100, 8)) == [False, False]
