@@ -24,9 +24,7 @@ On finished trajectories (after :mod:`mocap.relabel` and :mod:`mocap.reunite`), 
    gives a tracklet whose votes all name one member (``min_votes``, and ``vote_fraction`` of its samples) to
    that member; a tracklet without enough votes goes with the nearest voted tracklet of its identity (the
    tracker followed one marker through it), unless the nearest before and after disagree and neither its own
-   votes nor a short gap (``near_frames``, the other side farther) side with one; a tracklet whose own few votes all
-   name another member follows them (a plate whose shape changed a little over the take matches only some of its
-   triangles);
+   votes nor a short gap (``near_frames``, the other side farther) side with one;
 4. moves each tracklet given to a member into that member's identity where it is free over those frames,
    longest first; a tracklet that would end in a member's identity without votes of its own for it, while that
    member's marker is voted elsewhere in its frames (another segment's marker the tracker put on the identity while
@@ -72,10 +70,10 @@ class PlateConfig:
         tolerance_m: points match a plate when each of their distances is within this of the plate's, m.
         min_votes: fewest votes a tracklet needs to be given to a member ...
         vote_fraction: ... and fewest, as a fraction of its samples.
-        backing_fraction: a tracklet's votes, all for one member, back it when they are ``min_votes`` and this
-            fraction of its samples at least (fewer than it needs to be given the member by its votes alone): it
-            follows them rather than a neighbour naming another member, and another segment's marker on that
-            member's identity in its frames gives it way.
+        backing_fraction: a tracklet given a member, whose votes all name it, ``min_votes`` and this fraction of
+            its samples at least (fewer than it needs to be given the member by its votes alone: a plate whose
+            shape changed a little over the take matches only some of its triangles), makes another segment's
+            marker on that member's identity in its frames leave (step 4).
         near_frames: a tracklet with too few votes, between voted tracklets of its identity that name different
             members, follows the one at most this many frames away when the other is farther (a marker back after
             a short gap, then the identity carried on to another marker after a long one).
@@ -330,8 +328,7 @@ def _destinations(runs: list[tuple[int, np.ndarray]], vote: np.ndarray,
     ``min_votes`` and ``backing_fraction`` of its samples at least). A tracklet with too few votes of its own
     follows the nearest voted tracklets of its identity; where those before and after it disagree, it follows the
     one its own votes name, if any, else, without votes of its own, the one within ``near_frames`` of it when the
-    other is farther; where its own votes back another member than they name, it follows its votes (a plate whose
-    shape changed a little over the take: its markers matched only some of its triangles)."""
+    other is farther."""
     dest, few, backing = [], [], []
     for col, run in runs:
         v = vote[run, col]
@@ -343,7 +340,7 @@ def _destinations(runs: list[tuple[int, np.ndarray]], vote: np.ndarray,
         backing.append(named.size == 1 and votes >= max(cfg.min_votes, cfg.backing_fraction * run.size))
     before, after = _nearest_voted(runs, dest, True), _nearest_voted(runs, dest, False)
     out = []
-    for d, f, backed, (b, b_gap), (a, a_gap) in zip(dest, few, backing, before, after, strict=True):
+    for d, f, (b, b_gap), (a, a_gap) in zip(dest, few, before, after, strict=True):
         named = {x for x in (b, a) if x >= 0}  # the nearest voted before and after: none, one, or two alike
         if d < 0 and len(named) == 2:  # they disagree: its own few votes, else (none) a short gap, may side
             if f in named:
@@ -352,8 +349,6 @@ def _destinations(runs: list[tuple[int, np.ndarray]], vote: np.ndarray,
                 named = {b}  # (the identity's own continuity across a short gap, against a re-identification)
             elif f == -1 and a_gap <= cfg.near_frames < b_gap:
                 named = {a}
-        elif d < 0 and backed and named:
-            named = {f}
         out.append(d if d >= 0 or len(named) != 1 else named.pop())
     return out, [backed and d == f for d, f, backed in zip(out, few, backing, strict=True)]
 
