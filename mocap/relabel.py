@@ -150,6 +150,12 @@ class RelabelConfig:
         lone_reach_m: ... that neighbour is nearer than this (a nearer neighbour's sphere holds fewer markers; a
             wrist bar's two markers are ~100 mm apart), m ...
         lone_max_s: ... and the gap is at most this long, s.
+        coast_frames: a tracklet into which an identity's extrapolation runs across a gap this short at most, frames,
+            ...
+        coast_fraction: ... within this fraction of its gate, is not linked on one neighbour's distance (the lone
+            rule) to any identity: chance matches one distance (the whole sprint seed 3's hand, back after a frame on
+            its own path within 7 mm, went to a forearm marker's identity ended 37 frames before, whose distance to a
+            neighbour the hand's matched to 0.5 mm).
         unlinked_cost_m: the assignment leaves a tracklet to the fallbacks (the tracker's own link, a take-back)
             rather than make links that cost this much more, m. It is above the gated links' costs at camera rates
             (a 12-frame gap at 5 m/s and 100 Hz gates at 0.7 m), so what it stops is an own link over a long gap,
@@ -210,6 +216,8 @@ class RelabelConfig:
     lone_gate_m: float = 0.003
     lone_reach_m: float = 0.12
     lone_max_s: float = 1.0
+    coast_frames: int = 2
+    coast_fraction: float = 0.5
     unlinked_cost_m: float = 1.0
     loose_refuse: int = 2
     end_velocity_frames: int = 3
@@ -638,6 +646,8 @@ class _Linker:
         # What refutes an extrapolation link: the steady distances nearby where hops are clear; below those rates,
         # whose gates span a segment, every distance of the tracklet's first samples, steady or not, near or far.
         refuting = heads if self.hops_clear else firsts
+        lone = np.zeros(cost.shape, dtype=bool)  # links made on one neighbour's distance
+        coasting = np.zeros(len(group), dtype=bool)  # tracklets an identity's path runs into across a short gap
         for g, run in enumerate(group):
             _, p0, v0 = _end_state(self.P, run, at_start=True)
             for j, c in enumerate(open_chains):
@@ -661,7 +671,9 @@ class _Linker:
                     change = abs(pairs[0][0] - pairs[0][1])
                     if change < cfg.lone_gate_m:
                         cost[g, j] = (cfg.own_link_weight if same else 1.0) * change
+                        lone[g, j] = True
                         continue
+                coasting[g] |= gap <= cfg.coast_frames and miss < cfg.coast_fraction * gate
                 if same and gap <= cfg.max_gap and miss >= gate and (
                         _loose(self.memory[c], heads[g], c, cfg) >= cfg.loose_refuse):
                     refused.add((g, c))  # (a marker of another segment, where the extrapolation says it is not)
@@ -677,6 +689,7 @@ class _Linker:
                         refused.add((g, c))  # (a distance the identity held, far from the tracklet's)
                     else:
                         cost[g, j] = miss
+        cost[lone & coasting[:, None]] = np.inf  # (one distance, which chance can match, against a clear path)
         for g, j in _cheapest_links(cost, cfg.unlinked_cost_m):
             assigned[g] = open_chains[j]
 

@@ -671,3 +671,30 @@ def test_scattered_identities_are_withdrawn_and_a_marker_seen_every_other_frame_
     shorter = _traj(P)  # confirmed after 3 frames: column 2's runs of 3 are enough
     assert withdraw_scattered(shorter, RelabelConfig(confirm_frames=3)) == 1
     np.testing.assert_array_equal(shorter.positions[:, 2], P[:, 2])
+
+
+def test_a_marker_back_on_its_own_path_after_a_frame_is_not_linked_on_one_neighbour_s_distance():
+    """At 120 Hz a hand spirals in towards a wrist marker (150 mm to 44.9 mm over 79 frames, then circling it at
+    44.9 mm, twice as fast: a push), missing frame 79; the tracker starts a new identity at 80. A forearm marker held
+    44.4 mm from the wrist until frame 42 and was lost. Across 37 frames no extrapolation can tell, and one
+    neighbour's distance would link the hand's return to the forearm's identity (0.5 mm off); the hand's own path
+    runs into it within 7 mm across one frame, and that link is made."""
+    fps, frames = 120.0, 140
+    f = np.arange(frames)
+    radius = np.where(f < 79, 0.150 - (0.150 - 0.0449) * f / 79, 0.0449)
+    angle = np.cumsum(np.where(f < 79, 0.09, 0.2))
+    wrist = np.tile([0.0, 0.0, 1.0], (frames, 1))
+    hand = wrist + np.stack([radius * np.cos(angle), radius * np.sin(angle), np.zeros(frames)], axis=1)
+    forearm = wrist + [0.0, -0.0444, 0.0]
+    P = np.full((frames, 4, 3), np.nan)
+    P[:79, 0] = hand[:79]
+    P[80:, 3] = hand[80:]
+    P[:43, 1] = forearm[:43]
+    P[:, 2] = wrist
+    traj = Trajectories([f"M{k + 1:03d}" for k in range(4)], fps, P)
+    relink_tracklets(traj, RelabelConfig())
+    holds = [set(np.flatnonzero(np.isfinite(traj.positions[rows, :, 0]).any(axis=0)).tolist())
+             for rows in (slice(0, 79), slice(80, frames))]
+    hand_columns = [np.flatnonzero(np.linalg.norm(traj.positions[k] - hand[k], axis=1) < 1e-12) for k in (10, 100)]
+    assert hand_columns[0].tolist() == hand_columns[1].tolist()  # one identity for the hand
+    assert holds[1] == {int(hand_columns[1][0]), 2}  # the forearm's identity holds nothing after its loss
