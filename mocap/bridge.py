@@ -195,6 +195,7 @@ def _links(P: np.ndarray, pieces: np.ndarray, fps: float, cfg: BridgeConfig) -> 
     column = {int(b): k for k, b in enumerate(starts)}  # a start piece's column in the assignment
     length = pieces[:, 2] - pieces[:, 1] + 1
     coasting = {a: b for a, b in following.items() if _coasts(P, pieces[a], pieces[b], coast_gap, cfg)}
+    coasted = set(coasting.values())
     rows, cols, costs = [], [], []
     for i, a in enumerate(ends):
         if a in coasting:  # (the link stands: no other is weighed against it)
@@ -208,7 +209,7 @@ def _links(P: np.ndarray, pieces: np.ndarray, fps: float, cfg: BridgeConfig) -> 
             lo = np.searchsorted(first, la + 1, side="left")
             hi = np.searchsorted(first, la + max_gap, side="right")
             window = starts[lo:hi]
-            candidates = set(window[length[window] >= cfg.check_frames].tolist()) - set(coasting.values())
+            candidates = set(window[length[window] >= cfg.check_frames].tolist()) - coasted
         if a in following:
             candidates.add(following[a])
         misses = {b: carried_miss(P, pieces[a], pieces[b], cfg, seen) for b in candidates}
