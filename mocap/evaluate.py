@@ -43,7 +43,7 @@ from mocap.rigid import column_runs
 from mocap.trajectories import Trajectories
 from mocap.truth import Truth, load_truth
 
-__all__ = ["EvalReport", "MarkerScore", "evaluate", "rig_from_truth", "configure_parser", "run"]
+__all__ = ["EvalReport", "MarkerScore", "SwitchEvent", "evaluate", "rig_from_truth", "configure_parser", "run"]
 
 log = logging.getLogger(__name__)
 
@@ -70,6 +70,20 @@ class MarkerScore:
     switches: int
     identified: int = 0  # of the required marker-frames, those its IDF1 identity (output track) matched
     identity: float = math.nan  # identified / required: where the IDF1 is lost
+
+
+@dataclass
+class SwitchEvent:
+    """One ID switch: in truth ``frame`` the truth marker ``label``, last matched to the output track ``before`` in
+    ``before_frame``, is matched to the track ``after``; ``at_reference_jump``: put down to the recording's
+    labelling (see :attr:`EvalReport.switches_at_reference_jumps`)."""
+
+    frame: int
+    label: str
+    before: str
+    before_frame: int
+    after: str
+    at_reference_jump: bool
 
 
 @dataclass
@@ -113,13 +127,14 @@ class EvalReport:
     rmse_over_crlb: float
     has_calibration: bool
     per_marker: list[MarkerScore] = field(default_factory=list)
+    switch_events: list[SwitchEvent] = field(default_factory=list)  # in frame order
 
     def to_dict(self) -> dict[str, Any]:
         """Plain JSON-ready dict (NaN -> None)."""
         return _json_ready(asdict(self))
 
-    def table(self, per_marker: bool = False) -> str:
-        """A short human-readable summary (optionally one line per truth marker)."""
+    def table(self, per_marker: bool = False, switches: bool = False) -> str:
+        """A short human-readable summary (optionally one line per truth marker, and one per ID switch)."""
         f = _fmt
         axes = " / ".join(f(v, 3) for v in self.rmse_axis_mm)
         if not self.has_calibration:
@@ -155,6 +170,14 @@ class EvalReport:
                 f"{m.label:<{width}}  {f(100 * m.completeness, 2):>10}  {f(m.rmse_mm, 3):>8}  {m.switches:>8}"
                 f"  {f(100 * m.identity, 2):>10}"
                 for m in self.per_marker
+            ]
+        if switches:
+            width = max([len(e.label) for e in self.switch_events] + [6])
+            lines.append(f"{'frame':>6}  {'marker':<{width}}  output track (last matched at frame) -> track")
+            lines += [
+                f"{e.frame:>6}  {e.label:<{width}}  {e.before} ({e.before_frame}) -> {e.after}"
+                + ("   (the recording's labelling)" if e.at_reference_jump else "")
+                for e in self.switch_events
             ]
         return "\n".join(lines)
 
@@ -300,7 +323,7 @@ def evaluate(traj: Trajectories, truth: Truth, rig: Rig | None = None, gate_mm: 
                     "like different takes, or different frames of reference (units, axes, calibration); check that "
                     "this truth belongs to this output", n_match, out_points, gate_mm)
     mot = _mot_summary(acc)
-    switch_frames, switch_oids = _switch_events(acc)
+    switch_frames, switch_oids, switch_from, switch_from_frame, switch_to = _switch_events(acc)
     truth_m = truth_pos / 1000.0
     exchanges = _exchanged_across_gaps(truth_m, float(truth.fps))
     jumps = _reference_jumps(truth_m, float(truth.fps), exchanges)
@@ -315,6 +338,15 @@ def evaluate(traj: Trajectories, truth: Truth, rig: Rig | None = None, gate_mm: 
         sigma = truth.sigma_px[frames][m.frame, :, m.marker]
         cov = crlb_covariance(rig, truth_pos[m.frame, m.marker] / 1000.0, vis, sigma)
         crlb = math.sqrt(float(np.nanmean(np.trace(cov, axis1=1, axis2=2)))) * 1000.0
+
+    at_jumps = _at_reference_jumps(switch_frames, switch_oids, m, near_jump, exchanges)
+    first = traj.first_frame  # truth frame of output frame 0
+    switch_events = [
+        SwitchEvent(frame=int(f) + first, label=truth.labels[o], before=traj.labels[b], before_frame=int(bf) + first,
+                    after=traj.labels[a], at_reference_jump=bool(j))
+        for f, o, b, bf, a, j in zip(switch_frames, switch_oids, switch_from, switch_from_frame, switch_to, at_jumps,
+                                     strict=True)
+    ]
 
     M = truth.positions.shape[1]
     req_per = required.sum(axis=0)
@@ -358,7 +390,7 @@ def evaluate(traj: Trajectories, truth: Truth, rig: Rig | None = None, gate_mm: 
         switches=int(mot["num_switches"]),
         switches_per_10k=_ratio(1e4 * mot["num_switches"], n_req),
         reference_jumps=int(jumps.sum()),
-        switches_at_reference_jumps=int(_at_reference_jumps(switch_frames, switch_oids, m, near_jump, exchanges).sum()),
+        switches_at_reference_jumps=int(at_jumps.sum()),
         idf1=mot["idf1"],
         idp=mot["idp"],
         idr=mot["idr"],
@@ -367,6 +399,7 @@ def evaluate(traj: Trajectories, truth: Truth, rig: Rig | None = None, gate_mm: 
         has_calibration=rig is not None,
         rmse_over_crlb=rmse / crlb,
         per_marker=per_marker,
+        switch_events=switch_events,
     )
 
 
@@ -393,12 +426,21 @@ def _identified(acc: mm.MOTAccumulator, n_markers: int) -> np.ndarray:
     return out
 
 
-def _switch_events(acc: mm.MOTAccumulator) -> tuple[np.ndarray, np.ndarray]:
-    """(S,) frame and (S,) truth marker index of every ID switch py-motmetrics counted."""
+def _switch_events(acc: mm.MOTAccumulator) -> tuple[np.ndarray, ...]:
+    """Every ID switch py-motmetrics counted, in frame order: (S,) frame, truth marker index, output track it was
+    last matched to, the frame of that match, and the output track it is matched to now."""
     events = acc.mot_events
-    switches = events.loc[events["Type"] == "SWITCH"]
-    return (switches.index.get_level_values("FrameId").to_numpy(dtype=np.intp),
-            switches["OId"].to_numpy(dtype=np.intp))
+    matched = events.loc[events["Type"].isin(["MATCH", "SWITCH"])]
+    frame = matched.index.get_level_values("FrameId").to_numpy(dtype=np.intp)
+    oid = matched["OId"].to_numpy(dtype=np.intp)
+    hid = matched["HId"].to_numpy(dtype=np.intp)
+    switch = (matched["Type"] == "SWITCH").to_numpy()
+    order = np.lexsort((frame, oid))  # by marker, then frame: each switch's previous match is the row before it
+    rows = order[np.flatnonzero(switch[order])]
+    prev = order[np.maximum(np.flatnonzero(switch[order]) - 1, 0)]
+    by_frame = np.argsort(frame[rows], kind="stable")
+    rows, prev = rows[by_frame], prev[by_frame]
+    return frame[rows], oid[rows], hid[prev], frame[prev], hid[rows]
 
 
 def _reference_jumps(truth_pos: np.ndarray, fps: float, exchanges: list[tuple[int, int, int, int]]) -> np.ndarray:
@@ -529,6 +571,8 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
         "--calibration", metavar="calibration.toml", help="rig for the Cramér–Rao reference (default: the truth's)"
     )
     parser.add_argument("--per-marker", action="store_true", help="print one line per truth marker")
+    parser.add_argument("--switches", action="store_true",
+                        help="print one line per ID switch: frame, truth marker, output tracks before and after")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -541,7 +585,7 @@ def run(args: argparse.Namespace) -> int:
         report = evaluate(traj, truth, rig, args.gate_mm)
     except MocapError as exc:
         raise MocapError(f"{args.output} against {args.truth}: {exc}") from None
-    print(report.table(per_marker=args.per_marker))
+    print(report.table(per_marker=args.per_marker, switches=args.switches))
     if args.json:
         atomic_write_bytes(args.json, (json.dumps(report.to_dict(), indent=2) + "\n").encode("utf-8"))
     return 0

@@ -115,6 +115,16 @@ def test_swapped_labels_count_two_switches(truth: Truth) -> None:
     assert [m.identity for m in report.per_marker[2:]] == [1.0] * (len(truth.labels) - 2)
     halves = (req[:k, :2] if req[:k, :2].sum() >= req[k:, :2].sum() else req[k:, :2]).sum(axis=0)
     assert [m.identified for m in report.per_marker[:2]] == halves.tolist()
+    # The list of switches: where, whose, from which track (last matched when) to which.
+    events = [(e.label, e.before, e.after, e.at_reference_jump) for e in report.switch_events]
+    assert sorted(events) == [("T0", "O0", "O1", False), ("T1", "O1", "O0", False)]
+    for e in report.switch_events:
+        j = int(e.label[1])
+        assert e.frame == np.flatnonzero(req[k:, j])[0] + k  # the first required frame after the swap
+        assert e.before_frame == np.flatnonzero(req[:k, j])[-1]  # the last one before it
+    shifted = evaluate(output_of(pos[5:], first_frame=5), truth)  # truth frame numbers, whatever the output's start
+    assert [e.frame for e in shifted.switch_events] == [e.frame for e in report.switch_events]
+    assert [line.split()[1] for line in report.table(switches=True).splitlines()[-2:]] == ["T0", "T1"]
 
 
 def test_switches_at_a_label_swap_in_the_truth_are_put_down_to_it(truth: Truth) -> None:
@@ -128,10 +138,15 @@ def test_switches_at_a_label_swap_in_the_truth_are_put_down_to_it(truth: Truth) 
     assert report.switches_at_reference_jumps == 4
     assert report.reference_jumps == 6  # both markers' second differences at k - 1, k and k + 1
     assert "4 of the ID switches are within 2 frames" in report.table()
+    assert [e.at_reference_jump for e in report.switch_events] == [True] * 4
+    assert [e.frame for e in report.switch_events] == [k, k, k + 1, k + 1]
+    assert sum(line.endswith("(the recording's labelling)") for line in report.table(switches=True).splitlines()) == 4
     own = truth.positions.copy()
     own[k + 5:, [2, 3]] = own[k + 5:, [3, 2]]  # a real swap of the output, away from the truth's jump
     report = evaluate(output_of(own), swapped)
     assert report.switches == 6 and report.switches_at_reference_jumps == 4
+    ours = [(e.label, e.at_reference_jump) for e in report.switch_events if e.frame >= k + 5]
+    assert sorted(ours)[:2] == [("T2", False), ("T3", False)]
 
 
 def test_switches_where_the_truth_renames_a_marker_are_put_down_to_it(truth: Truth) -> None:
@@ -416,7 +431,7 @@ def test_cli_writes_table_and_json(truth: Truth, tmp_path, capsys) -> None:
     write_c3d(output_of(truth.positions), tmp_path / "out.c3d")
     code = main(["evaluate", str(tmp_path / "out.c3d"), "--truth", str(tmp_path / "take.truth.npz"),
                  "--json", str(tmp_path / "score.json"), "--calibration", str(tmp_path / "calibration.toml"),
-                 "--per-marker"])
+                 "--per-marker", "--switches"])
     assert code == 0
     printed = capsys.readouterr().out
     assert "RMSE" in printed and "IDF1 1.0000" in printed and "T7" in printed
@@ -425,7 +440,8 @@ def test_cli_writes_table_and_json(truth: Truth, tmp_path, capsys) -> None:
     assert data["required"] == int(required(truth).sum())
     assert [m["label"] for m in data["per_marker"]] == truth.labels
     assert [m["identity"] for m in data["per_marker"]] == [1.0] * len(truth.labels)
-    assert "identity %" in printed
+    assert "identity %" in printed and "output track (last matched at frame) -> track" in printed
+    assert data["switch_events"] == []
     assert data["crlb_rmse_mm"] > 0
 
 
