@@ -10,7 +10,8 @@ ghosts, truth); each blob is drawn with ``--model``:
 * ``bloom``: the blurred disc plus a halo of 6 % of its height, std 3 px (lens flare around bright markers);
 * ``shot``: the blurred disc with photon noise, variance noise^2 + signal / 4 (a 4 e-/grey-level sensor);
 * ``cut``: the blurred disc, partly hidden where the marker goes behind something or comes out: in a camera's
-  frames next to one where the marker is not drawn (occluded, dropped, out of the image), the disc beyond a
+  frames next to one where the marker is not drawn by it but by another camera (occluded, dropped, out of the
+  image; not where the recording has no sample or every camera lost it), the disc beyond a
   straight edge is not drawn, the edge through the disc's centre in the frame next to the hidden one and half a
   radius out in the frame before that, at a random angle (seeded by take seed, frame and camera). The blob's
   centroid then lies up to 0.42 radius off the marker's centre, which the truth keeps (a real renderer's limbs
@@ -89,11 +90,14 @@ def _cut_edges(plan, frame: int, camera: int, seed: int) -> tuple[np.ndarray, np
     sel = drawn[frame]
     F = len(drawn)
     edge = np.full(int(sel.sum()), np.inf)
+    if _DRAWN_SOMEWHERE[0] is None or _DRAWN_SOMEWHERE[0][0] is not plan:
+        _DRAWN_SOMEWHERE[0] = (plan, plan.drawn.any(axis=1))
+    anywhere = _DRAWN_SOMEWHERE[0][1]  # (F, M) drawn by some camera: hidden from this one by something in its way
     for reach, fraction in zip((2, 1), _CUT_EDGES[::-1], strict=True):  # (the nearer hidden frame wins)
         near = np.zeros(drawn.shape[1], dtype=bool)
         for step in (-reach, reach):
             if 0 <= frame + step < F:
-                near |= ~drawn[frame + step]
+                near |= ~drawn[frame + step] & anywhere[frame + step]
         edge = np.where(near[sel], fraction * plan.radius_px[frame, camera, sel], edge)
     angle = np.random.default_rng([seed, frame, camera]).uniform(0.0, 2.0 * np.pi, drawn.shape[1])[sel]
     return np.stack([np.cos(angle), np.sin(angle)], axis=1), edge
@@ -120,6 +124,7 @@ def _render_cut_frame(plan, frame: int, camera: int, rng: np.random.Generator) -
 _RENDER_FRAME = _SIMULATE.render_frame
 _CUT_SEED = [0]  # the take's seed
 _CUT: list = [None]  # (normals (n, 2), edges (n,) px, ghosts) of the camera-frame being drawn
+_DRAWN_SOMEWHERE: list = [None]  # (plan, (F, M) bool: drawn by some camera), computed once per take
 
 
 def main() -> int:
