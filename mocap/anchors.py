@@ -244,9 +244,9 @@ def _rejoin(traj: Trajectories, cfg: AnchorConfig, spread_m: float) -> int:
         root[p] = r
         joined += 1
     if spilled:
-        traj.positions, traj.residuals, traj.camera_masks = (
-            np.concatenate([a] + [s[i][:, None] for s in spilled], axis=1) for i, a in enumerate(arrays))
-        traj.labels = list(traj.labels) + [f"fragment{k + 1}" for k in range(len(spilled))]
+        columns = traj.add_empty(len(spilled), [f"fragment{k + 1}" for k in range(len(spilled))])
+        for col, out in zip(columns, spilled, strict=True):
+            traj.positions[:, col], traj.residuals[:, col], traj.camera_masks[:, col] = out
     return joined
 
 

@@ -436,8 +436,8 @@ def _switch_events(acc: mm.MOTAccumulator) -> tuple[np.ndarray, ...]:
     hid = matched["HId"].to_numpy(dtype=np.intp)
     switch = (matched["Type"] == "SWITCH").to_numpy()
     order = np.lexsort((frame, oid))  # by marker, then frame: each switch's previous match is the row before it
-    rows = order[np.flatnonzero(switch[order])]
-    prev = order[np.maximum(np.flatnonzero(switch[order]) - 1, 0)]
+    at = np.flatnonzero(switch[order])
+    rows, prev = order[at], order[np.maximum(at - 1, 0)]
     by_frame = np.argsort(frame[rows], kind="stable")
     rows, prev = rows[by_frame], prev[by_frame]
     return frame[rows], oid[rows], hid[prev], frame[prev], hid[rows]

@@ -83,14 +83,15 @@ class Trajectories:
             self.labels = [f"M{k + 1:03d}" for k in range(self.n_markers)]
         return dropped
 
-    def add_empty(self, n: int) -> range:
-        """Append, in place, ``n`` identity columns without samples (named after the last, ``M...``); returns
-        their column indices."""
+    def add_empty(self, n: int, names: list[str] | None = None) -> range:
+        """Append, in place, ``n`` identity columns without samples, named ``names`` (default: after the last,
+        ``M...``); returns their column indices."""
         first = self.n_markers
         self.positions = np.concatenate([self.positions, np.full((self.n_frames, n, 3), np.nan)], axis=1)
         self.residuals = np.concatenate([self.residuals, np.full((self.n_frames, n), np.nan)], axis=1)
         self.camera_masks = np.concatenate([self.camera_masks, np.zeros((self.n_frames, n), np.uint32)], axis=1)
-        self.labels += [f"M{k + 1:03d}" for k in range(first, first + n)]
+        self.labels = list(self.labels) + (list(names) if names is not None
+                                           else [f"M{k + 1:03d}" for k in range(first, first + n)])
         return range(first, first + n)
 
     def move_samples(self, rows: np.ndarray | int, source: int, target: int) -> None:
