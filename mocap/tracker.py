@@ -222,6 +222,14 @@ class TrackerConfig:
             serve's left-finger identity, lost 13 frames, took the tibia's return, which its hand's markers refute);
             0: off. (With no floor on the radius the 120 Hz sprint's forearm, whose glimpsed markers refute each
             other's identities in turn, lost 0.03 IDF1.)
+        partial_area: a blob smaller than its marker's blob in that camera lately (a running average, scaled to
+            the point's depth) by more than this / sqrt(that area) (the pixel count's spread), or ...
+        partial_round: ... flatter by more than this / sqrt(area) and no larger, is the marker partly hidden (behind
+            a limb, at an occluder's edge): its centroid is off towards the part seen, up to 0.4 of a radius, often
+            along another camera's epipolar line where the fusion cannot see it. Such a view is left out of a point
+            that keeps two clean views without it, and is not re-picked; 0: off.
+        partial_min_area: blobs expected smaller than this (px) are not judged.
+        blob_alpha: smoothing factor of the running blob area and roundness per track and camera.
     """
 
     confirm_frames: int = 4
@@ -285,6 +293,10 @@ class TrackerConfig:
     attached_tolerance_m: float = 0.01
     attached_steady_s: float = 0.1
     rival_ratio: float = 0.25
+    partial_area: float = 0.9
+    partial_round: float = 0.45
+    partial_min_area: float = 6.0
+    blob_alpha: float = 0.3
     silent_yield: bool = True
     refuted_wide_m: float = 0.25
 
@@ -427,6 +439,7 @@ class _Tracks(_Rows):
     weak: np.ndarray  # (K,) started from a two-view point that not all framing cameras supported
     origin: np.ndarray  # (K, 3) where the track started, m
     noise: np.ndarray  # (K,) std of the last measured point, m
+    blob: np.ndarray  # (K, C, 3) the marker's blob in each camera lately: area px, roundness, depth m (NaN: none)
 
     @classmethod
     def empty(cls, C: int) -> _Tracks:
@@ -434,7 +447,7 @@ class _Tracks(_Rows):
         return cls(i, i, i, i, i, np.zeros((0, 9)), np.zeros((0, 9, 9)), np.zeros((0, 3)), np.zeros((0, 3)),
                    np.zeros((0, 3)), np.zeros((0, C, 6)), np.zeros((0, C, 6, 6)), np.zeros((0, C), dtype=bool),
                    np.zeros((0, C), dtype=np.intp), np.zeros((0, C, 3)), np.zeros((0, C, 2)), np.zeros((0, C, 2)),
-                   np.zeros(0, dtype=bool), np.zeros((0, 3)), np.zeros(0))
+                   np.zeros(0, dtype=bool), np.zeros((0, 3)), np.zeros(0), np.zeros((0, C, 3)))
 
     def __len__(self) -> int:
         return len(self.uid)
@@ -474,13 +487,15 @@ class _Measurements(_Rows):
 @dataclass
 class _Frame:
     """One frame's detections, padded: ``D`` (C, N, 2) ideal px, ``S`` (C, N, 2, 2) px^2, ``valid``,
-    ``merged`` (C, N) bool, ``roundness`` (C, N) (1 for blobs too small to tell), ``counts`` per camera."""
+    ``merged`` (C, N) bool, ``roundness`` (C, N) (1 for blobs too small to tell), ``area`` (C, N) px,
+    ``counts`` per camera."""
 
     D: np.ndarray
     S: np.ndarray
     valid: np.ndarray
     merged: np.ndarray
     roundness: np.ndarray
+    area: np.ndarray
     counts: list[int]
 
 
@@ -686,36 +701,38 @@ class Tracker:
     def _prepare(self, detections: list[Detections]) -> _Frame:
         counts = [len(d) for d in detections]
         N, C = max(counts, default=0), self._C
+        fill = np.arange(N) < np.array(counts)[:, None]  # the (C, N) slots in use, camera-major like the concatenations
+        area = np.zeros((C, N))
+        if N:
+            area[fill] = np.concatenate([det.area for det in detections])
         lenses = self._lenses.compiled
         if N and lenses is not None:  # (all of the steps below in one call)
             cfg = self._cfg
             return _Frame(*kernels.prepare_frame(
                 np.concatenate([det.xy for det in detections]), np.array(counts), *lenses,
                 np.concatenate([det.cov for det in detections]), np.concatenate([det.merged for det in detections]),
-                np.concatenate([det.area for det in detections]), np.concatenate([det.roundness for det in detections]),
+                area[fill], np.concatenate([det.roundness for det in detections]),
                 MIN_SHAPE_AREA, MIN_CENTROID_STD_PX, Detections.DEFAULT_SIGMA_PX, self._centre, self._focal_xy,
-                cfg.round_merged, cfg.vague_px**2, _VAGUE_TYPICAL**2, cfg.merged_variance_scale), counts)
+                cfg.round_merged, cfg.vague_px**2, _VAGUE_TYPICAL**2, cfg.merged_variance_scale), area, counts)
         D = np.full((C, N, 2), np.nan)
         S = np.empty((C, N, 2, 2))
         S[:] = np.eye(2)
         merged = np.zeros((C, N), dtype=bool)
         round_ = np.ones((C, N))
-        fill = np.arange(N) < np.array(counts)[:, None]  # the (C, N) slots in use, camera-major like the concatenations
         if N:
             D[fill] = self._lenses.undistort([det.xy for det in detections])
         if N and kernels.HAVE_NUMBA:  # (the same steps in one call)
             var = kernels.frame_detections(
                 D, S, merged, round_, np.concatenate([det.cov for det in detections]),
-                np.concatenate([det.merged for det in detections]), np.concatenate([det.area for det in detections]),
+                np.concatenate([det.merged for det in detections]), area[fill],
                 np.concatenate([det.roundness for det in detections]), np.array(counts), MIN_SHAPE_AREA,
                 MIN_CENTROID_STD_PX, Detections.DEFAULT_SIGMA_PX, self._centre, self._focal_xy, self._cfg.round_merged)
         else:
             if N:
                 S[fill] = floored_covariance(np.concatenate([det.cov for det in detections]))
                 merged[fill] = np.concatenate([det.merged for det in detections])
-                area = np.concatenate([det.area for det in detections])
-                round_[fill] = np.where(area >= MIN_SHAPE_AREA, np.concatenate([det.roundness for det in detections]),
-                                        1.0)
+                round_[fill] = np.where(area[fill] >= MIN_SHAPE_AREA,
+                                        np.concatenate([det.roundness for det in detections]), 1.0)
             # A sphere's image is an ellipse of axis ratio cos(field angle); a blob much flatter than that is two
             # markers merged without a saddle, or one partly hidden: its centroid is off by up to a radius.
             merged |= round_ < self._cfg.round_merged / _secant_field_angle(D, self._centre[:, None, :],
@@ -726,7 +743,7 @@ class Tracker:
             typical = quick_median(var[valid])  # (centroid files may state one large std for every blob)
             merged |= var > max(self._cfg.vague_px**2, _VAGUE_TYPICAL**2 * typical)
         S[merged] *= self._cfg.merged_variance_scale
-        return _Frame(D, S, valid, merged, round_, counts)
+        return _Frame(D, S, valid, merged, round_, area, counts)
 
     def _in_play(self) -> np.ndarray:
         """(K,) tracks that search their own gates: confirmed ones for ``coast_frames`` after their last
@@ -1150,7 +1167,11 @@ class Tracker:
         """Epipolar pruning, robust fusion and re-pick of the assigned detections ``meas.asg``; fills ``meas``."""
         cfg = self._cfg
         asg = meas.asg
+        if cfg.partial_area > 0:
+            self._leave_out_partly_hidden(fr, crowded, asg)
         tri, extra, sigma = self._triangulate_views(fr, crowded, asg)
+        if cfg.partial_area > 0:  # (a partly hidden blob left out is free, and near the point: not offered back)
+            extra[self._partial_views(fr, extra, extra >= 0)] = -1
         more = (extra >= 0).any(axis=1).nonzero()[0]
         if more.size:
             asg[more] = np.where(extra[more] >= 0, extra[more], asg[more])
@@ -1161,6 +1182,8 @@ class Tracker:
                                     cfg.outlier_sigma, self._outlier_px)
             tri.X[more], tri.cov[more], tri.rms_px[more], tri.used[more] = t2.X, t2.cov, t2.rms_px, t2.used
             asg[~tri.used] = -1
+        if cfg.partial_area > 0:
+            self._drop_partly_hidden_views(fr, crowded, asg, tri)
         split = self._deblend(fr, crowded, asg, tri) if cfg.deblend else np.zeros(asg.shape, dtype=bool)
         # A point leaning on a possibly merged blob is output only if it agrees with the prediction, within its
         # noise as its clean views give it: a merged blob's own (large) std must not widen the gate it is judged by.
@@ -1184,6 +1207,50 @@ class Tracker:
         if cfg.withhold_merged_depth:
             meas.out[self._depth_on_merged_blobs(fr, asg, clean, tri, crowded)] = False
         meas.X, meas.cov, meas.rms_px = tri.X, tri.cov, tri.rms_px
+
+    def _partial_views(self, fr: _Frame, asg: np.ndarray, views: np.ndarray) -> np.ndarray:
+        """(K, C) bool: which of the ``views`` (K, C) bool of the detections ``asg`` (K, C) show their marker partly
+        hidden (:meth:`_partly_hidden`)."""
+        k, c = np.nonzero(views & (asg >= 0))
+        out = np.zeros(asg.shape, dtype=bool)
+        if k.size:
+            part = self._partly_hidden(fr, k, c, asg[k, c])
+            out[k[part], c[part]] = True
+        return out
+
+    def _leave_out_partly_hidden(self, fr: _Frame, crowded: np.ndarray, asg: np.ndarray) -> None:
+        """Assigned detections ``asg`` (K, C) of a marker partly hidden (:meth:`_partly_hidden`) are left out (-1, in
+        place) where two clean ones (not crowded, not flagged merged) remain."""
+        partial = self._partial_views(fr, asg, asg >= 0)
+        if not np.count_nonzero(partial):
+            return
+        clean = (asg >= 0) & ~crowded & ~_gather(fr.merged, asg) & ~partial
+        asg[partial & (clean.sum(axis=1) >= 2)[:, None]] = -1
+
+    def _drop_partly_hidden_views(self, fr: _Frame, crowded: np.ndarray, asg: np.ndarray, tri: Triangulated) -> None:
+        """Points standing on a view of their marker partly hidden (:meth:`_partly_hidden`) and on two clean views
+        besides (not crowded, not flagged merged) are triangulated again without it, and keep the new point where
+        every clean view stays in it. A partly hidden marker's centroid is off by up to 0.4 of a radius, often along
+        another camera's epipolar line, where the consensus cannot see it; a point with fewer clean views keeps it
+        (the view is all it has). ``asg`` (K, C) and ``tri`` are updated in place."""
+        cfg = self._cfg
+        partial = self._partial_views(fr, asg, tri.used)
+        if not np.count_nonzero(partial):
+            return
+        clean = tri.used & ~crowded & ~_gather(fr.merged, asg) & ~partial
+        rows = (partial.any(axis=1) & (clean.sum(axis=1) >= 2)).nonzero()[0]
+        if rows.size == 0:
+            return
+        sub = np.where(partial[rows], -1, asg[rows])
+        inflate = np.where(crowded[rows] & ~_gather(fr.merged, sub), cfg.merged_variance_scale, 1.0)[..., None, None]
+        t2 = robust_triangulate(self._P, _gather(fr.D, sub).swapaxes(0, 1),
+                                (_gather(fr.S, sub) * inflate).swapaxes(0, 1), tri.X[rows], cfg.outlier_sigma,
+                                self._outlier_px)
+        ok = np.isfinite(t2.X).all(axis=1) & ~(clean[rows] & ~t2.used).any(axis=1)
+        rows = rows[ok]
+        asg[rows] = np.where(t2.used[ok], sub[ok], -1)
+        tri.X[rows], tri.cov[rows], tri.rms_px[rows], tri.used[rows] = t2.X[ok], t2.cov[ok], t2.rms_px[ok], t2.used[ok]
+        tri.proj[:, rows], tri.depth[:, rows] = t2.proj[:, ok], t2.depth[:, ok]
 
     def _triangulate_views(self, fr: _Frame, crowded: np.ndarray, asg: np.ndarray
                            ) -> tuple[Triangulated, np.ndarray, np.ndarray]:
@@ -1365,7 +1432,14 @@ class Tracker:
                                   dt, self._running.alpha, _IMAGE_VELOCITY_STD, _IMAGE_ACCEL_STD, t.since, t.hits,
                                   t.x3, t.P3, t.e3, t.last_X, t.last_v, t.noise, t.x2, t.P2, t.e2, t.last_uv,
                                   t.last_uvv, t.lock2, t.unseen2)
-            return
+        else:
+            self._update_numpy(fr, meas, idx)
+        kk, cc = np.nonzero(meas.asg[idx] >= 0)
+        self._follow_blobs(fr, idx[kk], cc, meas.asg[idx[kk], cc])
+
+    def _update_numpy(self, fr: _Frame, meas: _Measurements, idx: np.ndarray) -> None:
+        """:meth:`_update`'s filter steps without numba."""
+        t, dt = self._t, self._dt
         X = meas.X[idx]
         cov = meas.cov[idx]
         R = cov + np.eye(3) * 1e-12
@@ -1415,6 +1489,46 @@ class Tracker:
         t.last_uv[tk, cc] = z
         t.lock2[idx] = seen
         t.unseen2[tk, cc] = 0
+
+    def _blob_ratios(self, fr: _Frame, tracks: np.ndarray, cams: np.ndarray, blobs: np.ndarray
+                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """Blob ``blobs[i]`` of camera ``cams[i]`` against track ``tracks[i]``'s blob there lately: its area over
+        that blob's scaled to the depth of the track's last point (the image of a sphere scales as 1 / depth^2),
+        its roundness over that blob's (NaN where the track has none), the scaled area and the depths (m), (n,)
+        each."""
+        ref = self._t.blob[tracks, cams]  # (n, 3)
+        X = self._t.last_X[tracks]
+        depth = np.einsum("nj,nj->n", self._P[cams, 2, :3], X) + self._P[cams, 2, 3]
+        with np.errstate(invalid="ignore", divide="ignore"):
+            expected = ref[:, 0] * (ref[:, 2] / depth) ** 2
+            return fr.area[cams, blobs] / expected, fr.roundness[cams, blobs] / ref[:, 1], expected, depth
+
+    def _partly_hidden(self, fr: _Frame, tracks: np.ndarray, cams: np.ndarray, blobs: np.ndarray) -> np.ndarray:
+        """(n,) bool: blob ``blobs[i]`` of camera ``cams[i]`` is track ``tracks[i]``'s marker partly hidden there:
+        smaller than its blob lately (scaled to depth) by more than ``partial_area`` / sqrt(area) (the pixel count's
+        spread), or flatter by ``partial_round`` / sqrt(area) and no larger (a streak or a merge grows). Its
+        centroid is off towards the visible part, up to 0.4 of a radius. Blobs flagged merged are not judged."""
+        cfg = self._cfg
+        area_ratio, round_ratio, expected, _ = self._blob_ratios(fr, tracks, cams, blobs)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            spread = 1.0 / np.sqrt(expected)
+            out = ((area_ratio < 1.0 - cfg.partial_area * spread)
+                   | ((round_ratio < 1.0 - cfg.partial_round * spread) & (area_ratio < 1.0)))
+        return out & ~fr.merged[cams, blobs] & (expected >= cfg.partial_min_area)
+
+    def _follow_blobs(self, fr: _Frame, tracks: np.ndarray, cams: np.ndarray, blobs: np.ndarray) -> None:
+        """Running average (``blob_alpha``) of each track's blob area (scaled to depth) and roundness per camera,
+        from its views this frame that are neither flagged merged nor partly hidden (:meth:`_partly_hidden`)."""
+        area_ratio, _, expected, depth = self._blob_ratios(fr, tracks, cams, blobs)
+        take = ~fr.merged[cams, blobs] & ~self._partly_hidden(fr, tracks, cams, blobs) & np.isfinite(depth)
+        tracks, cams, blobs, expected, depth = tracks[take], cams[take], blobs[take], expected[take], depth[take]
+        old = self._t.blob[tracks, cams]
+        area, roundness = fr.area[cams, blobs], fr.roundness[cams, blobs]
+        a = self._cfg.blob_alpha
+        fresh = ~np.isfinite(expected)
+        self._t.blob[tracks, cams] = np.stack([np.where(fresh, area, expected + a * (area - expected)),
+                                               np.where(fresh, roundness, old[:, 1] + a * (roundness - old[:, 1])),
+                                               depth], axis=1)
 
     def _e2_from_3d(self, tracks: np.ndarray, cams: np.ndarray) -> np.ndarray:
         """(n, 3) image running errors seeded from the tracks' 3D ones, scaled by f / depth."""
@@ -1571,7 +1685,7 @@ class Tracker:
         i = np.zeros(n, dtype=np.intp)
         new = _Tracks(uid, i - 1, cand, i + 1, i.copy(), x3, P3, e3, pts.X.copy(), np.full((n, 3), np.nan), x2, P2,
                       used, np.zeros((n, C), dtype=np.intp), np.zeros((n, C, 3)), last_uv,
-                      np.zeros((n, C, 2)), ~pts.strong, pts.X.copy(), _point_std(pts.cov))
+                      np.zeros((n, C, 2)), ~pts.strong, pts.X.copy(), _point_std(pts.cov), np.full((n, C, 3), np.nan))
         base = len(self._t)
         self._t.extend(new)
         self._t.e2[base + k, c] = self._e2_from_3d(base + k, c)

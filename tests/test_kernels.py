@@ -308,7 +308,7 @@ def _random_tracker(rig, K: int, seed: int) -> Tracker:
                          x2.reshape(K, C, 6), P2.reshape(K, C, 6, 6), rng.random((K, C)) < 0.7,
                          rng.integers(0, 20, size=(K, C)), rng.uniform(0.05, 3.0, size=(K, C, 3)),
                          uv - vel2 / 100.0, vel2 + rng.normal(scale=10.0, size=(K, C, 2)), np.zeros(K, dtype=bool),
-                         X.copy(), rng.uniform(1e-5, 1e-3, size=K))
+                         X.copy(), rng.uniform(1e-5, 1e-3, size=K), np.full((K, C, 3), np.nan))
     if K:  # one track behind camera 0
         tracker._t.x3[0, :3] = -np.linalg.solve(P[0, :, :3], P[0, :, 3]) - 0.5 * P[0, 2, :3]
     return tracker
@@ -326,7 +326,8 @@ def test_tracker_search_regions_crowding_and_update_are_the_numpy_ones(K, monkey
     D[:, N - 2:] = np.nan
     A = rng.normal(size=(C, N, 2, 2))
     S = A @ A.transpose(0, 1, 3, 2) * 0.01 + np.eye(2) * 1e-4
-    fr = _Frame(D, S, np.isfinite(D[..., 0]), np.zeros((C, N), dtype=bool), np.ones((C, N)), [N] * C)
+    fr = _Frame(D, S, np.isfinite(D[..., 0]), np.zeros((C, N), dtype=bool), rng.uniform(0.7, 1.0, size=(C, N)),
+                rng.uniform(3, 35, size=(C, N)), [N] * C)
     asg = np.where(rng.random((K, C)) < 0.7, rng.integers(0, N, size=(K, C)), -1)
     asg[:, -1] = -1  # one camera saw none of them
     meas = _Measurements.empty(K, C)
@@ -373,7 +374,7 @@ def _measurement_scene(K: int):
     A = rng.normal(size=(C, N, 2, 2))
     S = A @ A.transpose(0, 1, 3, 2) * 0.02 + np.eye(2) * 0.01
     merged = rng.random((C, N)) < 0.1
-    fr = _Frame(D, S, np.isfinite(D[..., 0]), merged, np.ones((C, N)), [N] * C)
+    fr = _Frame(D, S, np.isfinite(D[..., 0]), merged, np.ones((C, N)), np.full((C, N), 15.0), [N] * C)
     asg = np.where(rng.random((K, C)) < 0.8, np.arange(K)[:, None], -1)
     asg[rng.random((K, C)) < 0.1] = K  # a random blob
     if K > 1:
