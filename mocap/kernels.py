@@ -1206,6 +1206,67 @@ def attached_fill(ident, X, rows, neighbour, tries, last, frame, reach2):
             d[pick] = np.inf
 
 
+@_jit
+def _partial_blob(area, roundness, merged, expected_area, expected_round, partial_area, partial_round, min_area):
+    """:meth:`mocap.tracker.Tracker._partial` of one blob."""
+    if merged or not expected_area >= min_area:  # (NaN: unknown)
+        return False
+    ratio = area / expected_area
+    spread = 1.0 / math.sqrt(expected_area)
+    return ratio < 1.0 - partial_area * spread or (roundness / expected_round < 1.0 - partial_round * spread
+                                                    and ratio < 1.0)
+
+
+@_jit
+def expected_blobs(blob, last_X, P):
+    """:meth:`mocap.tracker.Tracker._expected_blobs`: ``blob`` (K, C, 3), ``last_X`` (K, 3) m, ``P`` (C, 3, 4) ->
+    (K, C, 2)."""
+    K, C = blob.shape[0], blob.shape[1]
+    out = np.empty((K, C, 2))
+    for k in range(K):
+        for c in range(C):
+            depth = last_X[k, 0] * P[c, 2, 0] + last_X[k, 1] * P[c, 2, 1] + last_X[k, 2] * P[c, 2, 2] + P[c, 2, 3]
+            scale = blob[k, c, 2] / depth
+            out[k, c, 0] = blob[k, c, 0] * scale * scale
+            out[k, c, 1] = blob[k, c, 1]
+    return out
+
+
+@_jit
+def partly_hidden(expect, area, roundness, merged, tracks, cams, blobs, partial_area, partial_round, min_area):
+    """:meth:`mocap.tracker.Tracker._partly_hidden`: ``expect`` (K, C, 2), the frame's ``area``, ``roundness`` and
+    ``merged`` (C, N), the views ``tracks``, ``cams``, ``blobs`` (n,) -> (n,) bool."""
+    out = np.zeros(tracks.shape[0], dtype=np.bool_)
+    for i in range(tracks.shape[0]):
+        k, c, j = tracks[i], cams[i], blobs[i]
+        out[i] = _partial_blob(area[c, j], roundness[c, j], merged[c, j], expect[k, c, 0], expect[k, c, 1],
+                               partial_area, partial_round, min_area)
+    return out
+
+
+@_jit
+def follow_blobs(blob, last_X, P, area, roundness, merged, tracks, cams, blobs, alpha, partial_area, partial_round,
+                 min_area):
+    """:meth:`mocap.tracker.Tracker._follow_blobs` in place on ``blob`` (K, C, 3): ``last_X`` (K, 3) m, ``P`` (C, 3,
+    4), the frame's ``area``, ``roundness`` and ``merged`` (C, N), the views ``tracks``, ``cams``, ``blobs`` (n,)."""
+    for i in range(tracks.shape[0]):
+        k, c, j = tracks[i], cams[i], blobs[i]
+        depth = last_X[k, 0] * P[c, 2, 0] + last_X[k, 1] * P[c, 2, 1] + last_X[k, 2] * P[c, 2, 2] + P[c, 2, 3]
+        if merged[c, j] or not math.isfinite(depth):
+            continue
+        scale = blob[k, c, 2] / depth
+        expected = blob[k, c, 0] * scale * scale
+        a, r = area[c, j], roundness[c, j]
+        if _partial_blob(a, r, False, expected, blob[k, c, 1], partial_area, partial_round, min_area):
+            continue
+        if math.isfinite(expected):
+            blob[k, c, 0] = expected + alpha * (a - expected)
+            blob[k, c, 1] = blob[k, c, 1] + alpha * (r - blob[k, c, 1])
+        else:
+            blob[k, c, 0], blob[k, c, 1] = a, r
+        blob[k, c, 2] = depth
+
+
 # ---------------------------------------------------------------------------------------------- identity repair
 @_jit
 def pair_distance_statistics(sample, count, min_frames):

@@ -14,7 +14,9 @@ Per frame, for all tracks at once (numpy arrays, no per-marker Python objects):
    epipolar line supports is dropped.
 4. **Fusion** (:mod:`mocap.fusion`): covariance-weighted multi-view triangulation with per-camera
    outlier rejection, then the dropped/unseen cameras are offered the free detection nearest to the
-   point's reprojection, and the point is recomputed.
+   point's reprojection, and the point is recomputed. A view whose blob is smaller (scaled to depth) or
+   flatter than the marker's own blob in that camera lately is the marker partly hidden, its centroid
+   off: it is left out where two clean views remain (``partial_area``).
 5. **Update** the filters and the running errors with the measurements.
 6. **New markers** from the detections no track used: all-pairs epipolar matching, triangulation,
    multi-view support. A point near a track that missed this frame re-acquires it; a point inside
@@ -536,6 +538,7 @@ class Tracker:
                                            max(1, int(round(cfg.attached_steady_s * self._fps))),
                                            max(1, int(round(_FORGET_ATTACHED_S * self._fps))))
         self._t = _Tracks.empty(C)
+        self._expect = np.zeros((0, C, 2))  # (K, C, 2) the tracks' blobs expected this frame (_expected_blobs)
         self._next_uid = 0
         self._uid_ident = np.full(256, -1, dtype=np.intp)
         self._n_ident = 0
@@ -563,6 +566,7 @@ class Tracker:
         fr = self._prepare(detections)
         t.since += 1
         t.unseen2 += 1
+        self._expect = self._expected_blobs()
         self._predict()
         K = len(t)
         meas = _Measurements.empty(K, C)
@@ -1490,45 +1494,65 @@ class Tracker:
         t.lock2[idx] = seen
         t.unseen2[tk, cc] = 0
 
-    def _blob_ratios(self, fr: _Frame, tracks: np.ndarray, cams: np.ndarray, blobs: np.ndarray
-                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """Blob ``blobs[i]`` of camera ``cams[i]`` against track ``tracks[i]``'s blob there lately: its area over
-        that blob's scaled to the depth of the track's last point (the image of a sphere scales as 1 / depth^2),
-        its roundness over that blob's (NaN where the track has none), the scaled area and the depths (m), (n,)
-        each."""
-        ref = self._t.blob[tracks, cams]  # (n, 3)
-        X = self._t.last_X[tracks]
-        depth = np.einsum("nj,nj->n", self._P[cams, 2, :3], X) + self._P[cams, 2, 3]
+    def _expected_blobs(self) -> np.ndarray:
+        """(K, C, 2) each track's blob expected in each camera: its blob's area there lately, scaled to the depth of
+        the track's last point (the image of a sphere scales as 1 / depth^2), px, and roundness (NaN: none)."""
+        t = self._t
+        if kernels.HAVE_NUMBA:
+            return kernels.expected_blobs(t.blob, t.last_X, self._P)
+        depth = t.last_X @ self._P[:, 2, :3].T + self._P[:, 2, 3]  # (K, C) m
         with np.errstate(invalid="ignore", divide="ignore"):
-            expected = ref[:, 0] * (ref[:, 2] / depth) ** 2
-            return fr.area[cams, blobs] / expected, fr.roundness[cams, blobs] / ref[:, 1], expected, depth
+            return np.stack([t.blob[..., 0] * (t.blob[..., 2] / depth) ** 2, t.blob[..., 1]], axis=-1)
+
+    def _partial(self, area: np.ndarray, roundness: np.ndarray, merged: np.ndarray, expected: np.ndarray
+                 ) -> np.ndarray:
+        """(n,) bool: blobs of ``area`` (px), ``roundness`` and ``merged`` flag (n,) each, where the marker's blob
+        is ``expected`` (n, 2) (area px, roundness; NaN: unknown), show the marker partly hidden: smaller by more than
+        ``partial_area`` / sqrt(area) (the pixel count's spread), or flatter by ``partial_round`` / sqrt(area) and
+        no larger (a streak or a merge grows). Its centroid is off towards the visible part, up to 0.4 of a radius.
+        Blobs flagged merged are not judged."""
+        cfg = self._cfg
+        with np.errstate(invalid="ignore", divide="ignore"):
+            area_ratio = area / expected[:, 0]
+            spread = 1.0 / np.sqrt(expected[:, 0])
+            out = ((area_ratio < 1.0 - cfg.partial_area * spread)
+                   | ((roundness / expected[:, 1] < 1.0 - cfg.partial_round * spread) & (area_ratio < 1.0)))
+        return out & ~merged & (expected[:, 0] >= cfg.partial_min_area)
 
     def _partly_hidden(self, fr: _Frame, tracks: np.ndarray, cams: np.ndarray, blobs: np.ndarray) -> np.ndarray:
-        """(n,) bool: blob ``blobs[i]`` of camera ``cams[i]`` is track ``tracks[i]``'s marker partly hidden there:
-        smaller than its blob lately (scaled to depth) by more than ``partial_area`` / sqrt(area) (the pixel count's
-        spread), or flatter by ``partial_round`` / sqrt(area) and no larger (a streak or a merge grows). Its
-        centroid is off towards the visible part, up to 0.4 of a radius. Blobs flagged merged are not judged."""
+        """(n,) bool: blob ``blobs[i]`` of camera ``cams[i]`` is track ``tracks[i]``'s marker partly hidden there
+        (:meth:`_partial`, against :meth:`_expected_blobs` as of the frame's start)."""
         cfg = self._cfg
-        area_ratio, round_ratio, expected, _ = self._blob_ratios(fr, tracks, cams, blobs)
-        with np.errstate(invalid="ignore", divide="ignore"):
-            spread = 1.0 / np.sqrt(expected)
-            out = ((area_ratio < 1.0 - cfg.partial_area * spread)
-                   | ((round_ratio < 1.0 - cfg.partial_round * spread) & (area_ratio < 1.0)))
-        return out & ~fr.merged[cams, blobs] & (expected >= cfg.partial_min_area)
+        if kernels.HAVE_NUMBA:
+            c = kernels.contiguous
+            return kernels.partly_hidden(self._expect, fr.area, fr.roundness, fr.merged, c(tracks, np.intp),
+                                         c(cams, np.intp), c(blobs, np.intp), float(cfg.partial_area),
+                                         float(cfg.partial_round), float(cfg.partial_min_area))
+        return self._partial(fr.area[cams, blobs], fr.roundness[cams, blobs], fr.merged[cams, blobs],
+                             self._expect[tracks, cams])
 
     def _follow_blobs(self, fr: _Frame, tracks: np.ndarray, cams: np.ndarray, blobs: np.ndarray) -> None:
         """Running average (``blob_alpha``) of each track's blob area (scaled to depth) and roundness per camera,
-        from its views this frame that are neither flagged merged nor partly hidden (:meth:`_partly_hidden`)."""
-        area_ratio, _, expected, depth = self._blob_ratios(fr, tracks, cams, blobs)
-        take = ~fr.merged[cams, blobs] & ~self._partly_hidden(fr, tracks, cams, blobs) & np.isfinite(depth)
-        tracks, cams, blobs, expected, depth = tracks[take], cams[take], blobs[take], expected[take], depth[take]
-        old = self._t.blob[tracks, cams]
-        area, roundness = fr.area[cams, blobs], fr.roundness[cams, blobs]
-        a = self._cfg.blob_alpha
-        fresh = ~np.isfinite(expected)
-        self._t.blob[tracks, cams] = np.stack([np.where(fresh, area, expected + a * (area - expected)),
-                                               np.where(fresh, roundness, old[:, 1] + a * (roundness - old[:, 1])),
-                                               depth], axis=1)
+        from its views this frame that are neither flagged merged nor partly hidden (:meth:`_partial`)."""
+        cfg = self._cfg
+        if kernels.HAVE_NUMBA:
+            c = kernels.contiguous
+            kernels.follow_blobs(self._t.blob, self._t.last_X, self._P, fr.area, fr.roundness, fr.merged,
+                                 c(tracks, np.intp), c(cams, np.intp), c(blobs, np.intp), float(cfg.blob_alpha),
+                                 float(cfg.partial_area), float(cfg.partial_round), float(cfg.partial_min_area))
+            return
+        depth = np.einsum("nj,nj->n", self._P[cams, 2, :3], self._t.last_X[tracks]) + self._P[cams, 2, 3]
+        old = self._t.blob[tracks, cams]  # (n, 3)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            expected = np.stack([old[:, 0] * (old[:, 2] / depth) ** 2, old[:, 1]], axis=1)
+        area, roundness, merged = fr.area[cams, blobs], fr.roundness[cams, blobs], fr.merged[cams, blobs]
+        take = ~merged & ~self._partial(area, roundness, merged, expected) & np.isfinite(depth)
+        fresh = ~np.isfinite(expected[take, 0])
+        a = cfg.blob_alpha
+        self._t.blob[tracks[take], cams[take]] = np.stack([
+            np.where(fresh, area[take], expected[take, 0] + a * (area[take] - expected[take, 0])),
+            np.where(fresh, roundness[take], expected[take, 1] + a * (roundness[take] - expected[take, 1])),
+            depth[take]], axis=1)
 
     def _e2_from_3d(self, tracks: np.ndarray, cams: np.ndarray) -> np.ndarray:
         """(n, 3) image running errors seeded from the tracks' 3D ones, scaled by f / depth."""

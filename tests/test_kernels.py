@@ -311,6 +311,7 @@ def _random_tracker(rig, K: int, seed: int) -> Tracker:
                          X.copy(), rng.uniform(1e-5, 1e-3, size=K), np.full((K, C, 3), np.nan))
     if K:  # one track behind camera 0
         tracker._t.x3[0, :3] = -np.linalg.solve(P[0, :, :3], P[0, :, 3]) - 0.5 * P[0, 2, :3]
+    tracker._expect = tracker._expected_blobs()
     return tracker
 
 
@@ -456,6 +457,36 @@ def test_two_view_ghosts_explained_elsewhere_are_the_numpy_ones(explained_px, mo
     assert results[0][p]
     if explained_px > 100:
         assert results[0].sum() < (meas.ok & ((meas.asg >= 0).sum(axis=1) == 2)).sum()  # mutual pairs kept
+
+
+def test_partly_hidden_views_and_the_running_blobs_are_the_numpy_ones(monkeypatch):
+    """Which views show their marker partly hidden (``kernels.partly_hidden``, against ``kernels.expected_blobs``)
+    and the running blob averages (``kernels.follow_blobs``), on random blobs against a random tracker's: some
+    smaller or flatter than expected, some merged, some tracks with no blob yet in a camera."""
+    rig = ring_rig()
+    C, K, N = len(rig), 30, 12
+    rng = np.random.default_rng(41)
+    tracker = _random_tracker(rig, K, seed=7)
+    tracker._t.blob = np.where(rng.random((K, C, 1)) < 0.8, rng.uniform([4.0, 0.8, 3.0], [30.0, 1.0, 6.0], (K, C, 3)),
+                               np.nan)
+    D = rng.uniform([0, 0], [1024, 768], size=(C, N, 2))
+    fr = _Frame(D, np.broadcast_to(np.eye(2) * 0.01, (C, N, 2, 2)).copy(), np.ones((C, N), dtype=bool),
+                rng.random((C, N)) < 0.1, rng.uniform(0.5, 1.0, (C, N)), rng.uniform(2.0, 35.0, (C, N)), [N] * C)
+    views = rng.permutation(K * C)[:120]  # distinct (track, camera) pairs: each running average steps once
+    tracks, cams, blobs = views // C, views % C, rng.integers(0, N, 120)
+    results = []
+    for on in (False, True):
+        monkeypatch.setattr(kernels, "HAVE_NUMBA", on)
+        t = copy.deepcopy(tracker)
+        t._expect = t._expected_blobs()
+        hidden = t._partly_hidden(fr, tracks, cams, blobs)
+        t._follow_blobs(fr, tracks, cams, blobs)
+        results.append((t._expect, hidden, t._t.blob))
+    _same(*results, rtol=1e-12)
+    hidden = results[0][1]
+    assert 0 < hidden.sum() < len(hidden) and not hidden[fr.merged[cams, blobs]].any()
+    moved = np.isfinite(results[0][2][tracks, cams, 0]) & ~np.isfinite(tracker._t.blob[tracks, cams, 0])
+    assert moved.any()  # (a track's first blob in a camera starts its average)
 
 
 def test_the_tracker_keeps_the_same_state_on_both_paths(monkeypatch):
