@@ -1212,9 +1212,10 @@ def _partial_blob(area, roundness, merged, expected_area, expected_round, partia
     if merged or not expected_area >= min_area:  # (NaN: unknown)
         return False
     ratio = area / expected_area
+    round_ratio = roundness / expected_round
     spread = 1.0 / math.sqrt(expected_area)
-    return ratio < 1.0 - partial_area * spread or (roundness / expected_round < 1.0 - partial_round * spread
-                                                    and ratio < 1.0)
+    return ((ratio < 1.0 - partial_area * spread and round_ratio < 1.0 + partial_round * spread)
+            or (round_ratio < 1.0 - partial_round * spread and ratio < 1.0))
 
 
 @_jit

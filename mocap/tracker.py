@@ -231,6 +231,9 @@ class TrackerConfig:
             along another camera's epipolar line where the fusion cannot see it. Such a view is left out of a point
             that keeps two clean views without it, and is not re-picked; 0: off.
         partial_min_area: blobs expected smaller than this (px) are not judged.
+        partial_suspect: a partly hidden view that stays in a point is no clean view: a point leaning on it is
+            output only where it agrees with the prediction, as one leaning on a merged blob (a two-view point with a
+            cut view is 1-5 mm off, along the clean camera's ray, and nothing else tells).
         blob_alpha: smoothing factor of the running blob area and roundness per track and camera.
     """
 
@@ -298,6 +301,7 @@ class TrackerConfig:
     partial_area: float = 0.9
     partial_round: float = 0.45
     partial_min_area: float = 6.0
+    partial_suspect: bool = True
     blob_alpha: float = 0.3
     silent_yield: bool = True
     refuted_wide_m: float = 0.25
@@ -1193,14 +1197,17 @@ class Tracker:
         # noise as its clean views give it: a merged blob's own (large) std must not widen the gate it is judged by.
         # A point from merged blobs alone never is: its filter may have followed those blobs' offset centroids.
         t = self._t
+        suspect = crowded  # (views that are not clean, as merged blobs are not)
+        if cfg.partial_area > 0 and cfg.partial_suspect:
+            suspect = crowded | self._partial_views(fr, asg, tri.used)
         if kernels.HAVE_NUMBA:
             meas.ok, clean, meas.out = kernels.measured_points(
-                tri.X, tri.used, kernels.contiguous(crowded, bool), split, fr.merged, sigma, asg, tri.depth,
+                tri.X, tri.used, kernels.contiguous(suspect, bool), split, fr.merged, sigma, asg, tri.depth,
                 self._focal, t.x3, t.e3, float(cfg.gate_scale), float(cfg.suspect_m[0]), float(cfg.suspect_m[1]),
                 float(cfg.n_sigma))
         else:
             meas.ok = np.isfinite(tri.X).all(axis=1)
-            clean = tri.used & ((~crowded & ~_gather(fr.merged, asg)) | split)
+            clean = tri.used & ((~suspect & ~_gather(fr.merged, asg)) | split)
             with np.errstate(invalid="ignore", divide="ignore"):  # the point's own noise, m (NaN without a clean view)
                 noise = (np.where(clean, _gather(sigma, asg) * tri.depth.T / self._focal, 0.0).sum(axis=1)
                          / clean.sum(axis=1))
@@ -1508,15 +1515,16 @@ class Tracker:
                  ) -> np.ndarray:
         """(n,) bool: blobs of ``area`` (px), ``roundness`` and ``merged`` flag (n,) each, where the marker's blob
         is ``expected`` (n, 2) (area px, roundness; NaN: unknown), show the marker partly hidden: smaller by more than
-        ``partial_area`` / sqrt(area) (the pixel count's spread), or flatter by ``partial_round`` / sqrt(area) and
-        no larger (a streak or a merge grows). Its centroid is off towards the visible part, up to 0.4 of a radius.
-        Blobs flagged merged are not judged."""
+        ``partial_area`` / sqrt(area) (the pixel count's spread) and no rounder by ``partial_round`` / sqrt(area) (a
+        motion streak that shortens), or flatter by that and no larger (a streak or a merge grows). Its centroid is
+        off towards the visible part, up to 0.4 of a radius. Blobs flagged merged are not judged."""
         cfg = self._cfg
         with np.errstate(invalid="ignore", divide="ignore"):
             area_ratio = area / expected[:, 0]
+            round_ratio = roundness / expected[:, 1]
             spread = 1.0 / np.sqrt(expected[:, 0])
-            out = ((area_ratio < 1.0 - cfg.partial_area * spread)
-                   | ((roundness / expected[:, 1] < 1.0 - cfg.partial_round * spread) & (area_ratio < 1.0)))
+            out = (((area_ratio < 1.0 - cfg.partial_area * spread) & (round_ratio < 1.0 + cfg.partial_round * spread))
+                   | ((round_ratio < 1.0 - cfg.partial_round * spread) & (area_ratio < 1.0)))
         return out & ~merged & (expected[:, 0] >= cfg.partial_min_area)
 
     def _partly_hidden(self, fr: _Frame, tracks: np.ndarray, cams: np.ndarray, blobs: np.ndarray) -> np.ndarray:
