@@ -16,7 +16,7 @@ Per frame, for all tracks at once (numpy arrays, no per-marker Python objects):
    outlier rejection, then the dropped/unseen cameras are offered the free detection nearest to the
    point's reprojection, and the point is recomputed. A view whose blob is smaller (scaled to depth) or
    flatter than the marker's own blob in that camera lately is the marker partly hidden, its centroid
-   off: it is left out where two clean views remain (``partial_area``).
+   off: it is left out where two clean views remain (``partial_area``), and is no clean view where it stays.
 5. **Update** the filters and the running errors with the measurements.
 6. **New markers** from the detections no track used: all-pairs epipolar matching, triangulation,
    multi-view support. A point near a track that missed this frame re-acquires it; a point inside
