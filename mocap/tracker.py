@@ -300,7 +300,7 @@ class TrackerConfig:
     rival_ratio: float = 0.25
     partial_area: float = 0.9
     partial_round: float = 0.45
-    partial_min_area: float = 6.0
+    partial_min_area: float = 4.0
     partial_suspect: bool = True
     blob_alpha: float = 0.3
     silent_yield: bool = True
