@@ -1246,20 +1246,25 @@ def partly_hidden(expect, area, roundness, merged, tracks, cams, blobs, partial_
 
 
 @_jit
-def follow_blobs(blob, last_X, P, area, roundness, merged, tracks, cams, blobs, alpha, partial_area, partial_round,
-                 min_area):
-    """:meth:`mocap.tracker.Tracker._follow_blobs` in place on ``blob`` (K, C, 3): ``last_X`` (K, 3) m, ``P`` (C, 3,
-    4), the frame's ``area``, ``roundness`` and ``merged`` (C, N), the views ``tracks``, ``cams``, ``blobs`` (n,)."""
+def follow_blobs(blob, cut_run, last_X, P, area, roundness, merged, tracks, cams, blobs, alpha, partial_area,
+                 partial_round, min_area, partial_frames):
+    """:meth:`mocap.tracker.Tracker._follow_blobs` in place on ``blob`` (K, C, 3) and ``cut_run`` (K, C): ``last_X``
+    (K, 3) m, ``P`` (C, 3, 4), the frame's ``area``, ``roundness`` and ``merged`` (C, N), the views ``tracks``,
+    ``cams``, ``blobs`` (n,)."""
     for i in range(tracks.shape[0]):
         k, c, j = tracks[i], cams[i], blobs[i]
         depth = last_X[k, 0] * P[c, 2, 0] + last_X[k, 1] * P[c, 2, 1] + last_X[k, 2] * P[c, 2, 2] + P[c, 2, 3]
-        if merged[c, j] or not math.isfinite(depth):
-            continue
         scale = blob[k, c, 2] / depth
         expected = blob[k, c, 0] * scale * scale
         a, r = area[c, j], roundness[c, j]
-        if _partial_blob(a, r, False, expected, blob[k, c, 1], partial_area, partial_round, min_area):
+        cut = _partial_blob(a, r, merged[c, j], expected, blob[k, c, 1], partial_area, partial_round, min_area)
+        run = cut_run[k, c] + 1 if cut else 0
+        lasting = run > partial_frames
+        cut_run[k, c] = 0 if lasting else run
+        if merged[c, j] or (cut and not lasting) or not math.isfinite(depth):
             continue
+        if lasting:
+            expected = np.nan
         if math.isfinite(expected):
             blob[k, c, 0] = expected + alpha * (a - expected)
             blob[k, c, 1] = blob[k, c, 1] + alpha * (r - blob[k, c, 1])

@@ -235,6 +235,9 @@ class TrackerConfig:
             output only where it agrees with the prediction, as one leaning on a merged blob (a two-view point with a
             cut view is 1-5 mm off, along the clean camera's ray, and nothing else tells).
         blob_alpha: smoothing factor of the running blob area and roundness per track and camera.
+        partial_frames: a blob judged partly hidden more than this many frames in a row is taken for the marker's
+            blob now (an exposure change, a marker of another size taken over, a lasting cover), and the running
+            average starts again from it: without it such a track would have no clean view again.
     """
 
     confirm_frames: int = 4
@@ -302,6 +305,7 @@ class TrackerConfig:
     partial_round: float = 0.45
     partial_min_area: float = 4.0
     partial_suspect: bool = True
+    partial_frames: int = 3
     blob_alpha: float = 0.3
     silent_yield: bool = True
     refuted_wide_m: float = 0.25
@@ -446,6 +450,7 @@ class _Tracks(_Rows):
     origin: np.ndarray  # (K, 3) where the track started, m
     noise: np.ndarray  # (K,) std of the last measured point, m
     blob: np.ndarray  # (K, C, 3) the marker's blob in each camera lately: area px, roundness, depth m (NaN: none)
+    cut_run: np.ndarray  # (K, C) consecutive views of it in that camera judged partly hidden
 
     @classmethod
     def empty(cls, C: int) -> _Tracks:
@@ -453,7 +458,8 @@ class _Tracks(_Rows):
         return cls(i, i, i, i, i, np.zeros((0, 9)), np.zeros((0, 9, 9)), np.zeros((0, 3)), np.zeros((0, 3)),
                    np.zeros((0, 3)), np.zeros((0, C, 6)), np.zeros((0, C, 6, 6)), np.zeros((0, C), dtype=bool),
                    np.zeros((0, C), dtype=np.intp), np.zeros((0, C, 3)), np.zeros((0, C, 2)), np.zeros((0, C, 2)),
-                   np.zeros(0, dtype=bool), np.zeros((0, 3)), np.zeros(0), np.zeros((0, C, 3)))
+                   np.zeros(0, dtype=bool), np.zeros((0, 3)), np.zeros(0), np.zeros((0, C, 3)),
+                   np.zeros((0, C), dtype=np.intp))
 
     def __len__(self) -> int:
         return len(self.uid)
@@ -1541,20 +1547,28 @@ class Tracker:
 
     def _follow_blobs(self, fr: _Frame, tracks: np.ndarray, cams: np.ndarray, blobs: np.ndarray) -> None:
         """Running average (``blob_alpha``) of each track's blob area (scaled to depth) and roundness per camera,
-        from its views this frame that are neither flagged merged nor partly hidden (:meth:`_partial`)."""
+        from its views this frame that are neither flagged merged nor partly hidden (:meth:`_partial`). A blob judged
+        partly hidden more than ``partial_frames`` times in a row is the marker's blob now (an exposure change,
+        another marker taken, a lasting cover): the average starts again from it."""
         cfg = self._cfg
         if kernels.HAVE_NUMBA:
             c = kernels.contiguous
-            kernels.follow_blobs(self._t.blob, self._t.last_X, self._P, fr.area, fr.roundness, fr.merged,
-                                 c(tracks, np.intp), c(cams, np.intp), c(blobs, np.intp), float(cfg.blob_alpha),
-                                 float(cfg.partial_area), float(cfg.partial_round), float(cfg.partial_min_area))
+            kernels.follow_blobs(self._t.blob, self._t.cut_run, self._t.last_X, self._P, fr.area, fr.roundness,
+                                 fr.merged, c(tracks, np.intp), c(cams, np.intp), c(blobs, np.intp),
+                                 float(cfg.blob_alpha), float(cfg.partial_area), float(cfg.partial_round),
+                                 float(cfg.partial_min_area), int(cfg.partial_frames))
             return
         depth = np.einsum("nj,nj->n", self._P[cams, 2, :3], self._t.last_X[tracks]) + self._P[cams, 2, 3]
         old = self._t.blob[tracks, cams]  # (n, 3)
         with np.errstate(invalid="ignore", divide="ignore"):
             expected = np.stack([old[:, 0] * (old[:, 2] / depth) ** 2, old[:, 1]], axis=1)
         area, roundness, merged = fr.area[cams, blobs], fr.roundness[cams, blobs], fr.merged[cams, blobs]
-        take = ~merged & ~self._partial(area, roundness, merged, expected) & np.isfinite(depth)
+        cut = self._partial(area, roundness, merged, expected)
+        run = np.where(cut, self._t.cut_run[tracks, cams] + 1, 0)
+        lasting = run > cfg.partial_frames
+        self._t.cut_run[tracks, cams] = np.where(lasting, 0, run)
+        take = ~merged & (~cut | lasting) & np.isfinite(depth)
+        expected[lasting, 0] = np.nan  # (starts again)
         fresh = ~np.isfinite(expected[take, 0])
         a = cfg.blob_alpha
         self._t.blob[tracks[take], cams[take]] = np.stack([
@@ -1717,7 +1731,8 @@ class Tracker:
         i = np.zeros(n, dtype=np.intp)
         new = _Tracks(uid, i - 1, cand, i + 1, i.copy(), x3, P3, e3, pts.X.copy(), np.full((n, 3), np.nan), x2, P2,
                       used, np.zeros((n, C), dtype=np.intp), np.zeros((n, C, 3)), last_uv,
-                      np.zeros((n, C, 2)), ~pts.strong, pts.X.copy(), _point_std(pts.cov), np.full((n, C, 3), np.nan))
+                      np.zeros((n, C, 2)), ~pts.strong, pts.X.copy(), _point_std(pts.cov), np.full((n, C, 3), np.nan),
+                      np.zeros((n, C), dtype=np.intp))
         base = len(self._t)
         self._t.extend(new)
         self._t.e2[base + k, c] = self._e2_from_3d(base + k, c)

@@ -694,6 +694,21 @@ def test_a_two_view_point_leaning_on_a_partly_hidden_view_is_output_only_where_t
     assert np.nanmin(errs[1][hit]) > 0.001  # the old behaviour, for contrast
 
 
+def test_a_lasting_change_of_a_markers_blobs_is_taken_for_the_new_normal(rig):
+    """A marker whose blobs shrink for good in every camera at once (an exposure change; a marker of another size
+    taken over) looks partly hidden everywhere: no clean view is left, and its points are withheld. After
+    ``partial_frames`` frames in a row the smaller blob is the marker's blob now, and the marker is output again;
+    judging against the old average would withhold it for the rest of the take."""
+    cut = {(k, c) for k in range(60, 140) for c in range(4)}
+    marker, frames = _partly_hidden_scene(rig, 4, cut, np.zeros(3), jitter_m=0.0)
+    traj = _tracked_frames(rig, frames)
+    assert traj.n_markers == 1
+    err = np.linalg.norm(traj.positions[:, 0] - marker, axis=1)
+    frames_withheld = np.flatnonzero(~np.isfinite(err[60:]))
+    assert len(frames_withheld) <= TrackerConfig().partial_frames + 1
+    assert np.nanmax(err[60:]) < 0.0005  # m
+
+
 def test_centroids_that_all_state_a_cautious_std_are_still_clean_views():
     """A centroid file may give every blob the same cautious 0.6 px std, above ``vague_px``. Only blobs far vaguer
     than the frame's others count as vague (taken for merged), so the markers are still tracked from clean views;
