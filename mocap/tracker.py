@@ -305,7 +305,7 @@ class TrackerConfig:
     partial_round: float = 0.45
     partial_min_area: float = 4.0
     partial_suspect: bool = True
-    partial_frames: int = 3
+    partial_frames: int = 8
     blob_alpha: float = 0.3
     silent_yield: bool = True
     refuted_wide_m: float = 0.25
