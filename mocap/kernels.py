@@ -1219,6 +1219,15 @@ def _partial_blob(area, roundness, merged, expected_area, expected_round, partia
 
 
 @_jit
+def _area_at_depth(blob, last_X, P, k, c):
+    """Track ``k``'s depth in camera ``c`` (m, from ``last_X`` (K, 3) and ``P`` (C, 3, 4)) and its blob's area there
+    (``blob`` (K, C, 3)) scaled to it: :func:`mocap.tracker._blob_at_depth` of one view."""
+    depth = last_X[k, 0] * P[c, 2, 0] + last_X[k, 1] * P[c, 2, 1] + last_X[k, 2] * P[c, 2, 2] + P[c, 2, 3]
+    scale = blob[k, c, 2] / depth
+    return depth, blob[k, c, 0] * scale * scale
+
+
+@_jit
 def expected_blobs(blob, last_X, P):
     """:meth:`mocap.tracker.Tracker._expected_blobs`: ``blob`` (K, C, 3), ``last_X`` (K, 3) m, ``P`` (C, 3, 4) ->
     (K, C, 2)."""
@@ -1226,9 +1235,7 @@ def expected_blobs(blob, last_X, P):
     out = np.empty((K, C, 2))
     for k in range(K):
         for c in range(C):
-            depth = last_X[k, 0] * P[c, 2, 0] + last_X[k, 1] * P[c, 2, 1] + last_X[k, 2] * P[c, 2, 2] + P[c, 2, 3]
-            scale = blob[k, c, 2] / depth
-            out[k, c, 0] = blob[k, c, 0] * scale * scale
+            out[k, c, 0] = _area_at_depth(blob, last_X, P, k, c)[1]
             out[k, c, 1] = blob[k, c, 1]
     return out
 
@@ -1253,9 +1260,7 @@ def follow_blobs(blob, cut_run, last_X, P, area, roundness, merged, tracks, cams
     ``cams``, ``blobs`` (n,)."""
     for i in range(tracks.shape[0]):
         k, c, j = tracks[i], cams[i], blobs[i]
-        depth = last_X[k, 0] * P[c, 2, 0] + last_X[k, 1] * P[c, 2, 1] + last_X[k, 2] * P[c, 2, 2] + P[c, 2, 3]
-        scale = blob[k, c, 2] / depth
-        expected = blob[k, c, 0] * scale * scale
+        depth, expected = _area_at_depth(blob, last_X, P, k, c)
         a, r = area[c, j], roundness[c, j]
         cut = _partial_blob(a, r, merged[c, j], expected, blob[k, c, 1], partial_area, partial_round, min_area)
         run = cut_run[k, c] + 1 if cut else 0

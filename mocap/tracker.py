@@ -576,7 +576,8 @@ class Tracker:
         fr = self._prepare(detections)
         t.since += 1
         t.unseen2 += 1
-        self._expect = self._expected_blobs()
+        if self._cfg.partial_area > 0:
+            self._expect = self._expected_blobs()
         self._predict()
         K = len(t)
         meas = _Measurements.empty(K, C)
@@ -1181,10 +1182,12 @@ class Tracker:
         """Epipolar pruning, robust fusion and re-pick of the assigned detections ``meas.asg``; fills ``meas``."""
         cfg = self._cfg
         asg = meas.asg
+        partial = None  # (K, C) the views of ``judged`` (the assigned blobs) that show their marker partly hidden
         if cfg.partial_area > 0:
-            self._leave_out_partly_hidden(fr, crowded, asg)
+            partial = self._leave_out_partly_hidden(fr, crowded, asg)
+            judged = asg.copy()
         tri, extra, sigma = self._triangulate_views(fr, crowded, asg)
-        if cfg.partial_area > 0:  # (a partly hidden blob left out is free, and near the point: not offered back)
+        if partial is not None:  # (a partly hidden blob left out is free, and near the point: not offered back)
             extra[self._partial_views(fr, extra, extra >= 0)] = -1
         more = (extra >= 0).any(axis=1).nonzero()[0]
         if more.size:
@@ -1196,16 +1199,16 @@ class Tracker:
                                     cfg.outlier_sigma, self._outlier_px)
             tri.X[more], tri.cov[more], tri.rms_px[more], tri.used[more] = t2.X, t2.cov, t2.rms_px, t2.used
             asg[~tri.used] = -1
-        if cfg.partial_area > 0:
-            self._drop_partly_hidden_views(fr, crowded, asg, tri)
+        if partial is not None:  # (the judgement of a blob holds all frame: only views that kept their blob)
+            self._drop_partly_hidden_views(fr, crowded, asg, tri, partial & (asg == judged) & tri.used)
         split = self._deblend(fr, crowded, asg, tri) if cfg.deblend else np.zeros(asg.shape, dtype=bool)
         # A point leaning on a possibly merged blob is output only if it agrees with the prediction, within its
         # noise as its clean views give it: a merged blob's own (large) std must not widen the gate it is judged by.
         # A point from merged blobs alone never is: its filter may have followed those blobs' offset centroids.
         t = self._t
         suspect = crowded  # (views that are not clean, as merged blobs are not)
-        if cfg.partial_area > 0 and cfg.partial_suspect:
-            suspect = crowded | self._partial_views(fr, asg, tri.used)
+        if partial is not None and cfg.partial_suspect:
+            suspect = crowded | (partial & (asg == judged) & tri.used)
         if kernels.HAVE_NUMBA:
             meas.ok, clean, meas.out = kernels.measured_points(
                 tri.X, tri.used, kernels.contiguous(suspect, bool), split, fr.merged, sigma, asg, tri.depth,
@@ -1235,23 +1238,27 @@ class Tracker:
             out[k[part], c[part]] = True
         return out
 
-    def _leave_out_partly_hidden(self, fr: _Frame, crowded: np.ndarray, asg: np.ndarray) -> None:
+    def _leave_out_partly_hidden(self, fr: _Frame, crowded: np.ndarray, asg: np.ndarray) -> np.ndarray:
         """Assigned detections ``asg`` (K, C) of a marker partly hidden (:meth:`_partly_hidden`) are left out (-1, in
-        place) where two clean ones (not crowded, not flagged merged) remain."""
+        place) where two clean ones (not crowded, not flagged merged) remain. Returns (K, C) bool: the partly hidden
+        views still assigned."""
         partial = self._partial_views(fr, asg, asg >= 0)
         if not np.count_nonzero(partial):
-            return
+            return partial
         clean = (asg >= 0) & ~crowded & ~_gather(fr.merged, asg) & ~partial
-        asg[partial & (clean.sum(axis=1) >= 2)[:, None]] = -1
+        out = partial & (clean.sum(axis=1) >= 2)[:, None]
+        asg[out] = -1
+        return partial & ~out
 
-    def _drop_partly_hidden_views(self, fr: _Frame, crowded: np.ndarray, asg: np.ndarray, tri: Triangulated) -> None:
-        """Points standing on a view of their marker partly hidden (:meth:`_partly_hidden`) and on two clean views
-        besides (not crowded, not flagged merged) are triangulated again without it, and keep the new point where
-        every clean view stays in it. A partly hidden marker's centroid is off by up to 0.4 of a radius, often along
-        another camera's epipolar line, where the consensus cannot see it; a point with fewer clean views keeps it
-        (the view is all it has). ``asg`` (K, C) and ``tri`` are updated in place."""
+    def _drop_partly_hidden_views(self, fr: _Frame, crowded: np.ndarray, asg: np.ndarray, tri: Triangulated,
+                                  partial: np.ndarray) -> None:
+        """Points standing on a view of their marker partly hidden (``partial`` (K, C), of their used views; see
+        :meth:`_partly_hidden`) and on two clean views besides (not crowded, not flagged merged) are triangulated
+        again without it, and keep the new point where every clean view stays in it. A partly hidden marker's
+        centroid is off by up to 0.4 of a radius, often along another camera's epipolar line, where the consensus
+        cannot see it; a point with fewer clean views keeps it (the view is all it has). ``asg`` (K, C) and ``tri``
+        are updated in place."""
         cfg = self._cfg
-        partial = self._partial_views(fr, asg, tri.used)
         if not np.count_nonzero(partial):
             return
         clean = tri.used & ~crowded & ~_gather(fr.merged, asg) & ~partial
@@ -1451,8 +1458,9 @@ class Tracker:
                                   t.last_uvv, t.lock2, t.unseen2)
         else:
             self._update_numpy(fr, meas, idx)
-        kk, cc = np.nonzero(meas.asg[idx] >= 0)
-        self._follow_blobs(fr, idx[kk], cc, meas.asg[idx[kk], cc])
+        if self._cfg.partial_area > 0:
+            kk, cc = np.nonzero(meas.asg[idx] >= 0)
+            self._follow_blobs(fr, idx[kk], cc, meas.asg[idx[kk], cc])
 
     def _update_numpy(self, fr: _Frame, meas: _Measurements, idx: np.ndarray) -> None:
         """:meth:`_update`'s filter steps without numba."""
@@ -1513,9 +1521,7 @@ class Tracker:
         t = self._t
         if kernels.HAVE_NUMBA:
             return kernels.expected_blobs(t.blob, t.last_X, self._P)
-        depth = t.last_X @ self._P[:, 2, :3].T + self._P[:, 2, 3]  # (K, C) m
-        with np.errstate(invalid="ignore", divide="ignore"):
-            return np.stack([t.blob[..., 0] * (t.blob[..., 2] / depth) ** 2, t.blob[..., 1]], axis=-1)
+        return _blob_at_depth(t.blob, t.last_X @ self._P[:, 2, :3].T + self._P[:, 2, 3])
 
     def _partial(self, area: np.ndarray, roundness: np.ndarray, merged: np.ndarray, expected: np.ndarray
                  ) -> np.ndarray:
@@ -1559,9 +1565,7 @@ class Tracker:
                                  float(cfg.partial_min_area), int(cfg.partial_frames))
             return
         depth = np.einsum("nj,nj->n", self._P[cams, 2, :3], self._t.last_X[tracks]) + self._P[cams, 2, 3]
-        old = self._t.blob[tracks, cams]  # (n, 3)
-        with np.errstate(invalid="ignore", divide="ignore"):
-            expected = np.stack([old[:, 0] * (old[:, 2] / depth) ** 2, old[:, 1]], axis=1)
+        expected = _blob_at_depth(self._t.blob[tracks, cams], depth)
         area, roundness, merged = fr.area[cams, blobs], fr.roundness[cams, blobs], fr.merged[cams, blobs]
         cut = self._partial(area, roundness, merged, expected)
         run = np.where(cut, self._t.cut_run[tracks, cams] + 1, 0)
@@ -1826,6 +1830,13 @@ def _secant_field_angle(xy: np.ndarray, centre: np.ndarray, focal_xy: np.ndarray
     focal lengths ``focal_xy`` (each broadcast to (..., 2)), px: a sphere's image there has axis ratio cos."""
     ray = (xy - centre) / focal_xy
     return np.sqrt(1.0 + ray[..., 0] * ray[..., 0] + ray[..., 1] * ray[..., 1])  # (~3x faster than a sum)
+
+
+def _blob_at_depth(blob: np.ndarray, depth: np.ndarray) -> np.ndarray:
+    """(..., 2) a track's blob record (..., 3) (area px, roundness, the depth it was seen at, m) seen at ``depth``
+    (...) m: its area scaled as 1 / depth^2 (the image of a sphere), its roundness. NaN where there is none."""
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.stack([blob[..., 0] * (blob[..., 2] / depth) ** 2, blob[..., 1]], axis=-1)
 
 
 def _gather(values: np.ndarray, asg: np.ndarray) -> np.ndarray:
