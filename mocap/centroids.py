@@ -5,10 +5,11 @@ Two interchangeable formats (documented in docs/take-format.md), one file per ca
 
 - CSV: optional first line ``# frames = N``; a header naming the columns; one row per blob,
   rows sorted by frame. Required columns ``frame,x,y`` (distorted pixels); optional ``area``,
-  ``roundness``, ``cov_xx``, ``cov_xy``, ``cov_yy`` (px^2), ``merged`` (0/1). A frame with no rows
-  had no blobs. Read in chunks, so a long take never sits in memory whole.
+  ``roundness``, ``cov_xx``, ``cov_xy``, ``cov_yy`` (px^2), ``merged`` (0/1), ``flux`` (grey levels:
+  :class:`mocap.detections.Detections`). A frame with no rows had no blobs. Read in chunks, so a long take
+  never sits in memory whole.
 - NPZ: arrays ``frame`` (N,) int, ``xy`` (N, 2) float and optionally ``area`` (N,), ``roundness`` (N,),
-  ``cov`` (N, 2, 2), ``merged`` (N,) bool and a scalar ``n_frames``. Loaded whole.
+  ``cov`` (N, 2, 2), ``merged`` (N,) bool, ``flux`` (N,) and a scalar ``n_frames``. Loaded whole.
 
 Rows with NaN or infinite values are dropped with a warning; a negative or fractional frame
 number, a missing column or unsorted frames are errors naming the file and the fix.
@@ -34,7 +35,7 @@ __all__ = ["CENTROID_SUFFIXES", "CentroidFile", "open_centroids", "write_centroi
 log = logging.getLogger(__name__)
 
 CENTROID_SUFFIXES = (".centroids.csv", ".centroids.npz")
-COLUMNS = ("frame", "x", "y", "area", "roundness", "cov_xx", "cov_xy", "cov_yy", "merged")
+COLUMNS = ("frame", "x", "y", "area", "roundness", "cov_xx", "cov_xy", "cov_yy", "merged", "flux")
 REQUIRED = ("frame", "x", "y")
 _CHUNK_ROWS = 65536
 _FRAMES_RE = re.compile(r"^#\s*frames\s*=\s*(\d+)\s*$")
@@ -53,7 +54,7 @@ def _rows_to_detections(rows: np.ndarray, cols: dict[str, int]) -> Detections:
         cov[:, 1, 1] = col("cov_yy")
     merged = col("merged")
     return Detections(rows[:, [cols["x"], cols["y"]]], col("area"), col("roundness"), cov,
-                      None if merged is None else merged != 0)
+                      None if merged is None else merged != 0, col("flux"))
 
 
 class CentroidFile:
@@ -181,7 +182,7 @@ class CentroidFile:
                              "and 'xy' (N, 2)")
         n = len(data["frame"])
         shapes = {"frame": (n,), "xy": (n, 2), "area": (n,), "roundness": (n,), "cov": (n, 2, 2), "merged": (n,),
-                  "n_frames": ()}
+                  "flux": (n,), "n_frames": ()}
         for key, value in data.items():
             if key in shapes and value.shape != shapes[key]:
                 raise MocapError(f"{self.path}: array '{key}' has shape {value.shape}, expected {shapes[key]}")
@@ -195,7 +196,8 @@ class CentroidFile:
         if "n_frames" in out:
             out["n_frames"] = int(out["n_frames"])
         rows = np.column_stack([out["frame"], out["xy"]] + [out[k].reshape(n, -1) for k in
-                                                            ("area", "roundness", "cov") if k in out])
+                                                            ("area", "roundness", "cov", "flux")
+                                                            if k in out])
         keep = self._check_rows(rows, first_line=None)
         out = {k: (v[keep] if k != "n_frames" else v) for k, v in out.items()}
         order = np.argsort(out["frame"], kind="stable")
@@ -226,7 +228,8 @@ class CentroidFile:
                 yield Detections(a["xy"][lo:hi], a["area"][lo:hi] if "area" in a else None,
                                  a["roundness"][lo:hi] if "roundness" in a else None,
                                  a["cov"][lo:hi] if "cov" in a else None,
-                                 a["merged"][lo:hi] if "merged" in a else None)
+                                 a["merged"][lo:hi] if "merged" in a else None,
+                                 a["flux"][lo:hi] if "flux" in a else None)
             return
         yield from self._csv_frames(start, stop)
 
@@ -290,12 +293,17 @@ def write_centroids(path: str | os.PathLike, frames: Iterable[tuple[int, Detecti
         n = len(det)
         if n:
             blocks.append(np.column_stack([np.full(n, frame_index), det.xy, det.area, det.roundness,
-                                           det.cov[:, 0, 0], det.cov[:, 0, 1], det.cov[:, 1, 1], det.merged]))
+                                           det.cov[:, 0, 0], det.cov[:, 0, 1], det.cov[:, 1, 1], det.merged,
+                                           det.flux]))
     rows = np.concatenate(blocks) if blocks else np.zeros((0, len(COLUMNS)))
+    measured = np.isfinite(rows[:, 9]).all()  # (flux: written where every blob has it)
+    columns = COLUMNS if measured else COLUMNS[:9]
     with atomic_output(path) as tmp:
         if name.endswith(".npz"):
             cov = np.stack([rows[:, 5], rows[:, 6], rows[:, 6], rows[:, 7]], axis=1).reshape(-1, 2, 2)
             extra = {} if n_frames is None else {"n_frames": np.int64(n_frames)}
+            if measured:
+                extra["flux"] = rows[:, 9]
             with tmp.open("wb") as f:
                 np.savez_compressed(f, frame=rows[:, 0].astype(np.int64), xy=rows[:, 1:3], area=rows[:, 3],
                                     roundness=rows[:, 4], cov=cov, merged=rows[:, 8].astype(bool), **extra)
@@ -303,7 +311,8 @@ def write_centroids(path: str | os.PathLike, frames: Iterable[tuple[int, Detecti
             with tmp.open("w", encoding="utf-8", newline="\n") as f:
                 if n_frames is not None:
                     f.write(f"# frames = {int(n_frames)}\n")
-                f.write(",".join(COLUMNS) + "\n")
-                np.savetxt(f, rows, delimiter=",", fmt=["%d", "%.6f", "%.6f", "%.3f", "%.5f", "%.6g", "%.6g", "%.6g",
-                                                        "%d"])
+                f.write(",".join(columns) + "\n")
+                np.savetxt(f, rows[:, :len(columns)], delimiter=",",
+                           fmt=["%d", "%.6f", "%.6f", "%.3f", "%.5f", "%.6g", "%.6g", "%.6g", "%d",
+                                "%.6g"][:len(columns)])
     return len(rows)

@@ -836,7 +836,8 @@ def detect(image: np.ndarray, *, threshold: float | None = None, min_area: int =
 
     Returns:
         :class:`Detections`: centroids (distorted px), area (px above threshold; the parts of a split
-        blob share it equally), roundness, centroid covariance (px^2) and the merged flag.
+        blob share it equally), roundness, centroid covariance (px^2), the merged flag and flux (grey levels above
+        the background summed over the thresholded pixels, shared as the area).
     """
     return _detect(image, threshold, min_area, max_area, rois, noise_sigma, refine, seeds, math.inf if faint else 0)[0]
 
@@ -929,8 +930,8 @@ def _detect(image: np.ndarray, threshold: float | None, min_area: int, max_area:
     area = stats.area[ids][part] / n_discs[part]
     split = (n_discs[part] > 1) & (stats.flux[ids][part] / n_discs[part] <= SPLIT_PART_FLUX * typical_flux[part])
     return Detections(np.concatenate(xy), area, np.where(split, 1.0, roundness[part]),
-                      floored_covariance(np.concatenate(cov)), (flagged[part] | (n_discs[part] > 1)) & ~split), \
-        n_raw, n_faint
+                      floored_covariance(np.concatenate(cov)), (flagged[part] | (n_discs[part] > 1)) & ~split,
+                      stats.flux[ids][part] / n_discs[part]), n_raw, n_faint
 
 
 class StreamDetector:

@@ -22,6 +22,8 @@ class Detections:
         roundness: (N,) in (0, 1]: minor/major axis ratio of the blob's second moments.
         cov: (N, 2, 2) centroid covariance, pixels^2 (from image noise and blob shape).
         merged: (N,) bool, True where the blob is probably two or more markers merged.
+        flux: (N,) the blob's light, grey levels above the background summed over its pixels (the parts of a
+            split blob share it equally); NaN: not measured (older logs, centroid files without it).
     """
 
     xy: np.ndarray
@@ -29,6 +31,7 @@ class Detections:
     roundness: np.ndarray | None = None
     cov: np.ndarray | None = None
     merged: np.ndarray | None = None
+    flux: np.ndarray | None = None
 
     DEFAULT_SIGMA_PX = 0.1
 
@@ -43,10 +46,13 @@ class Detections:
             self.cov = np.broadcast_to(np.eye(2) * self.DEFAULT_SIGMA_PX**2, (n, 2, 2)).copy()
         if self.merged is None:
             self.merged = np.zeros(n, dtype=bool)
+        if self.flux is None:
+            self.flux = np.full(n, np.nan)
         self.area = np.asarray(self.area, dtype=np.float64).reshape(n)
         self.roundness = np.asarray(self.roundness, dtype=np.float64).reshape(n)
         self.cov = np.asarray(self.cov, dtype=np.float64).reshape(n, 2, 2)
         self.merged = np.asarray(self.merged, dtype=bool).reshape(n)
+        self.flux = np.asarray(self.flux, dtype=np.float64).reshape(n)
 
     def __len__(self) -> int:
         return len(self.xy)
@@ -58,7 +64,7 @@ class Detections:
     def subset(self, index: np.ndarray) -> Detections:
         """The blobs selected by a boolean mask or an index array."""
         return Detections(self.xy[index], self.area[index], self.roundness[index], self.cov[index],
-                          self.merged[index])
+                          self.merged[index], self.flux[index])
 
 
 def floored_covariance(cov: np.ndarray, std_px: float = MIN_CENTROID_STD_PX) -> np.ndarray:

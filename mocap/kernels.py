@@ -1229,15 +1229,32 @@ def _area_at_depth(blob, last_X, P, k, c):
 
 @_jit
 def expected_blobs(blob, last_X, P):
-    """:meth:`mocap.tracker.Tracker._expected_blobs`: ``blob`` (K, C, 3), ``last_X`` (K, 3) m, ``P`` (C, 3, 4) ->
-    (K, C, 2)."""
+    """:meth:`mocap.tracker.Tracker._expected_blobs`: ``blob`` (K, C, 5), ``last_X`` (K, 3) m, ``P`` (C, 3, 4) ->
+    (K, C, 4)."""
     K, C = blob.shape[0], blob.shape[1]
-    out = np.empty((K, C, 2))
+    out = np.empty((K, C, 4))
     for k in range(K):
         for c in range(C):
-            out[k, c, 0] = _area_at_depth(blob, last_X, P, k, c)[1]
+            depth, area = _area_at_depth(blob, last_X, P, k, c)
+            scale = blob[k, c, 2] / depth
+            out[k, c, 0] = area
             out[k, c, 1] = blob[k, c, 1]
+            out[k, c, 2] = blob[k, c, 3] * scale * scale * scale * scale
+            out[k, c, 3] = blob[k, c, 4]
     return out
+
+
+@_jit
+def _dark_blob(flux, merged, expected_area, expected_flux, deviation, settings):
+    """:meth:`mocap.tracker.Tracker._dark` of one blob (``settings`` (4,):
+    :meth:`mocap.tracker.Tracker._dark_settings`)."""
+    if merged or not expected_area >= settings[3]:  # (NaN: unknown)
+        return False
+    tolerance = settings[0]
+    if settings[1] * deviation > tolerance:  # (NaN: no deviation known yet)
+        tolerance = settings[1] * deviation
+    tolerance = min(tolerance, settings[2])
+    return flux / expected_flux < 1.0 - tolerance  # (NaN: no light known)
 
 
 @_jit
@@ -1253,29 +1270,48 @@ def partly_hidden(expect, area, roundness, merged, tracks, cams, blobs, partial_
 
 
 @_jit
-def follow_blobs(blob, cut_run, last_X, P, area, roundness, merged, tracks, cams, blobs, alpha, partial_area,
-                 partial_round, min_area, partial_frames):
-    """:meth:`mocap.tracker.Tracker._follow_blobs` in place on ``blob`` (K, C, 3) and ``cut_run`` (K, C): ``last_X``
-    (K, 3) m, ``P`` (C, 3, 4), the frame's ``area``, ``roundness`` and ``merged`` (C, N), the views ``tracks``,
-    ``cams``, ``blobs`` (n,)."""
+def follow_blobs(blob, cut_run, dark_run, last_X, P, area, roundness, flux, merged, tracks, cams, blobs, alpha,
+                 partial_area, partial_round, min_area, partial_frames, dark_settings):
+    """:meth:`mocap.tracker.Tracker._follow_blobs` in place on ``blob`` (K, C, 5), ``cut_run`` and ``dark_run``
+    (K, C): ``last_X`` (K, 3) m, ``P`` (C, 3, 4), the frame's ``area``, ``roundness``, ``flux`` and ``merged`` (C, N),
+    the views ``tracks``, ``cams``, ``blobs`` (n,), ``dark_settings`` (4,)."""
     for i in range(tracks.shape[0]):
         k, c, j = tracks[i], cams[i], blobs[i]
         depth, expected = _area_at_depth(blob, last_X, P, k, c)
-        a, r = area[c, j], roundness[c, j]
+        a, r, f = area[c, j], roundness[c, j], flux[c, j]
+        scale = blob[k, c, 2] / depth
+        scale *= scale
+        light = blob[k, c, 3] * scale * scale  # (at this depth)
+        dark = _dark_blob(f, merged[c, j], expected, light, blob[k, c, 4], dark_settings)
+        run = dark_run[k, c] + 1 if dark else 0
+        dark_lasting = run > partial_frames
+        dark_run[k, c] = 0 if dark_lasting else run
+        if not merged[c, j] and (not dark or dark_lasting) and math.isfinite(f) and math.isfinite(depth):
+            if math.isfinite(light) and not dark_lasting:
+                off = abs(f / light - 1.0)
+                blob[k, c, 4] = blob[k, c, 4] + alpha * (off - blob[k, c, 4]) if math.isfinite(blob[k, c, 4]) else off
+                light += alpha * (f - light)
+            else:
+                light = f
         cut = _partial_blob(a, r, merged[c, j], expected, blob[k, c, 1], partial_area, partial_round, min_area)
         run = cut_run[k, c] + 1 if cut else 0
         lasting = run > partial_frames
         cut_run[k, c] = 0 if lasting else run
-        if merged[c, j] or (cut and not lasting) or not math.isfinite(depth):
-            continue
-        if lasting:
-            expected = np.nan
-        if math.isfinite(expected):
-            blob[k, c, 0] = expected + alpha * (a - expected)
-            blob[k, c, 1] = blob[k, c, 1] + alpha * (r - blob[k, c, 1])
-        else:
-            blob[k, c, 0], blob[k, c, 1] = a, r
-        blob[k, c, 2] = depth
+        if not (merged[c, j] or (cut and not lasting) or not math.isfinite(depth)):
+            if lasting:
+                expected = np.nan
+            if math.isfinite(expected):
+                blob[k, c, 0] = expected + alpha * (a - expected)
+                blob[k, c, 1] = blob[k, c, 1] + alpha * (r - blob[k, c, 1])
+            else:
+                blob[k, c, 0], blob[k, c, 1] = a, r
+            blob[k, c, 2] = depth
+        if math.isfinite(light):  # (the light kept at the record's depth)
+            if not math.isfinite(blob[k, c, 2]):
+                blob[k, c, 2] = depth
+            back = depth / blob[k, c, 2]
+            back *= back
+            blob[k, c, 3] = light * back * back
 
 
 # ---------------------------------------------------------------------------------------------- identity repair

@@ -71,7 +71,7 @@ from mocap.geometry import project_ideal, reprojection_jacobians
 from mocap.pairs import camera_pairs
 from mocap.quickstats import quick_median
 from mocap.stereo import assign, dist2, epipolar_consistency, gate
-from mocap.trajectories import Trajectories, UnconfirmedPoints
+from mocap.trajectories import Trajectories, UnconfirmedPoints, WithheldPoints
 
 __all__ = ["TrackerConfig", "FrameResult", "Tracker"]
 
@@ -238,6 +238,16 @@ class TrackerConfig:
         partial_frames: a blob judged partly hidden more than this many frames in a row is taken for the marker's
             blob now (an exposure change, a marker of another size taken over, a lasting cover), and the running
             average starts again from it: without it such a track would have no clean view again.
+        dark_flux: a blob whose light (:attr:`mocap.detections.Detections.flux`) is less than its marker's blob's in
+            that camera lately (a running average, scaled to depth as 1 / depth^4: a retroreflector lit from the
+            camera) by more than this fraction, or by ``dark_spread`` times that light's running mean absolute
+            relative deviation (faint blobs, a flickering marker) up to ``dark_max``, is the marker partly hidden:
+            the output point leaves it out where two clean views remain, and a two-view point leaning on it is output
+            only where it agrees with the prediction. Tracking itself (assignment, filters, identities) does not use
+            this judgement: small faint blobs' light jumps when a pixel crosses the threshold, and leaving such views
+            out of the tracking cost the 12-camera sprint's forearm cluster its identities (engine-log.md, 75th
+            session). 1: off.
+        dark_spread, dark_max: see ``dark_flux``.
     """
 
     confirm_frames: int = 4
@@ -306,6 +316,9 @@ class TrackerConfig:
     partial_min_area: float = 4.0
     partial_suspect: bool = True
     partial_frames: int = 8
+    dark_flux: float = 0.08
+    dark_spread: float = 4.0
+    dark_max: float = 0.3
     blob_alpha: float = 0.3
     silent_yield: bool = True
     refuted_wide_m: float = 0.25
@@ -354,6 +367,8 @@ class FrameResult:
 _IMAGE_VELOCITY_STD = 1e3
 _IMAGE_ACCEL_STD = 1e5
 _VAGUE_TYPICAL = 10.0  # a vague blob's std is also over this many times the frame's median (see vague_px)
+_BLOB_FIELDS = 5  # a track's blob record per camera (_Tracks.blob)
+_FLUX_DEPTH_POWER = 4  # a retroreflector lit from the camera: its light there falls as 1 / depth^4
 _FORGET_ATTACHED_S = 2.0  # an attached neighbour not measured with its identity for this long is forgotten
 
 
@@ -449,8 +464,10 @@ class _Tracks(_Rows):
     weak: np.ndarray  # (K,) started from a two-view point that not all framing cameras supported
     origin: np.ndarray  # (K, 3) where the track started, m
     noise: np.ndarray  # (K,) std of the last measured point, m
-    blob: np.ndarray  # (K, C, 3) the marker's blob in each camera lately: area px, roundness, depth m (NaN: none)
+    blob: np.ndarray  # (K, C, 5) the marker's blob in each camera lately (NaN: none): area px, roundness, depth m,
+    #   flux (grey levels) and its mean absolute relative deviation
     cut_run: np.ndarray  # (K, C) consecutive views of it in that camera judged partly hidden
+    dark_run: np.ndarray  # (K, C) ... judged darker
 
     @classmethod
     def empty(cls, C: int) -> _Tracks:
@@ -458,8 +475,8 @@ class _Tracks(_Rows):
         return cls(i, i, i, i, i, np.zeros((0, 9)), np.zeros((0, 9, 9)), np.zeros((0, 3)), np.zeros((0, 3)),
                    np.zeros((0, 3)), np.zeros((0, C, 6)), np.zeros((0, C, 6, 6)), np.zeros((0, C), dtype=bool),
                    np.zeros((0, C), dtype=np.intp), np.zeros((0, C, 3)), np.zeros((0, C, 2)), np.zeros((0, C, 2)),
-                   np.zeros(0, dtype=bool), np.zeros((0, 3)), np.zeros(0), np.zeros((0, C, 3)),
-                   np.zeros((0, C), dtype=np.intp))
+                   np.zeros(0, dtype=bool), np.zeros((0, 3)), np.zeros(0), np.zeros((0, C, _BLOB_FIELDS)),
+                   np.zeros((0, C), dtype=np.intp), np.zeros((0, C), dtype=np.intp))
 
     def __len__(self) -> int:
         return len(self.uid)
@@ -475,11 +492,13 @@ class _Measurements(_Rows):
     cov: np.ndarray  # (K, 3, 3) m^2
     rms_px: np.ndarray  # (K,) reprojection RMS, px
     asg: np.ndarray  # (K, C) detection used per camera, -1: none
+    withheld: np.ndarray  # (K,) output points the written trajectories leave out (Tracker._judge_dark_views)
 
     @classmethod
     def empty(cls, K: int, C: int) -> _Measurements:
         return cls(np.zeros(K, dtype=bool), np.zeros(K, dtype=bool), np.full((K, 3), np.nan),
-                   np.full((K, 3, 3), np.nan), np.full(K, np.nan), np.full((K, C), -1, dtype=np.intp))
+                   np.full((K, 3, 3), np.nan), np.full(K, np.nan), np.full((K, C), -1, dtype=np.intp),
+                   np.zeros(K, dtype=bool))
 
     def rows(self, rows: np.ndarray) -> _Measurements:
         """A copy of the rows ``rows``."""
@@ -499,8 +518,8 @@ class _Measurements(_Rows):
 @dataclass
 class _Frame:
     """One frame's detections, padded: ``D`` (C, N, 2) ideal px, ``S`` (C, N, 2, 2) px^2, ``valid``,
-    ``merged`` (C, N) bool, ``roundness`` (C, N) (1 for blobs too small to tell), ``area`` (C, N) px,
-    ``counts`` per camera."""
+    ``merged`` (C, N) bool, ``roundness`` (C, N) (1 for blobs too small to tell), ``area`` (C, N) px, ``flux``
+    (C, N) grey levels (NaN: not measured), ``counts`` per camera."""
 
     D: np.ndarray
     S: np.ndarray
@@ -508,6 +527,7 @@ class _Frame:
     merged: np.ndarray
     roundness: np.ndarray
     area: np.ndarray
+    flux: np.ndarray
     counts: list[int]
 
 
@@ -548,11 +568,13 @@ class Tracker:
                                            max(1, int(round(cfg.attached_steady_s * self._fps))),
                                            max(1, int(round(_FORGET_ATTACHED_S * self._fps))))
         self._t = _Tracks.empty(C)
-        self._expect = np.zeros((0, C, 2))  # (K, C, 2) the tracks' blobs expected this frame (_expected_blobs)
+        self._blobs_followed = cfg.partial_area > 0 or cfg.dark_flux < 1  # (the running blob records)
+        self._expect = np.zeros((0, C, 4))  # (K, C, 4) the tracks' blobs expected this frame (_expected_blobs)
         self._next_uid = 0
         self._uid_ident = np.full(256, -1, dtype=np.intp)
         self._n_ident = 0
         self._records = _Records()
+        self._withheld: list[tuple[np.ndarray, np.ndarray]] = []  # (frame (n,), position (n, 3)) (_judge_dark_views)
         self._result: Trajectories | None = None
         self._unconfirmed: UnconfirmedPoints | None = None
         self._clutter: deque[np.ndarray] = deque(maxlen=max(cfg.clutter_frames, 1))  # recent free detections
@@ -576,7 +598,7 @@ class Tracker:
         fr = self._prepare(detections)
         t.since += 1
         t.unseen2 += 1
-        if self._cfg.partial_area > 0:
+        if self._blobs_followed:
             self._expect = self._expected_blobs()
         self._predict()
         K = len(t)
@@ -643,6 +665,17 @@ class Tracker:
             ok = np.isfinite(uv).all(axis=1) & (depth > 0)
             self._next_views.append((uv[ok], depth[ok], r3[ok]))
         return self._next_views
+
+    def withheld(self) -> WithheldPoints:
+        """The tracked points the written trajectories leave out: two-view points leaning on a view of their
+        marker partly hidden (darker than its blob lately; :meth:`_judge_dark_views`) that disagree with the
+        prediction. For :meth:`WithheldPoints.apply` after the identity repair, which works on the tracked points, so
+        that this judgement never moves an identity."""
+        first = self._first if self._first is not None else 0
+        if not self._withheld:
+            return WithheldPoints(np.zeros(0, np.int64), np.zeros((0, 3)))
+        frame, pos = (np.concatenate(column) for column in zip(*self._withheld, strict=True))
+        return WithheldPoints(frame.astype(np.int64) - first, pos)
 
     def unconfirmed(self) -> UnconfirmedPoints:
         """The points measured by tentative tracks that never got an identity, after :meth:`finish`."""
@@ -718,8 +751,10 @@ class Tracker:
         N, C = max(counts, default=0), self._C
         fill = np.arange(N) < np.array(counts)[:, None]  # the (C, N) slots in use, camera-major like the concatenations
         area = np.zeros((C, N))
+        flux = np.full((C, N), np.nan)
         if N:
             area[fill] = np.concatenate([det.area for det in detections])
+            flux[fill] = np.concatenate([det.flux for det in detections])
         lenses = self._lenses.compiled
         if N and lenses is not None:  # (all of the steps below in one call)
             cfg = self._cfg
@@ -728,7 +763,8 @@ class Tracker:
                 np.concatenate([det.cov for det in detections]), np.concatenate([det.merged for det in detections]),
                 area[fill], np.concatenate([det.roundness for det in detections]),
                 MIN_SHAPE_AREA, MIN_CENTROID_STD_PX, Detections.DEFAULT_SIGMA_PX, self._centre, self._focal_xy,
-                cfg.round_merged, cfg.vague_px**2, _VAGUE_TYPICAL**2, cfg.merged_variance_scale), area, counts)
+                cfg.round_merged, cfg.vague_px**2, _VAGUE_TYPICAL**2, cfg.merged_variance_scale),
+                area, flux, counts)
         D = np.full((C, N, 2), np.nan)
         S = np.empty((C, N, 2, 2))
         S[:] = np.eye(2)
@@ -758,7 +794,7 @@ class Tracker:
             typical = quick_median(var[valid])  # (centroid files may state one large std for every blob)
             merged |= var > max(self._cfg.vague_px**2, _VAGUE_TYPICAL**2 * typical)
         S[merged] *= self._cfg.merged_variance_scale
-        return _Frame(D, S, valid, merged, round_, area, counts)
+        return _Frame(D, S, valid, merged, round_, area, flux, counts)
 
     def _in_play(self) -> np.ndarray:
         """(K,) tracks that search their own gates: confirmed ones for ``coast_frames`` after their last
@@ -1209,24 +1245,13 @@ class Tracker:
         suspect = crowded  # (views that are not clean, as merged blobs are not)
         if partial is not None and cfg.partial_suspect:
             suspect = crowded | (partial & (asg == judged) & tri.used)
-        if kernels.HAVE_NUMBA:
-            meas.ok, clean, meas.out = kernels.measured_points(
-                tri.X, tri.used, kernels.contiguous(suspect, bool), split, fr.merged, sigma, asg, tri.depth,
-                self._focal, t.x3, t.e3, float(cfg.gate_scale), float(cfg.suspect_m[0]), float(cfg.suspect_m[1]),
-                float(cfg.n_sigma))
-        else:
-            meas.ok = np.isfinite(tri.X).all(axis=1)
-            clean = tri.used & ((~suspect & ~_gather(fr.merged, asg)) | split)
-            with np.errstate(invalid="ignore", divide="ignore"):  # the point's own noise, m (NaN without a clean view)
-                noise = (np.where(clean, _gather(sigma, asg) * tri.depth.T / self._focal, 0.0).sum(axis=1)
-                         / clean.sum(axis=1))
-            high = np.fmax(cfg.suspect_m[1], cfg.n_sigma * noise)
-            agree = np.linalg.norm(tri.X - t.x3[:, :3], axis=1) < np.clip(cfg.gate_scale * t.e3[:, 0],
-                                                                          cfg.suspect_m[0], high)
-            meas.out = meas.ok & ((clean.sum(axis=1) >= 2) | (agree & clean.any(axis=1)))
+        meas.ok, clean, meas.out = self._verdicts(fr, tri.X, tri.used, tri.depth, suspect, split, sigma, asg, t.x3,
+                                                  t.e3)
         if cfg.withhold_merged_depth:
             meas.out[self._depth_on_merged_blobs(fr, asg, clean, tri, crowded)] = False
         meas.X, meas.cov, meas.rms_px = tri.X, tri.cov, tri.rms_px
+        if cfg.dark_flux < 1:
+            self._judge_dark_views(fr, asg, tri, suspect, split, sigma, meas)
 
     def _partial_views(self, fr: _Frame, asg: np.ndarray, views: np.ndarray) -> np.ndarray:
         """(K, C) bool: which of the ``views`` (K, C) bool of the detections ``asg`` (K, C) show their marker partly
@@ -1458,7 +1483,7 @@ class Tracker:
                                   t.last_uvv, t.lock2, t.unseen2)
         else:
             self._update_numpy(fr, meas, idx)
-        if self._cfg.partial_area > 0:
+        if self._blobs_followed:
             kk, cc = np.nonzero(meas.asg[idx] >= 0)
             self._follow_blobs(fr, idx[kk], cc, meas.asg[idx[kk], cc])
 
@@ -1516,8 +1541,8 @@ class Tracker:
         t.unseen2[tk, cc] = 0
 
     def _expected_blobs(self) -> np.ndarray:
-        """(K, C, 2) each track's blob expected in each camera: its blob's area there lately, scaled to the depth of
-        the track's last point (the image of a sphere scales as 1 / depth^2), px, and roundness (NaN: none)."""
+        """(K, C, 4) each track's blob expected in each camera (:func:`_blob_at_depth` at the depth of the track's last
+        point): area px, roundness, flux grey levels and its deviation (NaN: none)."""
         t = self._t
         if kernels.HAVE_NUMBA:
             return kernels.expected_blobs(t.blob, t.last_X, self._P)
@@ -1552,33 +1577,118 @@ class Tracker:
                              self._expect[tracks, cams])
 
     def _follow_blobs(self, fr: _Frame, tracks: np.ndarray, cams: np.ndarray, blobs: np.ndarray) -> None:
-        """Running average (``blob_alpha``) of each track's blob area (scaled to depth) and roundness per camera,
-        from its views this frame that are neither flagged merged nor partly hidden (:meth:`_partial`). A blob judged
-        partly hidden more than ``partial_frames`` times in a row is the marker's blob now (an exposure change,
-        another marker taken, a lasting cover): the average starts again from it."""
+        """Running averages (``blob_alpha``) of each track's blob per camera, from its views this frame: the area
+        (scaled to depth) and roundness from views neither flagged merged nor partly hidden (:meth:`_partial`); the
+        light (flux, scaled to depth) and its mean absolute relative deviation from views neither merged nor darker
+        (:meth:`_dark`). A blob judged partly hidden (or darker) more than ``partial_frames`` times in a row is the
+        marker's blob now (an exposure change, another marker taken, a lasting cover): that average starts again
+        from it."""
         cfg = self._cfg
+        t = self._t
         if kernels.HAVE_NUMBA:
             c = kernels.contiguous
-            kernels.follow_blobs(self._t.blob, self._t.cut_run, self._t.last_X, self._P, fr.area, fr.roundness,
+            kernels.follow_blobs(t.blob, t.cut_run, t.dark_run, t.last_X, self._P, fr.area, fr.roundness, fr.flux,
                                  fr.merged, c(tracks, np.intp), c(cams, np.intp), c(blobs, np.intp),
                                  float(cfg.blob_alpha), float(cfg.partial_area), float(cfg.partial_round),
-                                 float(cfg.partial_min_area), int(cfg.partial_frames))
+                                 float(cfg.partial_min_area), int(cfg.partial_frames), self._dark_settings())
             return
-        depth = np.einsum("nj,nj->n", self._P[cams, 2, :3], self._t.last_X[tracks]) + self._P[cams, 2, 3]
-        expected = _blob_at_depth(self._t.blob[tracks, cams], depth)
+        depth = np.einsum("nj,nj->n", self._P[cams, 2, :3], t.last_X[tracks]) + self._P[cams, 2, 3]
+        expected = _blob_at_depth(t.blob[tracks, cams], depth)
         area, roundness, merged = fr.area[cams, blobs], fr.roundness[cams, blobs], fr.merged[cams, blobs]
+        flux = fr.flux[cams, blobs]
+        a = cfg.blob_alpha
+        # the light, at this depth
+        dark = self._dark(flux, merged, expected)
+        run = np.where(dark, t.dark_run[tracks, cams] + 1, 0)
+        dark_lasting = run > cfg.partial_frames
+        t.dark_run[tracks, cams] = np.where(dark_lasting, 0, run)
+        light, deviation = expected[:, 2], expected[:, 3]
+        take = ~merged & (~dark | dark_lasting) & np.isfinite(flux) & np.isfinite(depth)
+        step = take & np.isfinite(light) & ~dark_lasting
+        with np.errstate(invalid="ignore", divide="ignore"):
+            off = np.abs(flux / light - 1.0)
+        deviation = np.where(step, np.where(np.isfinite(deviation), deviation + a * (off - deviation), off), deviation)
+        light = np.where(step, light + a * (flux - light), np.where(take, flux, light))
+        # the area and roundness
         cut = self._partial(area, roundness, merged, expected)
-        run = np.where(cut, self._t.cut_run[tracks, cams] + 1, 0)
+        run = np.where(cut, t.cut_run[tracks, cams] + 1, 0)
         lasting = run > cfg.partial_frames
-        self._t.cut_run[tracks, cams] = np.where(lasting, 0, run)
+        t.cut_run[tracks, cams] = np.where(lasting, 0, run)
         take = ~merged & (~cut | lasting) & np.isfinite(depth)
         expected[lasting, 0] = np.nan  # (starts again)
-        fresh = ~np.isfinite(expected[take, 0])
-        a = cfg.blob_alpha
-        self._t.blob[tracks[take], cams[take]] = np.stack([
-            np.where(fresh, area[take], expected[take, 0] + a * (area[take] - expected[take, 0])),
-            np.where(fresh, roundness[take], expected[take, 1] + a * (roundness[take] - expected[take, 1])),
-            depth[take]], axis=1)
+        fresh = ~np.isfinite(expected[:, 0])
+        record = t.blob[tracks, cams]
+        record[take] = np.stack([
+            np.where(fresh, area, expected[:, 0] + a * (area - expected[:, 0])),
+            np.where(fresh, roundness, expected[:, 1] + a * (roundness - expected[:, 1])),
+            depth, record[:, 3], record[:, 4]], axis=1)[take]
+        # the light kept at the record's depth
+        kept = np.isfinite(light)
+        record[kept & ~np.isfinite(record[:, 2]), 2] = depth[kept & ~np.isfinite(record[:, 2])]
+        with np.errstate(invalid="ignore", divide="ignore"):
+            record[kept, 3] = light[kept] * (depth[kept] / record[kept, 2]) ** _FLUX_DEPTH_POWER
+        record[:, 4] = deviation
+        t.blob[tracks, cams] = record
+
+    def _judge_dark_views(self, fr: _Frame, asg: np.ndarray, tri: Triangulated, suspect: np.ndarray,
+                          split: np.ndarray, sigma: np.ndarray, meas: _Measurements) -> None:
+        """``meas.withheld`` (K,): the output points that would not be output if their clean views (used, not
+        ``suspect``) whose blob holds less light than their marker's blob there lately (:meth:`_dark`, against
+        :meth:`_expected_blobs` as of the frame's start) counted as no clean view: a two-view point leaning on such a
+        view, off its prediction (a cut blob's centroid lies along the other camera's epipolar line as often as
+        not, and nothing else tells). Only the written trajectories leave them out (:meth:`withheld`)."""
+        k, c = np.nonzero(tri.used & ~suspect & (asg >= 0))
+        meas.withheld = np.zeros(len(asg), dtype=bool)
+        if k.size == 0:
+            return
+        j = asg[k, c]
+        dark = self._dark(fr.flux[c, j], fr.merged[c, j], self._expect[k, c])
+        if not np.count_nonzero(dark):
+            return
+        rows = np.unique(k[dark])
+        views = np.zeros(asg.shape, dtype=bool)
+        views[k[dark], c[dark]] = True
+        meas.withheld[rows] = meas.out[rows] & ~self._verdicts(
+            fr, tri.X[rows], tri.used[rows], tri.depth[:, rows], (suspect | views)[rows], split[rows], sigma,
+            asg[rows], self._t.x3[rows], self._t.e3[rows])[2]
+
+    def _verdicts(self, fr: _Frame, X: np.ndarray, used: np.ndarray, depth: np.ndarray, suspect: np.ndarray,
+                  split: np.ndarray, sigma: np.ndarray, asg: np.ndarray, x3: np.ndarray, e3: np.ndarray
+                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The verdicts on measured points ``X`` (K, 3) m from their ``used`` views (K, C) (detections ``asg``,
+        ``depth`` (C, K) m there): ``ok`` (K,) finite; ``clean`` (K, C) the used views that are not ``suspect`` nor
+        merged, or ``split``; ``out`` (K,): two clean views, or one and a point that agrees with the prediction ``x3``
+        (within ``gate_scale`` x the running error ``e3``, clipped to ``suspect_m`` and ``n_sigma`` x the clean
+        views' noise, from ``sigma`` (C, N) px). One kernel call with numba (:func:`mocap.kernels.measured_points`)."""
+        cfg = self._cfg
+        if kernels.HAVE_NUMBA:
+            return kernels.measured_points(X, used, kernels.contiguous(suspect, bool), split, fr.merged, sigma, asg,
+                                           kernels.contiguous(depth), self._focal, x3, e3, float(cfg.gate_scale),
+                                           float(cfg.suspect_m[0]), float(cfg.suspect_m[1]), float(cfg.n_sigma))
+        ok = np.isfinite(X).all(axis=1)
+        clean = used & ((~suspect & ~_gather(fr.merged, asg)) | split)
+        with np.errstate(invalid="ignore", divide="ignore"):  # the point's own noise, m (NaN without a clean view)
+            noise = (np.where(clean, _gather(sigma, asg) * depth.T / self._focal, 0.0).sum(axis=1)
+                     / clean.sum(axis=1))
+        high = np.fmax(cfg.suspect_m[1], cfg.n_sigma * noise)
+        agree = np.linalg.norm(X - x3[:, :3], axis=1) < np.clip(cfg.gate_scale * e3[:, 0], cfg.suspect_m[0], high)
+        return ok, clean, ok & ((clean.sum(axis=1) >= 2) | (agree & clean.any(axis=1)))
+
+    def _dark(self, flux: np.ndarray, merged: np.ndarray, expected: np.ndarray) -> np.ndarray:
+        """(n,) bool: blobs of ``flux`` (grey levels; NaN: not measured) and ``merged`` flag (n,) each, where the
+        marker's blob is ``expected`` (n, 4) (:meth:`_expected_blobs`), hold less light than it by more than
+        ``dark_flux`` (or ``dark_spread`` times the light's running deviation, up to ``dark_max``): the marker partly
+        hidden, its centroid off towards the part seen. Blobs flagged merged, or expected smaller than
+        ``partial_min_area``, are not judged."""
+        cfg = self._cfg
+        with np.errstate(invalid="ignore", divide="ignore"):
+            tolerance = np.fmin(np.fmax(cfg.dark_flux, cfg.dark_spread * expected[:, 3]), cfg.dark_max)
+            return (flux / expected[:, 2] < 1.0 - tolerance) & ~merged & (expected[:, 0] >= cfg.partial_min_area)
+
+    def _dark_settings(self) -> np.ndarray:
+        """The kernels' (4,) ``dark_flux``, ``dark_spread``, ``dark_max``, ``partial_min_area``."""
+        cfg = self._cfg
+        return np.array([cfg.dark_flux, cfg.dark_spread, cfg.dark_max, cfg.partial_min_area])
 
     def _e2_from_3d(self, tracks: np.ndarray, cams: np.ndarray) -> np.ndarray:
         """(n, 3) image running errors seeded from the tracks' 3D ones, scaled by f / depth."""
@@ -1613,8 +1723,8 @@ class Tracker:
                 asg = meas.asg.copy()
                 asg[rows] = pts.det[got]
                 out &= ~self._flat_and_shared(fr, asg, rows, clean_view[got] & (n_clean[got] == 2)[:, None])
-            meas.put(rows, _Measurements(np.ones(got.size, dtype=bool), out, pts.X[got],
-                                         pts.cov[got], pts.rms_px[got], pts.det[got]))
+            meas.put(rows, _Measurements(np.ones(got.size, dtype=bool), out, pts.X[got], pts.cov[got],
+                                         pts.rms_px[got], pts.det[got], np.zeros(got.size, dtype=bool)))
             self._update(fr, meas, rows)
         # 2) Tracks start only from points two clean cameras support: two blobs of merged markers (or a merged
         #    blob and a reflection) match across cameras at a point between the markers, which then moves.
@@ -1735,13 +1845,15 @@ class Tracker:
         i = np.zeros(n, dtype=np.intp)
         new = _Tracks(uid, i - 1, cand, i + 1, i.copy(), x3, P3, e3, pts.X.copy(), np.full((n, 3), np.nan), x2, P2,
                       used, np.zeros((n, C), dtype=np.intp), np.zeros((n, C, 3)), last_uv,
-                      np.zeros((n, C, 2)), ~pts.strong, pts.X.copy(), _point_std(pts.cov), np.full((n, C, 3), np.nan),
+                      np.zeros((n, C, 2)), ~pts.strong, pts.X.copy(), _point_std(pts.cov),
+                      np.full((n, C, _BLOB_FIELDS), np.nan), np.zeros((n, C), dtype=np.intp),
                       np.zeros((n, C), dtype=np.intp))
         base = len(self._t)
         self._t.extend(new)
         self._t.e2[base + k, c] = self._e2_from_3d(base + k, c)
         out = _clean_views(fr.merged, pts.det) >= 2  # (all: _new_markers starts only such points)
-        meas.extend(_Measurements(np.ones(n, dtype=bool), out, pts.X, pts.cov, pts.rms_px, pts.det))
+        meas.extend(_Measurements(np.ones(n, dtype=bool), out, pts.X, pts.cov, pts.rms_px, pts.det,
+                                  np.zeros(n, dtype=bool)))
 
     def _lifecycle(self, meas: _Measurements) -> None:
         """Confirm tentative tracks, drop failed tentative ones and retired identities."""
@@ -1802,6 +1914,9 @@ class Tracker:
         t, C = self._t, self._C
         rows = (meas.out & (t.since == 0)).nonzero()[0]
         X, asg = meas.X[rows], meas.asg[rows]
+        if np.count_nonzero(meas.withheld):
+            withheld = rows[meas.withheld[rows]]
+            self._withheld.append((np.full(len(withheld), frame_index), meas.X[withheld]))
         bounds = list(accumulate(fr.counts, initial=0))  # all cameras' detections in one flat array
         if kernels.HAVE_NUMBA:
             res, mask, flat = kernels.frame_record(X, kernels.contiguous(asg, np.intp), meas.rms_px[rows],
@@ -1833,10 +1948,12 @@ def _secant_field_angle(xy: np.ndarray, centre: np.ndarray, focal_xy: np.ndarray
 
 
 def _blob_at_depth(blob: np.ndarray, depth: np.ndarray) -> np.ndarray:
-    """(..., 2) a track's blob record (..., 3) (area px, roundness, the depth it was seen at, m) seen at ``depth``
-    (...) m: its area scaled as 1 / depth^2 (the image of a sphere), its roundness. NaN where there is none."""
+    """(..., 4) a track's blob record (..., 5) (:attr:`_Tracks.blob`) seen at ``depth`` (...) m: its area scaled as
+    1 / depth^2 (the image of a sphere), its roundness, its flux scaled as 1 / depth^4 and the flux's deviation. NaN
+    where there is none."""
     with np.errstate(invalid="ignore", divide="ignore"):
-        return np.stack([blob[..., 0] * (blob[..., 2] / depth) ** 2, blob[..., 1]], axis=-1)
+        scale = (blob[..., 2] / depth) ** 2
+        return np.stack([blob[..., 0] * scale, blob[..., 1], blob[..., 3] * scale * scale, blob[..., 4]], axis=-1)
 
 
 def _gather(values: np.ndarray, asg: np.ndarray) -> np.ndarray:

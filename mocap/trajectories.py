@@ -7,7 +7,7 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["MISSING", "Trajectories", "UnconfirmedPoints"]
+__all__ = ["MISSING", "Trajectories", "UnconfirmedPoints", "WithheldPoints"]
 
 MISSING = {"f": np.nan, "u": 0}  # a missing sample by array kind: positions and residuals NaN, camera mask 0
 
@@ -107,6 +107,33 @@ class Trajectories:
         column ``order[k]`` held (positions, residuals and camera masks together), in place."""
         for array in (self.positions, self.residuals, self.camera_masks):
             array[start:stop, columns] = array[start:stop, order]
+
+
+@dataclass
+class WithheldPoints:
+    """Tracked samples the written trajectories leave out, applied after the identity repair (which works on the
+    tracked samples).
+
+    Attributes:
+        rows: (n,) frame index into the trajectories.
+        positions: (n, 3) the tracked positions, m (how the samples are found again, wherever the repair moved them).
+    """
+
+    rows: np.ndarray
+    positions: np.ndarray
+
+    def apply(self, traj: Trajectories) -> int:
+        """Leave out, in place, each sample of ``traj`` in frame ``rows[i]`` at exactly ``positions[i]``; returns how
+        many were (a position no sample holds any more, one the repair dropped or moved off its frame, is skipped)."""
+        inside = (self.rows >= 0) & (self.rows < traj.n_frames)
+        rows = self.rows[inside]
+        if rows.size == 0:
+            return 0
+        i, col = np.nonzero((traj.positions[rows] == self.positions[inside][:, None, :]).all(axis=2))
+        traj.positions[rows[i], col] = np.nan
+        traj.residuals[rows[i], col] = np.nan
+        traj.camera_masks[rows[i], col] = 0
+        return len(i)
 
 
 @dataclass

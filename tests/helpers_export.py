@@ -38,5 +38,5 @@ def synthetic_detections(rig: Rig, points: np.ndarray, rng: np.random.Generator,
         n = len(uv)
         a = rng.uniform(0.01, 0.2, (n, 2, 2))
         out.append(Detections(uv + rng.normal(0, 0.05, uv.shape), rng.uniform(4, 60, n), rng.uniform(0.5, 1, n),
-                              a @ a.transpose(0, 2, 1), rng.random(n) < 0.1))
+                              a @ a.transpose(0, 2, 1), rng.random(n) < 0.1, rng.uniform(50, 9000, n)))
     return out

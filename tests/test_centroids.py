@@ -48,6 +48,20 @@ def test_round_trip(tmp_path, suffix):
         np.testing.assert_array_equal(det.merged, want.merged)
     middle = list(f.frames(10, 14))
     assert [len(d) for d in middle] == [len(by_frame.get(k, Detections.empty())) for k in range(10, 14)]
+    assert all(np.isnan(det.flux).all() for det in got)  # (written without light: none comes back)
+
+
+@pytest.mark.parametrize("suffix", [".centroids.csv", ".centroids.npz"])
+def test_the_blobs_light_makes_the_round_trip_where_every_blob_has_it(tmp_path, suffix):
+    rng = np.random.default_rng(2)
+    frames = [(k, Detections(d.xy, d.area, d.roundness, d.cov, d.merged, rng.uniform(50, 9000, len(d))))
+              for k, d in random_frames(rng, 12)]
+    path = tmp_path / f"cam1{suffix}"
+    write_centroids(path, frames)
+    for (_, want), got in zip(frames, open_centroids(path).frames(), strict=True):
+        np.testing.assert_allclose(got.flux, want.flux, rtol=1e-5)
+    if suffix.endswith("csv"):
+        assert "merged,flux" in path.read_text().splitlines()[0]
 
 
 def test_csv_streams_in_chunks(tmp_path, monkeypatch):

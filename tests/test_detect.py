@@ -5,12 +5,13 @@ from __future__ import annotations
 import cv2
 import numpy as np
 import pytest
+from scipy import special
 from scipy.spatial import cKDTree
 
 import mocap.detect
 from mocap.detect import StreamDetector, _max_pool, background_level, detect, flattened_background
 from mocap.detections import MIN_CENTROID_STD_PX, Detections, floored_covariance
-from mocap.synth.render import Sensor
+from mocap.synth.render import Sensor, disc_profile
 
 SHAPE = (480, 640)
 
@@ -115,6 +116,36 @@ def test_fit_beats_centroid_and_centroid_beats_opencv_baseline():
                      ("fit", detect(image).xy)):
         rms[name] = np.sqrt(((xy[match(xy, uv)] - uv) ** 2).mean())
     assert rms["fit"] < 0.7 * rms["centroid"] < 0.7 * rms["opencv"]
+
+
+def test_a_blobs_light_is_its_thresholded_pixels_and_a_cut_disc_holds_less():
+    """``flux`` is the light of a blob's pixels above the threshold, less the background (OpenCV's labelling of
+    the same threshold gives the pixels); a disc half hidden behind a straight edge holds about half of it, while
+    its pixel count falls by far less relative to its spread (what lets the tracker tell a cut marker by light)."""
+    rng = np.random.default_rng(21)
+    sensor = Sensor()
+    image, uv = grid_frame(sensor, 2.0, 200.0, rng)
+    det = detect(image)
+    idx = match(det.xy, uv)
+    level, sigma = background_level(image)
+    t = int(level + max(6 * sigma, 8))
+    n, labels = cv2.connectedComponents((image > t).astype(np.uint8), connectivity=8)
+    at = labels[np.rint(det.xy[idx, 1]).astype(int), np.rint(det.xy[idx, 0]).astype(int)]
+    light = np.bincount(labels.ravel(), weights=image.ravel() - level, minlength=n)
+    np.testing.assert_allclose(det.flux[idx], light[at], rtol=1e-6)
+    whole = det.flux[idx]
+    cut = sensor.background_frame(SHAPE, rng)  # the same discs, the half beyond a line through the centre hidden
+    x, y, rho = sensor._patches(uv, np.full(len(uv), 2.0))
+    normal = rng.normal(size=(len(uv), 2))
+    normal /= np.linalg.norm(normal, axis=1, keepdims=True)
+    along = ((x - uv[:, 0, None, None]) * normal[:, 0, None, None]
+             + (y - uv[:, 1, None, None]) * normal[:, 1, None, None])
+    signal = 200.0 * special.ndtr(-along / sensor.sigma) * disc_profile(rho, 2.0, sensor.sigma)
+    cut[y, x] = np.clip(np.rint(sensor.background + signal + rng.normal(0, sensor.noise, signal.shape)), 0, 255)
+    half = detect(cut)
+    ratio = half.flux[match(half.xy, uv, tol=2.0)] / whole
+    assert 0.35 < ratio.min() and ratio.max() < 0.6, (ratio.min(), ratio.max())
+    assert np.std(whole) / np.mean(whole) < 0.02  # (the light of whole discs: 1-2 % apart)
 
 
 def test_blob_areas_equal_opencv_labelling():

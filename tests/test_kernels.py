@@ -308,8 +308,8 @@ def _random_tracker(rig, K: int, seed: int) -> Tracker:
                          x2.reshape(K, C, 6), P2.reshape(K, C, 6, 6), rng.random((K, C)) < 0.7,
                          rng.integers(0, 20, size=(K, C)), rng.uniform(0.05, 3.0, size=(K, C, 3)),
                          uv - vel2 / 100.0, vel2 + rng.normal(scale=10.0, size=(K, C, 2)), np.zeros(K, dtype=bool),
-                         X.copy(), rng.uniform(1e-5, 1e-3, size=K), np.full((K, C, 3), np.nan),
-                         rng.integers(0, 5, size=(K, C)))
+                         X.copy(), rng.uniform(1e-5, 1e-3, size=K), np.full((K, C, 5), np.nan),
+                         rng.integers(0, 5, size=(K, C)), rng.integers(0, 5, size=(K, C)))
     if K:  # one track behind camera 0
         tracker._t.x3[0, :3] = -np.linalg.solve(P[0, :, :3], P[0, :, 3]) - 0.5 * P[0, 2, :3]
     tracker._expect = tracker._expected_blobs()
@@ -329,7 +329,7 @@ def test_tracker_search_regions_crowding_and_update_are_the_numpy_ones(K, monkey
     A = rng.normal(size=(C, N, 2, 2))
     S = A @ A.transpose(0, 1, 3, 2) * 0.01 + np.eye(2) * 1e-4
     fr = _Frame(D, S, np.isfinite(D[..., 0]), np.zeros((C, N), dtype=bool), rng.uniform(0.7, 1.0, size=(C, N)),
-                rng.uniform(3, 35, size=(C, N)), [N] * C)
+                rng.uniform(3, 35, size=(C, N)), rng.uniform(300, 5000, size=(C, N)), [N] * C)
     asg = np.where(rng.random((K, C)) < 0.7, rng.integers(0, N, size=(K, C)), -1)
     asg[:, -1] = -1  # one camera saw none of them
     meas = _Measurements.empty(K, C)
@@ -376,7 +376,8 @@ def _measurement_scene(K: int):
     A = rng.normal(size=(C, N, 2, 2))
     S = A @ A.transpose(0, 1, 3, 2) * 0.02 + np.eye(2) * 0.01
     merged = rng.random((C, N)) < 0.1
-    fr = _Frame(D, S, np.isfinite(D[..., 0]), merged, np.ones((C, N)), np.full((C, N), 15.0), [N] * C)
+    fr = _Frame(D, S, np.isfinite(D[..., 0]), merged, np.ones((C, N)), np.full((C, N), 15.0), np.full((C, N), np.nan),
+                [N] * C)
     asg = np.where(rng.random((K, C)) < 0.8, np.arange(K)[:, None], -1)
     asg[rng.random((K, C)) < 0.1] = K  # a random blob
     if K > 1:
@@ -463,16 +464,21 @@ def test_two_view_ghosts_explained_elsewhere_are_the_numpy_ones(explained_px, mo
 def test_partly_hidden_views_and_the_running_blobs_are_the_numpy_ones(monkeypatch):
     """Which views show their marker partly hidden (``kernels.partly_hidden``, against ``kernels.expected_blobs``)
     and the running blob averages (``kernels.follow_blobs``), on random blobs against a random tracker's: some
-    smaller or flatter than expected, some merged, some tracks with no blob yet in a camera."""
+    smaller, darker or flatter than expected, some merged, some tracks with no blob yet in a camera, some blobs or
+    tracks with no light known."""
     rig = ring_rig()
     C, K, N = len(rig), 30, 12
     rng = np.random.default_rng(41)
     tracker = _random_tracker(rig, K, seed=7)
-    tracker._t.blob = np.where(rng.random((K, C, 1)) < 0.8, rng.uniform([4.0, 0.8, 3.0], [30.0, 1.0, 6.0], (K, C, 3)),
-                               np.nan)
+    blob = rng.uniform([4.0, 0.8, 3.0, 500.0, 0.0], [30.0, 1.0, 6.0, 5000.0, 0.05], (K, C, 5))
+    blob[rng.random((K, C)) < 0.2, 3:] = np.nan  # (no light known)
+    blob[rng.random((K, C)) < 0.1, 4] = np.nan  # (no deviation yet)
+    tracker._t.blob = np.where(rng.random((K, C, 1)) < 0.8, blob, np.nan)
     D = rng.uniform([0, 0], [1024, 768], size=(C, N, 2))
+    flux = np.where(rng.random((C, N)) < 0.8, rng.uniform(100.0, 8000.0, (C, N)), np.nan)
     fr = _Frame(D, np.broadcast_to(np.eye(2) * 0.01, (C, N, 2, 2)).copy(), np.ones((C, N), dtype=bool),
-                rng.random((C, N)) < 0.1, rng.uniform(0.5, 1.0, (C, N)), rng.uniform(2.0, 35.0, (C, N)), [N] * C)
+                rng.random((C, N)) < 0.1, rng.uniform(0.5, 1.0, (C, N)), rng.uniform(2.0, 35.0, (C, N)), flux,
+                [N] * C)
     views = rng.permutation(K * C)[:120]  # distinct (track, camera) pairs: each running average steps once
     tracks, cams, blobs = views // C, views % C, rng.integers(0, N, 120)
     results = []
@@ -482,19 +488,25 @@ def test_partly_hidden_views_and_the_running_blobs_are_the_numpy_ones(monkeypatc
         t._expect = t._expected_blobs()
         hidden = t._partly_hidden(fr, tracks, cams, blobs)
         t._follow_blobs(fr, tracks, cams, blobs)
-        results.append((t._expect, hidden, t._t.blob, t._t.cut_run))
+        results.append((t._expect, hidden, t._t.blob, t._t.cut_run, t._t.dark_run))
     _same(*results, rtol=1e-12)
     hidden = results[0][1]
     assert 0 < hidden.sum() < len(hidden) and not hidden[fr.merged[cams, blobs]].any()
     moved = np.isfinite(results[0][2][tracks, cams, 0]) & ~np.isfinite(tracker._t.blob[tracks, cams, 0])
     assert moved.any()  # (a track's first blob in a camera starts its average)
+    assert 0 < results[0][4][tracks, cams].sum()  # (some judged darker)
 
 
 def test_the_tracker_keeps_the_same_state_on_both_paths(monkeypatch):
-    """A marching body with ghosts, a camera black for a while and one broken throughout: after every frame
-    the same tracks (identities, counters, locks, filters, running errors) and the same output."""
+    """A marching body with ghosts, a camera black for a while and one broken throughout, blobs carrying their
+    light and some of it halved (a marker partly hidden): after every frame the same tracks (identities, counters,
+    locks, filters, running errors) and the same output, and the same points withheld from the written output."""
     take = body_take(frames=90, fps=120.0, markers=20, seed=3, settings=SynthSettings(seed=3, ghosts=4))
-    frames = [list(dets) for dets in take.frames]
+    rng = np.random.default_rng(12)
+    cut = [[rng.random(len(d)) < 0.05 for d in dets] for dets in take.frames]  # (half the light, 1 px off)
+    frames = [[Detections(d.xy + np.where(h, 1.0, 0.0)[:, None], np.maximum(d.area, 20.0), d.roundness, d.cov,
+                          d.merged, 2000.0 * rng.normal(1.0, 0.01, len(d)) * np.where(h, 0.5, 1.0))
+               for d, h in zip(dets, hit, strict=True)] for dets, hit in zip(take.frames, cut, strict=True)]
     for k, dets in enumerate(frames):
         dets[5] = Detections.empty()
         if 30 <= k < 50:
@@ -512,6 +524,10 @@ def test_the_tracker_keeps_the_same_state_on_both_paths(monkeypatch):
         np.testing.assert_allclose(out[1].positions, out[0].positions, rtol=0, atol=1e-12)  # m
         _same(trackers[0]._t, trackers[1]._t, rtol=1e-9)
     assert len(trackers[0]._t) >= 20 and trackers[0].finish().n_markers == 20
+    trackers[1].finish()
+    withheld = [tracker.withheld() for tracker in trackers]
+    _same(withheld[0], withheld[1], rtol=1e-9)
+    assert len(withheld[0].rows) > 0  # (two-view points leaning on views judged darker)
 
 
 def _blob_frame(rng: np.random.Generator) -> np.ndarray:

@@ -28,9 +28,10 @@ def test_a_replayed_capture_gives_the_pipelines_trajectories(tmp_path, capsys):
     out = tmp_path / "sample.pkl"
     assert tool.main(["capture", str(SAMPLE), str(out)]) == 0
     with open(out, "rb") as fh:
-        traj, config, unconfirmed = pickle.load(fh)
+        traj, config, unconfirmed, withheld = pickle.load(fh)
     assert traj.n_frames == 24 and config.confirm_frames == 4
     repair_identities(traj, RelabelConfig(confirm_frames=config.confirm_frames), unconfirmed=unconfirmed)
+    withheld.apply(traj)
     direct = reconstruct(SAMPLE, ReconstructOptions(progress=False))
     np.testing.assert_array_equal(traj.positions, direct.positions)
     np.testing.assert_array_equal(traj.camera_masks, direct.camera_masks)
@@ -57,14 +58,14 @@ def test_the_trace_shows_the_pass_that_gave_two_exchanged_markers_back(tmp_path,
     out = tmp_path / "sample.pkl"
     assert _tool().main(["capture", str(SAMPLE), str(out)]) == 0
     with open(out, "rb") as fh:
-        traj, config, unconfirmed = pickle.load(fh)
+        traj, config, unconfirmed, withheld = pickle.load(fh)
     truth_path = SAMPLE.with_name("march_sample.truth.npz")
     truth = load_truth(truth_path)
     a, b = truth.labels.index("LHEE"), truth.labels.index("RHEE")
     col = [int(np.nanargmin(np.linalg.norm(traj.positions[5] - truth.positions[5, m], axis=1))) for m in (a, b)]
     traj.positions[12:, col] = traj.positions[12:, col[::-1]]
     with open(out, "wb") as fh:
-        pickle.dump((traj, config, unconfirmed), fh)
+        pickle.dump((traj, config, unconfirmed, withheld), fh)
     spec = importlib.util.spec_from_file_location("trace_repair", ROOT / "tools" / "trace_repair.py")
     trace = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(trace)

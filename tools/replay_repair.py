@@ -11,8 +11,9 @@ Usage:
     python tools/replay_repair.py replay CAPTURE.pkl [CAPTURE.pkl ...] [--truth TRUTH.npz]
 
 ``capture`` reconstructs the take (the repair runs too) and pickles the repair's input: the tracker's
-trajectories, the repair's settings and the tracker's unconfirmed points. ``replay`` runs the repair on each
-capture and prints one line of figures per capture against its truth (``NAME.truth.npz`` beside ``NAME.pkl``,
+trajectories, the repair's settings and the tracker's unconfirmed points, and the points the written trajectories
+leave out after the repair (:meth:`mocap.tracker.Tracker.withheld`). ``replay`` runs the repair on each capture,
+leaves those out, and prints one line of figures per capture against its truth (``NAME.truth.npz`` beside ``NAME.pkl``,
 as ``mocap synth`` names it beside the take, unless ``--truth`` is given for a single capture). A capture is a
 pickle of this version's objects: replay it with the code that wrote it or a later one that keeps their fields,
 and only captures you made (unpickling runs code).
@@ -31,40 +32,49 @@ import mocap.pipeline as pipeline
 from mocap.errors import MocapError
 from mocap.evaluate import evaluate
 from mocap.relabel import RelabelConfig, repair_identities
+from mocap.tracker import Tracker
 from mocap.truth import load_truth
 
 
 def capture(take: str, out: Path, start: int = 0, stop: int | None = None) -> None:
     """Reconstruct ``take`` (frames ``start`` .. ``stop``) and write the repair's input to ``out`` (atomically)."""
-    real = pipeline.repair_identities
+    real, real_withheld = pipeline.repair_identities, Tracker.withheld
+    kept: list = []
 
     def keep_input(traj, config=None, unconfirmed=None):  # the pipeline's call, recorded before it runs
-        tmp = out.with_name(out.name + ".partial")
-        with open(tmp, "wb") as fh:
-            pickle.dump((copy.deepcopy(traj), config, copy.deepcopy(unconfirmed)), fh)
-        tmp.replace(out)
+        kept[:] = [copy.deepcopy(traj), config, copy.deepcopy(unconfirmed)]
         return real(traj, config, unconfirmed=unconfirmed)
 
-    pipeline.repair_identities = keep_input
+    def keep_withheld(tracker):  # (asked for after the repair)
+        withheld = real_withheld(tracker)
+        kept.append(withheld)
+        return withheld
+
+    pipeline.repair_identities, Tracker.withheld = keep_input, keep_withheld
     try:
         pipeline.reconstruct(take, pipeline.ReconstructOptions(progress=False, start=start, stop=stop))
     finally:
-        pipeline.repair_identities = real
-    if not out.exists():
+        pipeline.repair_identities, Tracker.withheld = real, real_withheld
+    if len(kept) != 4:
         raise MocapError(f"{take}: the repair did not run (no frames?); nothing captured")
+    tmp = out.with_name(out.name + ".partial")
+    with open(tmp, "wb") as fh:
+        pickle.dump(tuple(kept), fh)
+    tmp.replace(out)
 
 
 def replay(path: Path, truth_path: Path) -> str:
     """Run the repair on the capture at ``path`` and score it against ``truth_path``: one line of figures."""
     try:
         with open(path, "rb") as fh:
-            traj, config, unconfirmed = pickle.load(fh)
+            traj, config, unconfirmed, withheld = pickle.load(fh)
     except (pickle.UnpicklingError, EOFError, AttributeError, ValueError) as err:
         raise MocapError(f"{path}: not a capture of this version ({err}); capture the take again") from err
     settings = RelabelConfig(confirm_frames=config.confirm_frames)
     began = time.perf_counter()
     repair_identities(traj, settings, unconfirmed=unconfirmed)
     took = time.perf_counter() - began
+    withheld.apply(traj)
     report = evaluate(traj, load_truth(truth_path), None)
     return (f"{path.stem:14s} completeness {report.completeness:.4%}  ghosts {report.ghost_rate:.3%}  "
             f"switches {report.switches} ({report.switches_at_reference_jumps} at label jumps) "

@@ -59,7 +59,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--offset", type=int, default=0, help="truth frame of the capture's frame 0")
     args = ap.parse_args(argv)
     with open(args.capture, "rb") as fh:
-        traj, config, unconfirmed = pickle.load(fh)
+        traj, config, unconfirmed, _ = pickle.load(fh)  # (the points withheld after the repair: not traced)
     truth = load_truth(args.truth)
     markers = [k for k, label in enumerate(truth.labels) if args.markers in label]
     if not markers:
