@@ -16,7 +16,10 @@ Per frame, for all tracks at once (numpy arrays, no per-marker Python objects):
    outlier rejection, then the dropped/unseen cameras are offered the free detection nearest to the
    point's reprojection, and the point is recomputed. A view whose blob is smaller (scaled to depth) or
    flatter than the marker's own blob in that camera lately is the marker partly hidden, its centroid
-   off: it is left out where two clean views remain (``partial_area``), and is no clean view where it stays.
+   off: it is left out where two clean views remain (``partial_area``), and is no clean view where it stays. A
+   two-view point leaning on a blob that holds less light than the marker's lately (``dark_flux``), off its
+   prediction, is left out of the written trajectories after the identity repair (:meth:`Tracker.withheld`), not
+   out of the tracking.
 5. **Update** the filters and the running errors with the measurements.
 6. **New markers** from the detections no track used: all-pairs epipolar matching, triangulation,
    multi-view support. A point near a track that missed this frame re-acquires it; a point inside
@@ -241,12 +244,12 @@ class TrackerConfig:
         dark_flux: a blob whose light (:attr:`mocap.detections.Detections.flux`) is less than its marker's blob's in
             that camera lately (a running average, scaled to depth as 1 / depth^4: a retroreflector lit from the
             camera) by more than this fraction, or by ``dark_spread`` times that light's running mean absolute
-            relative deviation (faint blobs, a flickering marker) up to ``dark_max``, is the marker partly hidden:
-            the output point leaves it out where two clean views remain, and a two-view point leaning on it is output
-            only where it agrees with the prediction. Tracking itself (assignment, filters, identities) does not use
-            this judgement: small faint blobs' light jumps when a pixel crosses the threshold, and leaving such views
-            out of the tracking cost the 12-camera sprint's forearm cluster its identities (engine-log.md, 75th
-            session). 1: off.
+            relative deviation (faint blobs, a flickering marker) up to ``dark_max``, is the marker partly hidden: a
+            point that leans on it (fewer than two clean views without it) and disagrees with the prediction is left
+            out of the written trajectories, after the identity repair (:meth:`Tracker.withheld`). Tracking itself
+            (assignment, filters, identities) does not use this judgement: small faint blobs' light jumps when a
+            pixel crosses the threshold, and leaving such views out of the tracking cost the 12-camera sprint's
+            forearm cluster its identities (engine-log.md, 75th session). 1: off.
         dark_spread, dark_max: see ``dark_flux``.
     """
 
