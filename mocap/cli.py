@@ -8,6 +8,7 @@ User errors (:class:`mocap.errors.MocapError`) are printed as one plain line, ex
 from __future__ import annotations
 
 import argparse
+import errno
 import importlib
 import logging
 import sys
@@ -61,6 +62,12 @@ def main(argv: list[str] | None = None) -> int:
         return int(args._run(args) or 0)
     except MocapError as exc:
         print(f"mocap {args.command}: error: {exc}", file=sys.stderr)
+        return 2
+    except OSError as exc:  # (a full disk, a folder gone: what the command read or wrote, not a bug's traceback)
+        where = f"{exc.filename}: " if exc.filename else ""
+        hint = {errno.ENOSPC: "; free some space, or write the outputs to another disk",
+                errno.EACCES: "; check the permissions"}.get(exc.errno, "")
+        print(f"mocap {args.command}: error: {where}{exc.strerror or exc}{hint}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         print(f"mocap {args.command}: interrupted", file=sys.stderr)
