@@ -1635,23 +1635,35 @@ class Tracker:
 
     def _judge_dark_views(self, fr: _Frame, asg: np.ndarray, tri: Triangulated, suspect: np.ndarray,
                           split: np.ndarray, sigma: np.ndarray, meas: _Measurements) -> None:
-        """``meas.withheld`` (K,): the output points that would not be output if their clean views (used, not
-        ``suspect``) whose blob holds less light than their marker's blob there lately (:meth:`_dark`, against
-        :meth:`_expected_blobs` as of the frame's start) counted as no clean view: a two-view point leaning on such a
-        view, off its prediction (a cut blob's centroid lies along the other camera's epipolar line as often as
-        not, and nothing else tells). Only the written trajectories leave them out (:meth:`withheld`)."""
-        k, c = np.nonzero(tri.used & ~suspect & (asg >= 0))
+        """``meas.withheld`` (K,): the output points the written trajectories leave out (:meth:`withheld`), judged by
+        their blobs' light against their marker's blob there lately (:meth:`_expected_blobs` as of the frame's start):
+        points that would not be output if their clean views (used, not ``suspect``) that hold less light
+        (:meth:`_dark`) counted as no clean view (a two-view point leaning on such a view, off its prediction: a cut
+        blob's centroid lies along the other camera's epipolar line as often as not, and nothing else tells); and
+        points with fewer than two clean views that use a blob flagged merged holding less than 1 - ``dark_max`` of
+        the marker's light (flat because cut, not because two markers merged, whose light adds up)."""
+        k, c = np.nonzero(tri.used & (asg >= 0))
         meas.withheld = np.zeros(len(asg), dtype=bool)
         if k.size == 0:
             return
         j = asg[k, c]
-        dark = self._dark(fr.flux[c, j], fr.merged[c, j], self._expect[k, c])
+        expected = self._expect[k, c]
+        merged = fr.merged[c, j]
+        dark = self._dark(fr.flux[c, j], merged, expected) & ~suspect[k, c]
+        with np.errstate(invalid="ignore", divide="ignore"):
+            cut_flat = merged & (fr.flux[c, j] / expected[:, 2] < 1.0 - self._cfg.dark_max) & (
+                expected[:, 0] >= self._cfg.partial_min_area)
+        if np.count_nonzero(cut_flat):
+            rows = np.unique(k[cut_flat])
+            clean = tri.used[rows] & ~suspect[rows] & ~_gather(fr.merged, asg[rows])
+            lean = rows[clean.sum(axis=1) < 2]
+            meas.withheld[lean] = meas.out[lean]
         if not np.count_nonzero(dark):
             return
         rows = np.unique(k[dark])
         views = np.zeros(asg.shape, dtype=bool)
         views[k[dark], c[dark]] = True
-        meas.withheld[rows] = meas.out[rows] & ~self._verdicts(
+        meas.withheld[rows] |= meas.out[rows] & ~self._verdicts(
             fr, tri.X[rows], tri.used[rows], tri.depth[:, rows], (suspect | views)[rows], split[rows], sigma,
             asg[rows], self._t.x3[rows], self._t.e3[rows])[2]
 

@@ -687,6 +687,36 @@ def test_a_two_view_point_leaning_on_a_darker_blob_is_withheld_and_tracking_is_u
     assert np.nanmax(written[1][hit]) > 0.001  # with the rule off: written, off
 
 
+def test_a_point_leaning_on_a_flat_blob_with_too_little_light_is_withheld_but_not_one_on_a_merge(rig):
+    """A blob flat enough to be taken for two markers merged (roundness 0.6) that holds half its marker's light is
+    the marker cut, not merged (a merge's light adds up): a point with fewer than two clean views that uses it is
+    left out of the written trajectories, whether or not it agrees with the prediction; the same flat blob holding
+    1.6x the light (a merge) leaves the point as the tracker output it."""
+    cut = {(k, 1) for k in (60, 61, 90, 91, 120)}
+    hit = sorted(k for k, _ in cut)
+    marker, frames = _partly_hidden_scene(rig, 6, cut, np.array([0.0006, -0.0003, 0.0]), cameras=2, light=True,
+                                          jitter_m=0.0005)  # (off by less than the prediction's gate)
+    written = {}
+    for light in (0.5, 1.6):
+        scene = [[Detections(d.xy, d.area, np.where((k, c) in cut, 0.6, d.roundness), d.cov, d.merged,
+                             d.flux * (light / 0.5 if (k, c) in cut else 1.0)) for c, d in enumerate(dets)]
+                 for k, dets in enumerate(frames)]
+        tracker = Tracker(rig, 100.0)
+        for k, dets in enumerate(scene):
+            tracker.step(k, dets)
+        traj = tracker.finish()
+        tracked = traj.positions.copy()
+        tracker.withheld().apply(traj)
+        written[light] = (tracked[:, 0], traj.positions[:, 0])
+    tracked, out = written[0.5]
+    assert np.isfinite(tracked[hit, 0]).sum() >= 3  # (the tracker output them: they agree with its prediction)
+    assert np.nanmax(np.linalg.norm(tracked - marker, axis=1)) > 0.0005
+    assert np.isnan(out[hit]).all()  # m: every cut frame withheld
+    assert np.nanmax(np.linalg.norm(out - marker, axis=1)) < 0.0005
+    tracked, out = written[1.6]
+    np.testing.assert_array_equal(out, tracked)
+
+
 def test_withheld_points_find_their_samples_wherever_the_repair_moved_them():
     """A withheld point names its sample by frame and tracked position: after the samples moved to another column
     it still leaves out the very sample, and skips one no longer there."""
