@@ -578,6 +578,7 @@ class Tracker:
         self._n_ident = 0
         self._records = _Records()
         self._withheld: list[tuple[np.ndarray, np.ndarray]] = []  # (frame (n,), position (n, 3)) (_judge_dark_views)
+        self._light = False  # some blob has carried its light (Detections.flux)
         self._result: Trajectories | None = None
         self._unconfirmed: UnconfirmedPoints | None = None
         self._clutter: deque[np.ndarray] = deque(maxlen=max(cfg.clutter_frames, 1))  # recent free detections
@@ -599,6 +600,7 @@ class Tracker:
         self._next_views = None
         t, C = self._t, self._C
         fr = self._prepare(detections)
+        self._light = self._light or bool(np.isfinite(fr.flux[:, :1]).any())  # (a frame's first blobs tell)
         t.since += 1
         t.unseen2 += 1
         if self._blobs_followed:
@@ -1642,8 +1644,10 @@ class Tracker:
         blob's centroid lies along the other camera's epipolar line as often as not, and nothing else tells); and
         points with fewer than two clean views that use a blob flagged merged holding less than 1 - ``dark_max`` of
         the marker's light (flat because cut, not because two markers merged, whose light adds up)."""
-        k, c = np.nonzero(tri.used & (asg >= 0))
         meas.withheld = np.zeros(len(asg), dtype=bool)
+        if not self._light:  # (no blob carried its light yet: centroid files, older logs)
+            return
+        k, c = np.nonzero(tri.used & (asg >= 0))
         if k.size == 0:
             return
         j = asg[k, c]
