@@ -1219,12 +1219,13 @@ def _partial_blob(area, roundness, merged, expected_area, expected_round, partia
 
 
 @_jit
-def _area_at_depth(blob, last_X, P, k, c):
-    """Track ``k``'s depth in camera ``c`` (m, from ``last_X`` (K, 3) and ``P`` (C, 3, 4)) and its blob's area there
-    (``blob`` (K, C, 3)) scaled to it: :func:`mocap.tracker._blob_at_depth` of one view."""
+def _blob_at_depth(blob, last_X, P, k, c):
+    """Track ``k``'s depth in camera ``c`` (m, from ``last_X`` (K, 3) and ``P`` (C, 3, 4)) and its blob's area and
+    light there (``blob`` (K, C, 5)) scaled to it: :func:`mocap.tracker._blob_at_depth` of one view."""
     depth = last_X[k, 0] * P[c, 2, 0] + last_X[k, 1] * P[c, 2, 1] + last_X[k, 2] * P[c, 2, 2] + P[c, 2, 3]
     scale = blob[k, c, 2] / depth
-    return depth, blob[k, c, 0] * scale * scale
+    scale *= scale
+    return depth, blob[k, c, 0] * scale, blob[k, c, 3] * scale * scale
 
 
 @_jit
@@ -1235,11 +1236,8 @@ def expected_blobs(blob, last_X, P):
     out = np.empty((K, C, 4))
     for k in range(K):
         for c in range(C):
-            depth, area = _area_at_depth(blob, last_X, P, k, c)
-            scale = blob[k, c, 2] / depth
-            out[k, c, 0] = area
+            _, out[k, c, 0], out[k, c, 2] = _blob_at_depth(blob, last_X, P, k, c)
             out[k, c, 1] = blob[k, c, 1]
-            out[k, c, 2] = blob[k, c, 3] * scale * scale * scale * scale
             out[k, c, 3] = blob[k, c, 4]
     return out
 
@@ -1277,11 +1275,8 @@ def follow_blobs(blob, cut_run, dark_run, last_X, P, area, roundness, flux, merg
     the views ``tracks``, ``cams``, ``blobs`` (n,), ``dark_settings`` (4,)."""
     for i in range(tracks.shape[0]):
         k, c, j = tracks[i], cams[i], blobs[i]
-        depth, expected = _area_at_depth(blob, last_X, P, k, c)
+        depth, expected, light = _blob_at_depth(blob, last_X, P, k, c)  # (at this depth)
         a, r, f = area[c, j], roundness[c, j], flux[c, j]
-        scale = blob[k, c, 2] / depth
-        scale *= scale
-        light = blob[k, c, 3] * scale * scale  # (at this depth)
         dark = _dark_blob(f, merged[c, j], expected, light, blob[k, c, 4], dark_settings)
         run = dark_run[k, c] + 1 if dark else 0
         dark_lasting = run > partial_frames

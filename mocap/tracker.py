@@ -1603,7 +1603,7 @@ class Tracker:
         flux = fr.flux[cams, blobs]
         a = cfg.blob_alpha
         # the light, at this depth
-        dark = self._dark(flux, merged, expected)
+        dark = self._dark(self._light_ratio(flux, expected), merged, expected)
         run = np.where(dark, t.dark_run[tracks, cams] + 1, 0)
         dark_lasting = run > cfg.partial_frames
         t.dark_run[tracks, cams] = np.where(dark_lasting, 0, run)
@@ -1653,10 +1653,9 @@ class Tracker:
         j = asg[k, c]
         expected = self._expect[k, c]
         merged = fr.merged[c, j]
-        dark = self._dark(fr.flux[c, j], merged, expected) & ~suspect[k, c]
-        with np.errstate(invalid="ignore", divide="ignore"):
-            cut_flat = merged & (fr.flux[c, j] / expected[:, 2] < 1.0 - self._cfg.dark_max) & (
-                expected[:, 0] >= self._cfg.partial_min_area)
+        ratio = self._light_ratio(fr.flux[c, j], expected)
+        dark = self._dark(ratio, merged, expected) & ~suspect[k, c]
+        cut_flat = merged & (ratio < 1.0 - self._cfg.dark_max)  # (NaN: not judged)
         if np.count_nonzero(cut_flat):
             rows = np.unique(k[cut_flat])
             clean = tri.used[rows] & ~suspect[rows] & ~_gather(fr.merged, asg[rows])
@@ -1693,16 +1692,22 @@ class Tracker:
         agree = np.linalg.norm(X - x3[:, :3], axis=1) < np.clip(cfg.gate_scale * e3[:, 0], cfg.suspect_m[0], high)
         return ok, clean, ok & ((clean.sum(axis=1) >= 2) | (agree & clean.any(axis=1)))
 
-    def _dark(self, flux: np.ndarray, merged: np.ndarray, expected: np.ndarray) -> np.ndarray:
-        """(n,) bool: blobs of ``flux`` (grey levels; NaN: not measured) and ``merged`` flag (n,) each, where the
-        marker's blob is ``expected`` (n, 4) (:meth:`_expected_blobs`), hold less light than it by more than
-        ``dark_flux`` (or ``dark_spread`` times the light's running deviation, up to ``dark_max``): the marker partly
-        hidden, its centroid off towards the part seen. Blobs flagged merged, or expected smaller than
-        ``partial_min_area``, are not judged."""
-        cfg = self._cfg
+    def _light_ratio(self, flux: np.ndarray, expected: np.ndarray) -> np.ndarray:
+        """(n,) blobs' ``flux`` (n,) grey levels over their marker's blob's light ``expected`` (n, 4)
+        (:meth:`_expected_blobs`); NaN where either is unknown or the blob is expected smaller than
+        ``partial_min_area`` (not judged)."""
         with np.errstate(invalid="ignore", divide="ignore"):
-            tolerance = np.fmin(np.fmax(cfg.dark_flux, cfg.dark_spread * expected[:, 3]), cfg.dark_max)
-            return (flux / expected[:, 2] < 1.0 - tolerance) & ~merged & (expected[:, 0] >= cfg.partial_min_area)
+            return np.where(expected[:, 0] >= self._cfg.partial_min_area, flux / expected[:, 2], np.nan)
+
+    def _dark(self, ratio: np.ndarray, merged: np.ndarray, expected: np.ndarray) -> np.ndarray:
+        """(n,) bool: blobs whose light ``ratio`` (n,) to their marker's blob (:meth:`_light_ratio`; NaN: not judged)
+        is under 1 by more than ``dark_flux`` (or ``dark_spread`` times the light's running deviation, ``expected``
+        (n, 4) column 3, up to ``dark_max``), and not flagged ``merged`` (n,): the marker partly hidden, its centroid
+        off towards the part seen."""
+        cfg = self._cfg
+        tolerance = np.fmin(np.fmax(cfg.dark_flux, cfg.dark_spread * expected[:, 3]), cfg.dark_max)
+        with np.errstate(invalid="ignore"):
+            return (ratio < 1.0 - tolerance) & ~merged
 
     def _dark_settings(self) -> np.ndarray:
         """The kernels' (4,) ``dark_flux``, ``dark_spread``, ``dark_max``, ``partial_min_area``."""
