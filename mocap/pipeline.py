@@ -240,8 +240,8 @@ def reconstruct(take: str | os.PathLike, options: ReconstructOptions | None = No
             _report_repair(stats, before, traj.n_markers, confirm)
     withheld = tracker.withheld().apply(traj)
     if withheld:
-        log.info("partly hidden markers: %d samples withheld (two-view points leaning on a blob that held less light "
-                 "than the marker's, off their predictions)", withheld)
+        log.info("partly hidden markers: %d samples withheld (points leaning on a blob that held less light than the "
+                 "marker's: two-view points off their predictions, markers re-acquired from such blobs)", withheld)
     traj.camera_names = rig.names
     traj.metadata.update({"source": str(path), "software": f"mocap {__version__}", "cameras": len(rig)})
     if traj.n_markers == 0 and blobs == 0:

@@ -674,7 +674,7 @@ class Tracker:
     def withheld(self) -> WithheldPoints:
         """The tracked points the written trajectories leave out: two-view points leaning on a view of their
         marker partly hidden (darker than its blob lately; :meth:`_judge_dark_views`) that disagree with the
-        prediction. For :meth:`WithheldPoints.apply` after the identity repair, which works on the tracked points, so
+        prediction, and points re-acquiring a track from such views (:meth:`_leans_on_dark_views`). For :meth:`WithheldPoints.apply` after the identity repair, which works on the tracked points, so
         that this judgement never moves an identity."""
         first = self._first if self._first is not None else 0
         if not self._withheld:
@@ -1670,6 +1670,25 @@ class Tracker:
             fr, tri.X[rows], tri.used[rows], tri.depth[:, rows], (suspect | views)[rows], split[rows], sigma,
             asg[rows], self._t.x3[rows], self._t.e3[rows])[2]
 
+    def _leans_on_dark_views(self, fr: _Frame, rows: np.ndarray, det: np.ndarray) -> np.ndarray:
+        """(n,) bool: the points re-acquiring the tracks ``rows`` (n,) from the detections ``det`` (n, C) (two clean
+        views at least: :meth:`_new_markers`) that keep fewer than two once their darker views (:meth:`_dark`, against
+        the tracks' blobs lately) count as none. A marker coming back from behind something is cut in the frames it
+        comes out; these points are not judged by :meth:`_judge_dark_views`, and are withheld the same way."""
+        lean = np.zeros(len(rows), dtype=bool)
+        if not self._light or self._cfg.dark_flux >= 1:
+            return lean
+        k, c = np.nonzero(det >= 0)
+        j = det[k, c]
+        merged = fr.merged[c, j]
+        expected = self._expect[rows[k], c]
+        dark = self._dark(self._light_ratio(fr.flux[c, j], expected), merged, expected)
+        if np.count_nonzero(dark):
+            clean = np.zeros(det.shape, dtype=bool)
+            clean[k, c] = ~merged & ~dark
+            lean = clean.sum(axis=1) < 2
+        return lean
+
     def _verdicts(self, fr: _Frame, X: np.ndarray, used: np.ndarray, depth: np.ndarray, suspect: np.ndarray,
                   split: np.ndarray, sigma: np.ndarray, asg: np.ndarray, x3: np.ndarray, e3: np.ndarray
                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -1747,8 +1766,9 @@ class Tracker:
                 asg = meas.asg.copy()
                 asg[rows] = pts.det[got]
                 out &= ~self._flat_and_shared(fr, asg, rows, clean_view[got] & (n_clean[got] == 2)[:, None])
+            withheld = out & self._leans_on_dark_views(fr, rows, pts.det[got])
             meas.put(rows, _Measurements(np.ones(got.size, dtype=bool), out, pts.X[got], pts.cov[got],
-                                         pts.rms_px[got], pts.det[got], np.zeros(got.size, dtype=bool)))
+                                         pts.rms_px[got], pts.det[got], withheld))
             self._update(fr, meas, rows)
         # 2) Tracks start only from points two clean cameras support: two blobs of merged markers (or a merged
         #    blob and a reflection) match across cameras at a point between the markers, which then moves.

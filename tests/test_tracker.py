@@ -687,6 +687,30 @@ def test_a_two_view_point_leaning_on_a_darker_blob_is_withheld_and_tracking_is_u
     assert np.nanmax(written[1][hit]) > 0.001  # with the rule off: written, off
 
 
+def test_a_marker_re_acquired_from_free_blobs_is_judged_by_their_light(rig):
+    """A track whose gated measurement failed (at 50 Hz: its views disagreed) re-acquires its marker from the free
+    blobs (:meth:`Tracker._new_markers`), a path the measurement's judgement does not take; a marker coming out from
+    behind a limb is cut there. Such a point leaning on a blob with half the marker's light lately (its blob record
+    learnt over 60 frames) is withheld; one that keeps two clean views without it, or leans on whole blobs only, or
+    any with the rule off (``dark_flux`` 1) is not."""
+    marker, frames = _partly_hidden_scene(rig, 7, set(), np.zeros(3), cameras=3, light=True, jitter_m=0.0005)
+    lean = {}
+    for config in (TrackerConfig(), TrackerConfig(dark_flux=1.0)):
+        tracker = Tracker(rig, 100.0, config)
+        for k in range(60):
+            tracker.step(k, frames[k])
+        for halve in (False, True):
+            dets = [Detections(d.xy, d.area, d.roundness, d.cov, d.merged, d.flux * (0.5 if halve and c == 1 else 1.0))
+                    for c, d in enumerate(frames[60])]
+            fr = tracker._prepare(dets)
+            for views in ((0, 1), (0, 1, 2)):
+                det = np.full((1, len(rig.cameras)), -1)
+                det[0, list(views)] = 0
+                lean[config.dark_flux, halve, views] = bool(tracker._leans_on_dark_views(fr, np.array([0]), det)[0])
+    assert lean[TrackerConfig().dark_flux, True, (0, 1)]
+    assert sum(lean.values()) == 1, lean
+
+
 def test_a_point_leaning_on_a_flat_blob_with_too_little_light_is_withheld_but_not_one_on_a_merge(rig):
     """A blob flat enough to be taken for two markers merged (roundness 0.6) that holds half its marker's light is
     the marker cut, not merged (a merge's light adds up): a point with fewer than two clean views that uses it is
