@@ -674,8 +674,9 @@ class Tracker:
     def withheld(self) -> WithheldPoints:
         """The tracked points the written trajectories leave out: two-view points leaning on a view of their
         marker partly hidden (darker than its blob lately; :meth:`_judge_dark_views`) that disagree with the
-        prediction, and points re-acquiring a track from such views (:meth:`_leans_on_dark_views`). For :meth:`WithheldPoints.apply` after the identity repair, which works on the tracked points, so
-        that this judgement never moves an identity."""
+        prediction, and points re-acquiring a track from such views (:meth:`_leans_on_dark_views`). For
+        :meth:`WithheldPoints.apply` after the identity repair, which works on the tracked points, so that this
+        judgement never moves an identity."""
         first = self._first if self._first is not None else 0
         if not self._withheld:
             return WithheldPoints(np.zeros(0, np.int64), np.zeros((0, 3)))
