@@ -1654,7 +1654,7 @@ class Tracker:
         j = asg[k, c]
         expected = self._expect[k, c]
         merged = fr.merged[c, j]
-        ratio = self._light_ratio(fr.flux[c, j], expected)
+        ratio = self._light_ratio_at(fr.flux[c, j], expected, k, c, tri.X[k])
         dark = self._dark(ratio, merged, expected) & ~suspect[k, c]
         cut_flat = merged & (ratio < 1.0 - self._cfg.dark_max)  # (NaN: not judged)
         if np.count_nonzero(cut_flat):
@@ -1671,11 +1671,12 @@ class Tracker:
             fr, tri.X[rows], tri.used[rows], tri.depth[:, rows], (suspect | views)[rows], split[rows], sigma,
             asg[rows], self._t.x3[rows], self._t.e3[rows])[2]
 
-    def _leans_on_dark_views(self, fr: _Frame, rows: np.ndarray, det: np.ndarray) -> np.ndarray:
-        """(n,) bool: the points re-acquiring the tracks ``rows`` (n,) from the detections ``det`` (n, C) (two clean
-        views at least: :meth:`_new_markers`) that keep fewer than two once their darker views (:meth:`_dark`, against
-        the tracks' blobs lately) count as none. A marker coming back from behind something is cut in the frames it
-        comes out; these points are not judged by :meth:`_judge_dark_views`, and are withheld the same way."""
+    def _leans_on_dark_views(self, fr: _Frame, rows: np.ndarray, det: np.ndarray, X: np.ndarray) -> np.ndarray:
+        """(n,) bool: the points ``X`` (n, 3) m re-acquiring the tracks ``rows`` (n,) from the detections ``det``
+        (n, C) (two clean views at least: :meth:`_new_markers`) that keep fewer than two once their darker views
+        (:meth:`_dark`, against the tracks' blobs lately, at the point's depth) count as none. A marker coming back
+        from behind something is cut in the frames it comes out; these points are not judged by
+        :meth:`_judge_dark_views`, and are withheld the same way."""
         lean = np.zeros(len(rows), dtype=bool)
         if not self._light or self._cfg.dark_flux >= 1:
             return lean
@@ -1683,7 +1684,8 @@ class Tracker:
         j = det[k, c]
         merged = fr.merged[c, j]
         expected = self._expect[rows[k], c]
-        dark = self._dark(self._light_ratio(fr.flux[c, j], expected), merged, expected)
+        ratio = self._light_ratio_at(fr.flux[c, j], expected, rows[k], c, X[k])
+        dark = self._dark(ratio, merged, expected)
         if np.count_nonzero(dark):
             clean = np.zeros(det.shape, dtype=bool)
             clean[k, c] = ~merged & ~dark
@@ -1718,6 +1720,16 @@ class Tracker:
         ``partial_min_area`` (not judged)."""
         with np.errstate(invalid="ignore", divide="ignore"):
             return np.where(expected[:, 0] >= self._cfg.partial_min_area, flux / expected[:, 2], np.nan)
+
+    def _light_ratio_at(self, flux: np.ndarray, expected: np.ndarray, tracks: np.ndarray, cams: np.ndarray,
+                        X: np.ndarray) -> np.ndarray:
+        """(n,) :meth:`_light_ratio` of blobs ``flux`` (n,) measuring tracks ``tracks`` (n,) in cameras ``cams`` (n,)
+        at points ``X`` (n, 3) m, against the blob ``expected`` (n, 4) at the track's last point, moved to the point's
+        depth (as 1 / depth^4: at 50 Hz a hand swinging towards a camera changes its light by a fifth in a frame)."""
+        P = self._P[cams, 2]
+        last = np.einsum("nj,nj->n", P[:, :3], self._t.last_X[tracks]) + P[:, 3]
+        here = np.einsum("nj,nj->n", P[:, :3], X) + P[:, 3]
+        return self._light_ratio(flux, expected) * (here / last) ** _FLUX_DEPTH_POWER
 
     def _dark(self, ratio: np.ndarray, merged: np.ndarray, expected: np.ndarray) -> np.ndarray:
         """(n,) bool: blobs whose light ``ratio`` (n,) to their marker's blob (:meth:`_light_ratio`; NaN: not judged)
@@ -1767,7 +1779,7 @@ class Tracker:
                 asg = meas.asg.copy()
                 asg[rows] = pts.det[got]
                 out &= ~self._flat_and_shared(fr, asg, rows, clean_view[got] & (n_clean[got] == 2)[:, None])
-            withheld = out & self._leans_on_dark_views(fr, rows, pts.det[got])
+            withheld = out & self._leans_on_dark_views(fr, rows, pts.det[got], pts.X[got])
             meas.put(rows, _Measurements(np.ones(got.size, dtype=bool), out, pts.X[got], pts.cov[got],
                                          pts.rms_px[got], pts.det[got], withheld))
             self._update(fr, meas, rows)

@@ -687,28 +687,38 @@ def test_a_two_view_point_leaning_on_a_darker_blob_is_withheld_and_tracking_is_u
     assert np.nanmax(written[1][hit]) > 0.001  # with the rule off: written, off
 
 
-def test_a_marker_re_acquired_from_free_blobs_is_judged_by_their_light(rig):
+def test_a_marker_re_acquired_from_free_blobs_is_judged_by_their_light_at_its_depth(rig):
     """A track whose gated measurement failed (at 50 Hz: its views disagreed) re-acquires its marker from the free
     blobs (:meth:`Tracker._new_markers`), a path the measurement's judgement does not take; a marker coming out from
     behind a limb is cut there. Such a point leaning on a blob with half the marker's light lately (its blob record
-    learnt over 60 frames) is withheld; one that keeps two clean views without it, or leans on whole blobs only, or
-    any with the rule off (``dark_flux`` 1) is not."""
+    learnt over 60 frames, moved to the point's depth as 1 / depth^4) is withheld; one that keeps two clean views
+    without it, or leans on whole blobs only, or any with the rule off (``dark_flux`` 1) is not. At 15 % of the depth
+    nearer camera 1 a cut blob holds as much light as the marker did, and at 15 % farther a whole one only 57 %: the
+    judgement goes by the depth of the point, not of the track's last one."""
     marker, frames = _partly_hidden_scene(rig, 7, set(), np.zeros(3), cameras=3, light=True, jitter_m=0.0005)
+    centre = rig.cameras[1].center
     lean = {}
     for config in (TrackerConfig(), TrackerConfig(dark_flux=1.0)):
         tracker = Tracker(rig, 100.0, config)
         for k in range(60):
             tracker.step(k, frames[k])
-        for halve in (False, True):
-            dets = [Detections(d.xy, d.area, d.roundness, d.cov, d.merged, d.flux * (0.5 if halve and c == 1 else 1.0))
-                    for c, d in enumerate(frames[60])]
-            fr = tracker._prepare(dets)
-            for views in ((0, 1), (0, 1, 2)):
-                det = np.full((1, len(rig.cameras)), -1)
-                det[0, list(views)] = 0
-                lean[config.dark_flux, halve, views] = bool(tracker._leans_on_dark_views(fr, np.array([0]), det)[0])
-    assert lean[TrackerConfig().dark_flux, True, (0, 1)]
-    assert sum(lean.values()) == 1, lean
+        for scale in (0.85, 1.0, 1.15):
+            X = centre + scale * (marker[60] - centre)
+            for halve in (False, True):
+                dets = []
+                for c, d in enumerate(frames[60]):
+                    cam = rig.cameras[c]
+                    nearer = cam.world_to_camera(marker[60:61])[0, 2] / cam.world_to_camera(X[None])[0, 2]
+                    light = d.flux * nearer**4 * (0.5 if halve and c == 1 else 1.0) if d.flux is not None else None
+                    dets.append(Detections(d.xy, d.area, d.roundness, d.cov, d.merged, light))
+                fr = tracker._prepare(dets)
+                for views in ((0, 1), (0, 1, 2)):
+                    det = np.full((1, len(rig.cameras)), -1)
+                    det[0, list(views)] = 0
+                    lean[config.dark_flux, scale, halve, views] = bool(
+                        tracker._leans_on_dark_views(fr, np.array([0]), det, X[None])[0])
+    judged = TrackerConfig().dark_flux
+    assert {key for key, value in lean.items() if value} == {(judged, s, True, (0, 1)) for s in (0.85, 1.0, 1.15)}
 
 
 def test_a_point_leaning_on_a_flat_blob_with_too_little_light_is_withheld_but_not_one_on_a_merge(rig):
