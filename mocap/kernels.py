@@ -1219,24 +1219,23 @@ def _partial_blob(area, roundness, merged, expected_area, expected_round, partia
 
 
 @_jit
-def _blob_at_depth(blob, last_X, P, k, c):
+def _blob_at_depth(blob, last_X, P, k, c, power):
     """Track ``k``'s depth in camera ``c`` (m, from ``last_X`` (K, 3) and ``P`` (C, 3, 4)) and its blob's area and
-    light there (``blob`` (K, C, 5)) scaled to it: :func:`mocap.tracker._blob_at_depth` of one view."""
+    light there (``blob`` (K, C, 7)) scaled to it: :func:`mocap.tracker._blob_at_depth` of one view."""
     depth = last_X[k, 0] * P[c, 2, 0] + last_X[k, 1] * P[c, 2, 1] + last_X[k, 2] * P[c, 2, 2] + P[c, 2, 3]
-    scale = blob[k, c, 2] / depth
-    scale *= scale
-    return depth, blob[k, c, 0] * scale, blob[k, c, 3] * scale * scale
+    ratio = blob[k, c, 2] / depth
+    return depth, blob[k, c, 0] * ratio * ratio, blob[k, c, 3] * ratio**power
 
 
 @_jit
-def expected_blobs(blob, last_X, P):
-    """:meth:`mocap.tracker.Tracker._expected_blobs`: ``blob`` (K, C, 5), ``last_X`` (K, 3) m, ``P`` (C, 3, 4) ->
-    (K, C, 4)."""
+def expected_blobs(blob, last_X, P, power):
+    """:meth:`mocap.tracker.Tracker._expected_blobs`: ``blob`` (K, C, 7), ``last_X`` (K, 3) m, ``P`` (C, 3, 4), the
+    light's depth ``power`` -> (K, C, 4)."""
     K, C = blob.shape[0], blob.shape[1]
     out = np.empty((K, C, 4))
     for k in range(K):
         for c in range(C):
-            _, out[k, c, 0], out[k, c, 2] = _blob_at_depth(blob, last_X, P, k, c)
+            _, out[k, c, 0], out[k, c, 2] = _blob_at_depth(blob, last_X, P, k, c, power)
             out[k, c, 1] = blob[k, c, 1]
             out[k, c, 3] = blob[k, c, 4]
     return out
@@ -1269,19 +1268,26 @@ def partly_hidden(expect, area, roundness, merged, tracks, cams, blobs, partial_
 
 @_jit
 def follow_blobs(blob, cut_run, dark_run, last_X, P, area, roundness, flux, merged, tracks, cams, blobs, alpha,
-                 partial_area, partial_round, min_area, partial_frames, dark_settings):
-    """:meth:`mocap.tracker.Tracker._follow_blobs` in place on ``blob`` (K, C, 5), ``cut_run`` and ``dark_run``
-    (K, C): ``last_X`` (K, 3) m, ``P`` (C, 3, 4), the frame's ``area``, ``roundness``, ``flux`` and ``merged`` (C, N),
-    the views ``tracks``, ``cams``, ``blobs`` (n,), ``dark_settings`` (4,)."""
+                 partial_area, partial_round, min_area, partial_frames, dark_settings, power, step_clip, light_fit):
+    """:meth:`mocap.tracker.Tracker._follow_blobs` in place on ``blob`` (K, C, 7), ``cut_run`` and ``dark_run``
+    (K, C) and ``light_fit`` (2,): ``last_X`` (K, 3) m, ``P`` (C, 3, 4), the frame's ``area``, ``roundness``,
+    ``flux`` and ``merged`` (C, N), the views ``tracks``, ``cams``, ``blobs`` (n,), ``dark_settings`` (4,), the
+    light's depth ``power`` and the fit's ``step_clip``."""
     for i in range(tracks.shape[0]):
         k, c, j = tracks[i], cams[i], blobs[i]
-        depth, expected, light = _blob_at_depth(blob, last_X, P, k, c)  # (at this depth)
+        depth, expected, light = _blob_at_depth(blob, last_X, P, k, c, power)  # (at this depth)
         a, r, f = area[c, j], roundness[c, j], flux[c, j]
         dark = _dark_blob(f, merged[c, j], expected, light, blob[k, c, 4], dark_settings)
         run = dark_run[k, c] + 1 if dark else 0
         dark_lasting = run > partial_frames
         dark_run[k, c] = 0 if dark_lasting else run
         if not merged[c, j] and (not dark or dark_lasting) and math.isfinite(f) and math.isfinite(depth):
+            x, y = math.log(depth / blob[k, c, 6]), math.log(f / blob[k, c, 5])  # (NaN: no view before)
+            if not dark_lasting and math.isfinite(x) and math.isfinite(y):
+                y = min(max(y + power * x, -step_clip), step_clip) - power * x
+                light_fit[0] += x * x
+                light_fit[1] += x * y
+            blob[k, c, 5], blob[k, c, 6] = f, depth
             if math.isfinite(light) and not dark_lasting:
                 off = abs(f / light - 1.0)
                 blob[k, c, 4] = blob[k, c, 4] + alpha * (off - blob[k, c, 4]) if math.isfinite(blob[k, c, 4]) else off
@@ -1304,9 +1310,7 @@ def follow_blobs(blob, cut_run, dark_run, last_X, P, area, roundness, flux, merg
         if math.isfinite(light):  # (the light kept at the record's depth)
             if not math.isfinite(blob[k, c, 2]):
                 blob[k, c, 2] = depth
-            back = depth / blob[k, c, 2]
-            back *= back
-            blob[k, c, 3] = light * back * back
+            blob[k, c, 3] = light * (depth / blob[k, c, 2]) ** power
 
 
 # ---------------------------------------------------------------------------------------------- identity repair

@@ -370,8 +370,11 @@ class FrameResult:
 _IMAGE_VELOCITY_STD = 1e3
 _IMAGE_ACCEL_STD = 1e5
 _VAGUE_TYPICAL = 10.0  # a vague blob's std is also over this many times the frame's median (see vague_px)
-_BLOB_FIELDS = 5  # a track's blob record per camera (_Tracks.blob)
-_FLUX_DEPTH_POWER = 4  # a retroreflector lit from the camera: its light there falls as 1 / depth^4
+_BLOB_FIELDS = 7  # a track's blob record per camera (_Tracks.blob)
+_FLUX_DEPTH_POWER = 4  # a retroreflector lit from the camera: its light there falls as 1 / depth^4 (before any fit)
+_FLUX_DEPTH_PRIOR = 0.04  # weight of that power against the fit's sum of squared log depth ratios
+_FLUX_DEPTH_RANGE = (1.0, 6.0)  # the fitted power is kept within
+_FLUX_STEP_CLIP = 0.3  # a log light ratio between two views counts at most this far off the power so far
 _FORGET_ATTACHED_S = 2.0  # an attached neighbour not measured with its identity for this long is forgotten
 
 
@@ -467,8 +470,8 @@ class _Tracks(_Rows):
     weak: np.ndarray  # (K,) started from a two-view point that not all framing cameras supported
     origin: np.ndarray  # (K, 3) where the track started, m
     noise: np.ndarray  # (K,) std of the last measured point, m
-    blob: np.ndarray  # (K, C, 5) the marker's blob in each camera lately (NaN: none): area px, roundness, depth m,
-    #   flux (grey levels) and its mean absolute relative deviation
+    blob: np.ndarray  # (K, C, 7) the marker's blob in each camera lately (NaN: none): area px, roundness, depth m,
+    #   flux (grey levels) and its mean absolute relative deviation; the last clean view's flux and depth m
     cut_run: np.ndarray  # (K, C) consecutive views of it in that camera judged partly hidden
     dark_run: np.ndarray  # (K, C) ... judged darker
 
@@ -579,6 +582,8 @@ class Tracker:
         self._records = _Records()
         self._withheld: list[tuple[np.ndarray, np.ndarray]] = []  # (frame (n,), position (n, 3)) (_judge_dark_views)
         self._light = False  # some blob has carried its light (Detections.flux)
+        self._light_fit = np.zeros(2)  # sums of x^2 and x y, x and y the log depth and light ratios of clean views
+        self._light_power = float(_FLUX_DEPTH_POWER)  # the light falls as 1 / depth^power (_fit_light_power)
         self._result: Trajectories | None = None
         self._unconfirmed: UnconfirmedPoints | None = None
         self._clutter: deque[np.ndarray] = deque(maxlen=max(cfg.clutter_frames, 1))  # recent free detections
@@ -604,6 +609,7 @@ class Tracker:
         t.since += 1
         t.unseen2 += 1
         if self._blobs_followed:
+            self._fit_light_power()
             self._expect = self._expected_blobs()
         self._predict()
         K = len(t)
@@ -1551,8 +1557,19 @@ class Tracker:
         point): area px, roundness, flux grey levels and its deviation (NaN: none)."""
         t = self._t
         if kernels.HAVE_NUMBA:
-            return kernels.expected_blobs(t.blob, t.last_X, self._P)
-        return _blob_at_depth(t.blob, t.last_X @ self._P[:, 2, :3].T + self._P[:, 2, 3])
+            return kernels.expected_blobs(t.blob, t.last_X, self._P, self._light_power)
+        return _blob_at_depth(t.blob, t.last_X @ self._P[:, 2, :3].T + self._P[:, 2, 3], self._light_power)
+
+    def _fit_light_power(self) -> None:
+        """How a blob's light falls with its depth, 1 / depth^power, fitted to the take's own blobs: the slope of the
+        log light ratios over the log depth ratios of each track's successive clean views in a camera (least squares
+        through 0, each ratio's miss of the power so far clipped to ``_FLUX_STEP_CLIP``), drawn towards 4 by
+        ``_FLUX_DEPTH_PRIOR`` (a retroreflector lit from beside the lens, as ``mocap synth`` draws it; its thresholded
+        blobs fit 3.5-3.7). A renderer that draws every marker at one height, or saturated blobs, give about 2: a fixed
+        4 then took whole blobs coming nearer for darker ones."""
+        xx, xy = self._light_fit
+        power = (_FLUX_DEPTH_PRIOR * _FLUX_DEPTH_POWER - xy) / (_FLUX_DEPTH_PRIOR + xx)
+        self._light_power = float(np.clip(power, *_FLUX_DEPTH_RANGE))
 
     def _partial(self, area: np.ndarray, roundness: np.ndarray, merged: np.ndarray, expected: np.ndarray
                  ) -> np.ndarray:
@@ -1596,10 +1613,11 @@ class Tracker:
             kernels.follow_blobs(t.blob, t.cut_run, t.dark_run, t.last_X, self._P, fr.area, fr.roundness, fr.flux,
                                  fr.merged, c(tracks, np.intp), c(cams, np.intp), c(blobs, np.intp),
                                  float(cfg.blob_alpha), float(cfg.partial_area), float(cfg.partial_round),
-                                 float(cfg.partial_min_area), int(cfg.partial_frames), self._dark_settings())
+                                 float(cfg.partial_min_area), int(cfg.partial_frames), self._dark_settings(),
+                                 self._light_power, float(_FLUX_STEP_CLIP), self._light_fit)
             return
         depth = np.einsum("nj,nj->n", self._P[cams, 2, :3], t.last_X[tracks]) + self._P[cams, 2, 3]
-        expected = _blob_at_depth(t.blob[tracks, cams], depth)
+        expected = _blob_at_depth(t.blob[tracks, cams], depth, self._light_power)
         area, roundness, merged = fr.area[cams, blobs], fr.roundness[cams, blobs], fr.merged[cams, blobs]
         flux = fr.flux[cams, blobs]
         a = cfg.blob_alpha
@@ -1615,6 +1633,16 @@ class Tracker:
             off = np.abs(flux / light - 1.0)
         deviation = np.where(step, np.where(np.isfinite(deviation), deviation + a * (off - deviation), off), deviation)
         light = np.where(step, light + a * (flux - light), np.where(take, flux, light))
+        # the power of the depth the light falls with: successive clean views
+        record = t.blob[tracks, cams]
+        with np.errstate(invalid="ignore", divide="ignore"):
+            x = np.log(depth / record[:, 6])
+            y = np.log(flux / record[:, 5])
+            y = np.clip(y + self._light_power * x, -_FLUX_STEP_CLIP, _FLUX_STEP_CLIP) - self._light_power * x
+        pair = take & ~dark_lasting & np.isfinite(x) & np.isfinite(y)
+        for i in pair.nonzero()[0]:  # (in order, as the compiled twin sums them)
+            self._light_fit += (x[i] * x[i], x[i] * y[i])
+        record[take, 5], record[take, 6] = flux[take], depth[take]
         # the area and roundness
         cut = self._partial(area, roundness, merged, expected)
         run = np.where(cut, t.cut_run[tracks, cams] + 1, 0)
@@ -1623,16 +1651,15 @@ class Tracker:
         take = ~merged & (~cut | lasting) & np.isfinite(depth)
         expected[lasting, 0] = np.nan  # (starts again)
         fresh = ~np.isfinite(expected[:, 0])
-        record = t.blob[tracks, cams]
         record[take] = np.stack([
             np.where(fresh, area, expected[:, 0] + a * (area - expected[:, 0])),
             np.where(fresh, roundness, expected[:, 1] + a * (roundness - expected[:, 1])),
-            depth, record[:, 3], record[:, 4]], axis=1)[take]
+            depth, record[:, 3], record[:, 4], record[:, 5], record[:, 6]], axis=1)[take]
         # the light kept at the record's depth
         kept = np.isfinite(light)
         record[kept & ~np.isfinite(record[:, 2]), 2] = depth[kept & ~np.isfinite(record[:, 2])]
         with np.errstate(invalid="ignore", divide="ignore"):
-            record[kept, 3] = light[kept] * (depth[kept] / record[kept, 2]) ** _FLUX_DEPTH_POWER
+            record[kept, 3] = light[kept] * (depth[kept] / record[kept, 2]) ** self._light_power
         record[:, 4] = deviation
         t.blob[tracks, cams] = record
 
@@ -1729,7 +1756,7 @@ class Tracker:
         P = self._P[cams, 2]
         last = np.einsum("nj,nj->n", P[:, :3], self._t.last_X[tracks]) + P[:, 3]
         here = np.einsum("nj,nj->n", P[:, :3], X) + P[:, 3]
-        return self._light_ratio(flux, expected) * (here / last) ** _FLUX_DEPTH_POWER
+        return self._light_ratio(flux, expected) * (here / last) ** self._light_power
 
     def _dark(self, ratio: np.ndarray, merged: np.ndarray, expected: np.ndarray) -> np.ndarray:
         """(n,) bool: blobs whose light ``ratio`` (n,) to their marker's blob (:meth:`_light_ratio`; NaN: not judged)
@@ -2004,13 +2031,14 @@ def _secant_field_angle(xy: np.ndarray, centre: np.ndarray, focal_xy: np.ndarray
     return np.sqrt(1.0 + ray[..., 0] * ray[..., 0] + ray[..., 1] * ray[..., 1])  # (~3x faster than a sum)
 
 
-def _blob_at_depth(blob: np.ndarray, depth: np.ndarray) -> np.ndarray:
-    """(..., 4) a track's blob record (..., 5) (:attr:`_Tracks.blob`) seen at ``depth`` (...) m: its area scaled as
-    1 / depth^2 (the image of a sphere), its roundness, its flux scaled as 1 / depth^4 and the flux's deviation. NaN
-    where there is none."""
+def _blob_at_depth(blob: np.ndarray, depth: np.ndarray, power: float) -> np.ndarray:
+    """(..., 4) a track's blob record (..., 7) (:attr:`_Tracks.blob`) seen at ``depth`` (...) m: its area scaled as
+    1 / depth^2 (the image of a sphere), its roundness, its flux scaled as 1 / depth^``power`` and the flux's
+    deviation. NaN where there is none."""
     with np.errstate(invalid="ignore", divide="ignore"):
-        scale = (blob[..., 2] / depth) ** 2
-        return np.stack([blob[..., 0] * scale, blob[..., 1], blob[..., 3] * scale * scale, blob[..., 4]], axis=-1)
+        ratio = blob[..., 2] / depth
+        return np.stack([blob[..., 0] * ratio * ratio, blob[..., 1], blob[..., 3] * ratio**power, blob[..., 4]],
+                        axis=-1)
 
 
 def _gather(values: np.ndarray, asg: np.ndarray) -> np.ndarray:

@@ -308,7 +308,7 @@ def _random_tracker(rig, K: int, seed: int) -> Tracker:
                          x2.reshape(K, C, 6), P2.reshape(K, C, 6, 6), rng.random((K, C)) < 0.7,
                          rng.integers(0, 20, size=(K, C)), rng.uniform(0.05, 3.0, size=(K, C, 3)),
                          uv - vel2 / 100.0, vel2 + rng.normal(scale=10.0, size=(K, C, 2)), np.zeros(K, dtype=bool),
-                         X.copy(), rng.uniform(1e-5, 1e-3, size=K), np.full((K, C, 5), np.nan),
+                         X.copy(), rng.uniform(1e-5, 1e-3, size=K), np.full((K, C, 7), np.nan),
                          rng.integers(0, 5, size=(K, C)), rng.integers(0, 5, size=(K, C)))
     if K:  # one track behind camera 0
         tracker._t.x3[0, :3] = -np.linalg.solve(P[0, :, :3], P[0, :, 3]) - 0.5 * P[0, 2, :3]
@@ -465,15 +465,18 @@ def test_partly_hidden_views_and_the_running_blobs_are_the_numpy_ones(monkeypatc
     """Which views show their marker partly hidden (``kernels.partly_hidden``, against ``kernels.expected_blobs``)
     and the running blob averages (``kernels.follow_blobs``), on random blobs against a random tracker's: some
     smaller, darker or flatter than expected, some merged, some tracks with no blob yet in a camera, some blobs or
-    tracks with no light known."""
+    tracks with no light known; the light scaled to depth by a fitted power, and that fit's sums."""
     rig = ring_rig()
     C, K, N = len(rig), 30, 12
     rng = np.random.default_rng(41)
     tracker = _random_tracker(rig, K, seed=7)
-    blob = rng.uniform([4.0, 0.8, 3.0, 500.0, 0.0], [30.0, 1.0, 6.0, 5000.0, 0.05], (K, C, 5))
+    blob = rng.uniform([4.0, 0.8, 3.0, 500.0, 0.0, 500.0, 3.0], [30.0, 1.0, 6.0, 5000.0, 0.05, 5000.0, 6.0],
+                       (K, C, 7))
     blob[rng.random((K, C)) < 0.2, 3:] = np.nan  # (no light known)
     blob[rng.random((K, C)) < 0.1, 4] = np.nan  # (no deviation yet)
     tracker._t.blob = np.where(rng.random((K, C, 1)) < 0.8, blob, np.nan)
+    tracker._light_power = 2.6  # (as fitted to another renderer's blobs)
+    tracker._light_fit = np.array([0.5, -1.3])
     D = rng.uniform([0, 0], [1024, 768], size=(C, N, 2))
     flux = np.where(rng.random((C, N)) < 0.8, rng.uniform(100.0, 8000.0, (C, N)), np.nan)
     fr = _Frame(D, np.broadcast_to(np.eye(2) * 0.01, (C, N, 2, 2)).copy(), np.ones((C, N), dtype=bool),
@@ -488,8 +491,9 @@ def test_partly_hidden_views_and_the_running_blobs_are_the_numpy_ones(monkeypatc
         t._expect = t._expected_blobs()
         hidden = t._partly_hidden(fr, tracks, cams, blobs)
         t._follow_blobs(fr, tracks, cams, blobs)
-        results.append((t._expect, hidden, t._t.blob, t._t.cut_run, t._t.dark_run))
+        results.append((t._expect, hidden, t._t.blob, t._t.cut_run, t._t.dark_run, t._light_fit))
     _same(*results, rtol=1e-12)
+    assert results[0][5][0] > 0.5  # (successive clean views added to the light's fit)
     hidden = results[0][1]
     assert 0 < hidden.sum() < len(hidden) and not hidden[fr.merged[cams, blobs]].any()
     moved = np.isfinite(results[0][2][tracks, cams, 0]) & ~np.isfinite(tracker._t.blob[tracks, cams, 0])

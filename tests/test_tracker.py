@@ -721,6 +721,37 @@ def test_a_marker_re_acquired_from_free_blobs_is_judged_by_their_light_at_its_de
     assert {key for key, value in lean.items() if value} == {(judged, s, True, (0, 1)) for s in (0.85, 1.0, 1.15)}
 
 
+def test_how_a_blobs_light_falls_with_depth_is_fitted_to_the_take(rig):
+    """A marker swinging on a 1 m circle at 50 Hz, its depth in each camera changing by up to 2 % a frame and camera 1
+    losing it for 12 frames now and then, its blobs' light falling as 1 / depth^2 (a renderer drawing every marker at
+    one height; saturated blobs) or as 1 / depth^4 (a retroreflector lit from beside the lens): the tracker fits that
+    power to the blobs (within 0.3), and once it has (the second half), no whole blob is taken for a darker one. With
+    the power fixed at 4, the blobs whose light falls as 1 / depth^2 were, where camera 1 found the marker again
+    nearer than it lost it."""
+    rng = np.random.default_rng(5)
+    t = np.arange(400) / 50.0
+    marker = np.stack([np.cos(4 * t), np.sin(4 * t), 1.2 + 0.2 * np.sin(3 * t)], axis=1)
+    for power in (2.0, 4.0):
+        tracker = Tracker(rig, 50.0)
+        judged_darker = False
+        for k in range(len(t)):
+            dets = []
+            for c, cam in enumerate(rig.cameras):
+                if c == 1 and k % 40 >= 28:
+                    dets.append(Detections.empty())
+                    continue
+                depth = cam.world_to_camera(marker[k : k + 1])[0, 2]
+                dets.append(Detections(cam.project(marker[k : k + 1]) + rng.normal(0.0, 0.02, (1, 2)),
+                                       np.array([20.0 * (4.0 / depth) ** 2]), np.array([0.97]),
+                                       np.eye(2)[None] * 0.02**2,
+                                       flux=np.array([3000.0 * (4.0 / depth) ** power * rng.normal(1.0, 0.01)])))
+            tracker.step(k, dets)
+            judged_darker |= k >= len(t) // 2 and bool(tracker._t.dark_run.any())
+        assert tracker.finish().n_markers == 1
+        assert abs(tracker._light_power - power) < 0.3, (power, tracker._light_power)
+        assert not judged_darker
+
+
 def test_a_point_leaning_on_a_flat_blob_with_too_little_light_is_withheld_but_not_one_on_a_merge(rig):
     """A blob flat enough to be taken for two markers merged (roundness 0.6) that holds half its marker's light is
     the marker cut, not merged (a merge's light adds up): a point with fewer than two clean views that uses it is

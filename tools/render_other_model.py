@@ -17,11 +17,15 @@ ghosts, truth); each blob is drawn with ``--model``:
   centroid then lies up to 0.42 radius off the marker's centre, which the truth keeps (a real renderer's limbs
   cut markers this way; ``mocap synth`` hides a marker whole).
 
+``--light-power P`` (any model) rescales each blob's height so that its light (height x area) falls as
+1 / distance^P instead of ``mocap synth``'s 4 (a retroreflector lit from beside the lens): 2 draws every marker at
+one height (flux with its area, as saturated blobs give it); blobs of 2 px radius keep their height.
+
 The truth's ``sigma_px`` (and so ``mocap evaluate``'s Cramér–Rao column) stays that of the default blurred
 disc: compare RMSE in mm between models, not the ratio.
 
 Usage:
-    python tools/render_other_model.py --model hard OUT_DIR [any mocap synth option ...]
+    python tools/render_other_model.py --model hard [--light-power P] OUT_DIR [any mocap synth option ...]
     mocap reconstruct OUT_DIR --c3d OUT.c3d && mocap evaluate OUT.c3d --truth OUT_DIR.truth.npz
 """
 
@@ -43,6 +47,7 @@ _WRITER = importlib.import_module("mocap.synth.writer")
 MODELS = ("hard", "gauss", "bloom", "shot", "cut")
 _SAMPLES = (np.arange(8) + 0.5) / 8 - 0.5  # sub-pixel sample offsets of the hard disc, px
 _HALO = (0.06, 3.0)  # bloom: height fraction and std (px) of the halo
+_LIGHT_RADIUS_PX = 2.0  # --light-power: blobs of this radius keep their height
 _CUT_EDGES = (0.0, 0.5)  # cut: the edge's distance from the centre, radii, one and two frames from a hidden frame
 
 
@@ -50,6 +55,7 @@ class OtherSensor(render.Sensor):
     """:class:`mocap.synth.render.Sensor` drawing its blobs with another model (class attribute ``model``)."""
 
     model = "hard"
+    light_power = 4.0  # the blobs' light falls as 1 / distance^light_power
 
     def _reach(self, radius: np.ndarray) -> float:
         return {"hard": 1.0, "gauss": 2.0 * float(radius.max()), "bloom": 4 * _HALO[1],
@@ -57,6 +63,8 @@ class OtherSensor(render.Sensor):
 
     def _signal(self, x: np.ndarray, y: np.ndarray, uv: np.ndarray, rho: np.ndarray, radius: np.ndarray,
                 amplitude: np.ndarray) -> np.ndarray:
+        if self.light_power != 4.0:  # (synth's height falls as 1 / distance^2 and the radius as 1 / depth)
+            amplitude = amplitude * (radius / _LIGHT_RADIUS_PX) ** (self.light_power - 4.0)
         if self.model == "hard":
             dx, dy = x - uv[:, 0, None, None], y - uv[:, 1, None, None]
             inside = np.zeros(rho.shape)
@@ -130,8 +138,11 @@ _DRAWN_SOMEWHERE: list = [None]  # (plan, (F, M) bool: drawn by some camera), co
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--model", choices=MODELS, required=True, help="how a marker's blob is drawn")
+    parser.add_argument("--light-power", type=float, default=4.0,
+                        help="the blobs' light falls as 1 / distance^P (default 4, as mocap synth draws it)")
     args, synth_args = parser.parse_known_args()
     OtherSensor.model = args.model
+    OtherSensor.light_power = args.light_power
     _SIMULATE.Sensor = OtherSensor  # plan_take builds its sensor from this name
     if args.model == "cut":
         seed = argparse.ArgumentParser(add_help=False)
