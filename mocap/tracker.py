@@ -1640,8 +1640,7 @@ class Tracker:
             y = np.log(flux / record[:, 5])
             y = np.clip(y + self._light_power * x, -_FLUX_STEP_CLIP, _FLUX_STEP_CLIP) - self._light_power * x
         pair = take & ~dark_lasting & np.isfinite(x) & np.isfinite(y)
-        for i in pair.nonzero()[0]:  # (in order, as the compiled twin sums them)
-            self._light_fit += (x[i] * x[i], x[i] * y[i])
+        self._light_fit += (np.sum(x[pair] * x[pair]), np.sum(x[pair] * y[pair]))
         record[take, 5], record[take, 6] = flux[take], depth[take]
         # the area and roundness
         cut = self._partial(area, roundness, merged, expected)
