@@ -1698,11 +1698,12 @@ class Tracker:
             asg[rows], self._t.x3[rows], self._t.e3[rows])[2]
 
     def _leans_on_dark_views(self, fr: _Frame, rows: np.ndarray, det: np.ndarray, X: np.ndarray) -> np.ndarray:
-        """(n,) bool: the points ``X`` (n, 3) m re-acquiring the tracks ``rows`` (n,) from the detections ``det``
-        (n, C) (two clean views at least: :meth:`_new_markers`) that keep fewer than two once their darker views
-        (:meth:`_dark`, against the tracks' blobs lately, at the point's depth) count as none. A marker coming back
-        from behind something is cut in the frames it comes out; these points are not judged by
-        :meth:`_judge_dark_views`, and are withheld the same way."""
+        """(n,) bool: the points ``X`` (n, 3) m from the free detections ``det`` (n, C) (two clean views at least:
+        :meth:`_new_markers`), re-acquiring the tracks ``rows`` (n,) or starting tracks that may inherit their lost
+        identities, that keep fewer than two clean views once their darker views (:meth:`_dark`, against those
+        tracks' blobs lately, at the point's depth) count as none. A marker coming back from behind something is
+        cut in the frames it comes out; these points are not judged by :meth:`_judge_dark_views`, and are withheld
+        the same way."""
         lean = np.zeros(len(rows), dtype=bool)
         if not self._light or self._cfg.dark_flux >= 1:
             return lean
@@ -1817,6 +1818,7 @@ class Tracker:
         # Identities not measured this frame: a tentative track inherits one if confirmed (_lifecycle).
         lost = ((t.ident >= 0) & (t.since >= 1)).nonzero()[0]
         cand = np.full(rest.size, -1, dtype=np.intp)
+        lean = np.zeros(rest.size, dtype=bool)
         if lost.size:
             predicted, last = t.x3[lost, :3], t.last_X[lost]
             if self._cfg.attached_check and self._cfg.carry_lost:
@@ -1826,7 +1828,9 @@ class Tracker:
             match = reidentify(pts.X[rest], predicted, radius, last,
                                self._attached_allow(pts.X[rest], lost, (predicted, last, radius)))
             cand = np.where(match >= 0, t.ident[lost[np.maximum(match, 0)]], -1)
-        self._start(fr, pts.subset(rest), cand, meas)
+            has = (match >= 0).nonzero()[0]  # (judged by the light of the lost marker they may be)
+            lean[has] = self._leans_on_dark_views(fr, lost[match[has]], pts.det[rest[has]], pts.X[rest[has]])
+        self._start(fr, pts.subset(rest), cand, meas, lean)
 
     def _carried(self, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Where the unmeasured confirmed tracks ``rows`` (n,) are if they moved rigidly with the steady neighbours
@@ -1904,8 +1908,10 @@ class Tracker:
             out[cc, nn] = (dist2(D[cc, nn][:, None, :], old[cc]) < self._cfg.clutter_px**2).any(axis=1)
         return out
 
-    def _start(self, fr: _Frame, pts: NewPoints, cand: np.ndarray, meas: _Measurements) -> None:
-        """Append tentative tracks at new points ``pts`` (and their measurements to ``meas``)."""
+    def _start(self, fr: _Frame, pts: NewPoints, cand: np.ndarray, meas: _Measurements, lean: np.ndarray) -> None:
+        """Append tentative tracks at new points ``pts`` (and their measurements to ``meas``); ``cand`` (n,) the lost
+        identity each may inherit (-1: none), ``lean`` (n,) the points that lean on blobs darker than that
+        identity's (:meth:`_leans_on_dark_views`; withheld from the written trajectories)."""
         n, C, cfg = len(pts.X), self._C, self._cfg
         x3, P3 = init_state(pts.X, pts.cov + np.eye(3) * 1e-12, velocity_std=cfg.new_track_speed,
                             accel_std=cfg.new_track_speed * self._fps)
@@ -1936,7 +1942,7 @@ class Tracker:
         self._t.e2[base + k, c] = self._e2_from_3d(base + k, c)
         out = _clean_views(fr.merged, pts.det) >= 2  # (all: _new_markers starts only such points)
         meas.extend(_Measurements(np.ones(n, dtype=bool), out, pts.X, pts.cov, pts.rms_px, pts.det,
-                                  np.zeros(n, dtype=bool)))
+                                  out & lean))
 
     def _lifecycle(self, meas: _Measurements) -> None:
         """Confirm tentative tracks, drop failed tentative ones and retired identities."""

@@ -721,6 +721,32 @@ def test_a_marker_re_acquired_from_free_blobs_is_judged_by_their_light_at_its_de
     assert {key for key, value in lean.items() if value} == {(judged, s, True, (0, 1)) for s in (0.85, 1.0, 1.15)}
 
 
+def test_a_marker_back_after_a_long_gap_leaning_on_a_darker_blob_is_withheld(rig):
+    """A marker hidden from both its cameras for 8 frames (its track stops searching: ``coast_frames``) comes back
+    cut in one of them: a new track starts there and inherits the lost identity. Its first point leans on a blob with
+    half the lost marker's light, and is withheld from the written trajectories; the tracking is the same as with
+    the rule off, which writes it 1-3 mm off."""
+    back = (62, 102)
+    marker, frames = _partly_hidden_scene(rig, 7, {(k, 1) for k in back}, np.array([0.002, -0.001, 0.0]),
+                                          cameras=2, light=True, jitter_m=0.0005)
+    for k in back:
+        frames[k - 8 : k] = [[Detections.empty() for _ in rig.cameras] for _ in range(8)]
+    tracked, written = [], []
+    for config in (TrackerConfig(), TrackerConfig(dark_flux=1.0)):
+        tracker = Tracker(rig, 100.0, config)
+        for k, dets in enumerate(frames):
+            tracker.step(k, dets)
+        traj = tracker.finish()
+        assert traj.n_markers == 1
+        tracked.append(traj.positions.copy())
+        tracker.withheld().apply(traj)
+        written.append(np.linalg.norm(traj.positions[:, 0] - marker, axis=1))
+    np.testing.assert_array_equal(tracked[0], tracked[1])
+    assert np.isnan(written[0][list(back)]).all(), written[0][list(back)]
+    assert np.nanmax(written[0]) < 0.0005, np.nanmax(written[0])  # m: every other point written
+    assert np.nanmin(written[1][list(back)]) > 0.001  # with the rule off: written, off
+
+
 def test_how_a_blobs_light_falls_with_depth_is_fitted_to_the_take(rig):
     """A marker swinging on a 1 m circle at 50 Hz, its depth in each camera changing by up to 2 % a frame and camera 1
     losing it for 12 frames now and then, its blobs' light falling as 1 / depth^2 (a renderer drawing every marker at
