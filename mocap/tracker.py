@@ -1567,9 +1567,11 @@ class Tracker:
         ``_FLUX_DEPTH_PRIOR`` (a retroreflector lit from beside the lens, as ``mocap synth`` draws it; its thresholded
         blobs fit 3.5-3.7). A renderer that draws every marker at one height, or saturated blobs, give about 2: a fixed
         4 then took whole blobs coming nearer for darker ones."""
+        if not self._light:  # (no pairs yet)
+            return
         xx, xy = self._light_fit
         power = (_FLUX_DEPTH_PRIOR * _FLUX_DEPTH_POWER - xy) / (_FLUX_DEPTH_PRIOR + xx)
-        self._light_power = float(np.clip(power, *_FLUX_DEPTH_RANGE))
+        self._light_power = min(max(float(power), _FLUX_DEPTH_RANGE[0]), _FLUX_DEPTH_RANGE[1])
 
     def _partial(self, area: np.ndarray, roundness: np.ndarray, merged: np.ndarray, expected: np.ndarray
                  ) -> np.ndarray:
