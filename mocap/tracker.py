@@ -1640,8 +1640,8 @@ class Tracker:
         with np.errstate(invalid="ignore", divide="ignore"):
             x = np.log(depth / record[:, 6])
             y = np.log(flux / record[:, 5])
+            pair = take & ~dark_lasting & np.isfinite(x) & np.isfinite(y)
             y = np.clip(y + self._light_power * x, -_FLUX_STEP_CLIP, _FLUX_STEP_CLIP) - self._light_power * x
-        pair = take & ~dark_lasting & np.isfinite(x) & np.isfinite(y)
         self._light_fit += (np.sum(x[pair] * x[pair]), np.sum(x[pair] * y[pair]))
         record[take, 5], record[take, 6] = flux[take], depth[take]
         # the area and roundness
