@@ -200,10 +200,22 @@ class CentroidFile:
                                                             if k in out])
         keep = self._check_rows(rows, first_line=None)
         out = {k: (v[keep] if k != "n_frames" else v) for k, v in out.items()}
+        if "flux" in out:
+            out["flux"] = self._light(out["flux"])
         order = np.argsort(out["frame"], kind="stable")
         return {k: (v[order] if k != "n_frames" else v) for k, v in out.items()}
 
     # ------------------------------------------------------------------ both
+    def _light(self, flux: np.ndarray) -> np.ndarray:
+        """Blobs' light (n,) with the values no blob can hold (zero or negative) read as not measured (NaN), with a
+        warning: the tracker would take such a blob for its marker partly hidden."""
+        bad = flux <= 0
+        if not np.count_nonzero(bad):
+            return flux
+        log.warning("%s: %d blob(s) with zero or negative light (column 'flux'); read as not measured", self.path,
+                    int(bad.sum()))
+        return np.where(bad, np.nan, flux)
+
     def _check_rows(self, rows: np.ndarray, first_line: int | None) -> np.ndarray:
         """(N, K) rows with frame in column 0 -> (N,) bool rows to keep; raises on bad frame numbers."""
         finite = np.isfinite(rows).all(axis=1)
@@ -248,6 +260,8 @@ class CentroidFile:
                     break
                 rows = rows[:, order]
                 rows = rows[self._check_rows(rows, None)]
+                if "flux" in cols:
+                    rows[:, cols["flux"]] = self._light(rows[:, cols["flux"]])
                 frame = rows[:, 0]
                 if len(frame) and (frame[0] < last_frame or (np.diff(frame) < 0).any()):
                     raise MocapError(f"{self.path}: rows are not sorted by frame; sort them by the 'frame' column")

@@ -64,6 +64,24 @@ def test_the_blobs_light_makes_the_round_trip_where_every_blob_has_it(tmp_path, 
         assert "merged,flux" in path.read_text().splitlines()[0]
 
 
+@pytest.mark.parametrize("suffix", [".centroids.csv", ".centroids.npz"])
+def test_a_blob_with_no_light_is_read_as_not_measured_with_a_warning(tmp_path, suffix, caplog):
+    """Zero or negative light (a corrupt or hand-made file) would make the tracker take the blob for its marker
+    partly hidden: it is read as not measured, and the file named in a warning; the other blobs keep theirs."""
+    rng = np.random.default_rng(3)
+    frames = [(k, Detections(d.xy, d.area, d.roundness, d.cov, d.merged, rng.uniform(50, 9000, len(d))))
+              for k, d in random_frames(rng, 6)]
+    k0, first = next((k, d) for k, d in frames if len(d) >= 2)
+    first.flux[:2] = 0.0, -40.0
+    path = tmp_path / f"cam1{suffix}"
+    write_centroids(path, frames)
+    with caplog.at_level("WARNING"):
+        got = list(open_centroids(path).frames())
+    assert np.isnan(got[k0].flux[:2]).all()
+    np.testing.assert_allclose(got[k0].flux[2:], first.flux[2:], rtol=1e-5)
+    assert "2 blob(s) with zero or negative light" in caplog.text and path.name in caplog.text
+
+
 def test_csv_streams_in_chunks(tmp_path, monkeypatch):
     monkeypatch.setattr(centroids, "_CHUNK_ROWS", 3)
     rng = np.random.default_rng(2)
