@@ -680,7 +680,8 @@ class Tracker:
     def withheld(self) -> WithheldPoints:
         """The tracked points the written trajectories leave out: two-view points leaning on a view of their
         marker partly hidden (darker than its blob lately; :meth:`_judge_dark_views`) that disagree with the
-        prediction, and points re-acquiring a track from such views (:meth:`_leans_on_dark_views`). For
+        prediction, and points from the free blobs re-acquiring a track, or starting one that may inherit a lost
+        identity, that lean on such views (:meth:`_leans_on_dark_views`). For
         :meth:`WithheldPoints.apply` after the identity repair, which works on the tracked points, so that this
         judgement never moves an identity."""
         first = self._first if self._first is not None else 0
@@ -1679,11 +1680,8 @@ class Tracker:
         k, c = np.nonzero(tri.used & (asg >= 0))
         if k.size == 0:
             return
-        j = asg[k, c]
-        expected = self._expect[k, c]
-        merged = fr.merged[c, j]
-        ratio = self._light_ratio_at(fr.flux[c, j], expected, k, c, tri.X[k])
-        dark = self._dark(ratio, merged, expected) & ~suspect[k, c]
+        ratio, merged, dark = self._light_of_views(fr, k, c, asg[k, c], tri.X[k])
+        dark &= ~suspect[k, c]
         cut_flat = merged & (ratio < 1.0 - self._cfg.dark_max)  # (NaN: not judged)
         if np.count_nonzero(cut_flat):
             rows = np.unique(k[cut_flat])
@@ -1710,11 +1708,7 @@ class Tracker:
         if not self._light or self._cfg.dark_flux >= 1:
             return lean
         k, c = np.nonzero(det >= 0)
-        j = det[k, c]
-        merged = fr.merged[c, j]
-        expected = self._expect[rows[k], c]
-        ratio = self._light_ratio_at(fr.flux[c, j], expected, rows[k], c, X[k])
-        dark = self._dark(ratio, merged, expected)
+        _, merged, dark = self._light_of_views(fr, rows[k], c, det[k, c], X[k])
         if np.count_nonzero(dark):
             clean = np.zeros(det.shape, dtype=bool)
             clean[k, c] = ~merged & ~dark
@@ -1750,15 +1744,20 @@ class Tracker:
         with np.errstate(invalid="ignore", divide="ignore"):
             return np.where(expected[:, 0] >= self._cfg.partial_min_area, flux / expected[:, 2], np.nan)
 
-    def _light_ratio_at(self, flux: np.ndarray, expected: np.ndarray, tracks: np.ndarray, cams: np.ndarray,
-                        X: np.ndarray) -> np.ndarray:
-        """(n,) :meth:`_light_ratio` of blobs ``flux`` (n,) measuring tracks ``tracks`` (n,) in cameras ``cams`` (n,)
-        at points ``X`` (n, 3) m, against the blob ``expected`` (n, 4) at the track's last point, moved to the point's
-        depth (as 1 / depth^4: at 50 Hz a hand swinging towards a camera changes its light by a fifth in a frame)."""
+    def _light_of_views(self, fr: _Frame, tracks: np.ndarray, cams: np.ndarray, blobs: np.ndarray, X: np.ndarray
+                        ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The views of tracks ``tracks`` (n,) in cameras ``cams`` (n,) on blobs ``blobs`` (n,) measuring points ``X``
+        (n, 3) m, judged by their light: the :meth:`_light_ratio` against the track's blob there lately
+        (:meth:`_expected_blobs`, at the track's last point) moved to the point's depth (as 1 / depth^power: at 50 Hz
+        a hand swinging towards a camera changes its light by a fifth in a frame), the blobs' ``merged`` flags and
+        which are darker (:meth:`_dark`); (n,) each."""
+        expected = self._expect[tracks, cams]
+        merged = fr.merged[cams, blobs]
         P = self._P[cams, 2]
         last = np.einsum("nj,nj->n", P[:, :3], self._t.last_X[tracks]) + P[:, 3]
         here = np.einsum("nj,nj->n", P[:, :3], X) + P[:, 3]
-        return self._light_ratio(flux, expected) * (here / last) ** self._light_power
+        ratio = self._light_ratio(fr.flux[cams, blobs], expected) * (here / last) ** self._light_power
+        return ratio, merged, self._dark(ratio, merged, expected)
 
     def _dark(self, ratio: np.ndarray, merged: np.ndarray, expected: np.ndarray) -> np.ndarray:
         """(n,) bool: blobs whose light ``ratio`` (n,) to their marker's blob (:meth:`_light_ratio`; NaN: not judged)
