@@ -227,6 +227,13 @@ class TrackerConfig:
             serve's left-finger identity, lost 13 frames, took the tibia's return, which its hand's markers refute);
             0: off. (With no floor on the radius the 120 Hz sprint's forearm, whose glimpsed markers refute each
             other's identities in turn, lost 0.03 IDF1.)
+        refuted_gap_frames: a confirmed track this many frames (or more) into its gap, or its lost identity, may not
+            take a point that its steady neighbours measured this frame all refute (two or more; see
+            ``attached_check``), even where no lost identity claims it: the track misses the frame and the point
+            starts an identity of its own. A coasting track's gate has widened over the gap and holds a neighbour
+            coming back first (the two players' left hand at 50 Hz: the wrist's track, three frames into its gap, took
+            the finger's return 88 mm from the wrist, and the repair then gave the finger's and the wrist's later
+            samples the wrong identities); 0: off.
         partial_area: a blob smaller than its marker's blob in that camera lately (a running average, scaled to
             the point's depth) by more than this / sqrt(that area) (the pixel count's spread), or ...
         partial_round: ... flatter by more than this / sqrt(area) and no larger, is the marker partly hidden (behind
@@ -325,6 +332,7 @@ class TrackerConfig:
     blob_alpha: float = 0.3
     silent_yield: bool = True
     refuted_wide_m: float = 0.25
+    refuted_gap_frames: int = 3
 
     def __post_init__(self) -> None:
         for name in ("confirm_frames", "new_min_views"):
@@ -340,6 +348,8 @@ class TrackerConfig:
             raise MocapError(f"tracker setting error_alpha = {self.error_alpha} must be in (0, 1]")
         if self.refuted_wide_m < 0:
             raise MocapError(f"tracker setting refuted_wide_m = {self.refuted_wide_m} must be >= 0")
+        if self.refuted_gap_frames < 0:
+            raise MocapError(f"tracker setting refuted_gap_frames = {self.refuted_gap_frames} must be >= 0")
         if not 0 <= self.rival_ratio < 1:
             raise MocapError(f"tracker setting rival_ratio = {self.rival_ratio} must be in [0, 1)")
 
@@ -906,18 +916,21 @@ class Tracker:
 
     def _refute_by_attached(self, meas: _Measurements) -> None:
         """Confirmed tracks whose point their identity's steady attached distances refute, where a lost identity's
-        fit it and its search radius holds it (``attached_check``), miss the frame: the point is left to the
-        new-marker search, which gives it to that identity."""
-        t = self._t
+        fit it and its search radius holds it (``attached_check``) or the track is ``refuted_gap_frames`` into its
+        gap, miss the frame: the point is left to the new-marker search, which gives it to that identity (or to a
+        new one)."""
+        t, gap = self._t, self._cfg.refuted_gap_frames
         rows = (meas.ok & (t.ident >= 0)).nonzero()[0]
-        # (a refutation needs two measured neighbours, and a lost identity to take the point)
-        if rows.size < 3 or not np.count_nonzero((t.ident >= 0) & (t.since >= 1) & ~meas.ok):
+        # (a refutation needs two measured neighbours, and a lost identity to take the point or a gap behind it)
+        if rows.size < 3 or not (np.count_nonzero((t.ident >= 0) & (t.since >= 1) & ~meas.ok)
+                                 or (gap and np.count_nonzero(t.since[rows] >= gap))):
             return
         misfit, _ = self._attached.judge(t.ident[rows], meas.X[rows], t.ident[rows], meas.X[rows])
         bad, kept = rows[misfit], rows[~misfit]
         if bad.size == 0:
             return
-        yields = bad[self._claimed_by_lost(meas.X[bad], t.ident[kept], meas.X[kept], ~meas.ok)]
+        yields = bad[self._claimed_by_lost(meas.X[bad], t.ident[kept], meas.X[kept], ~meas.ok)
+                     | ((t.since[bad] >= gap) if gap else False)]
         if yields.size:
             meas.miss(yields, self._C)
 
@@ -987,7 +1000,8 @@ class Tracker:
         misfit, _ = verdicts(n_ok, n_off)
         refuse = misfit.copy()
         if refuse.any():
-            refuse &= self._claimed_by_lost(points, t.ident[here], t.last_X[here], t.since >= 1)[:, None]
+            refuse &= (self._claimed_by_lost(points, t.ident[here], t.last_X[here], t.since >= 1)[:, None]
+                       | ((t.since[tracks] >= cfg.refuted_gap_frames)[None, :] if cfg.refuted_gap_frames else False))
         if lost_at is not None:
             predicted, last, radius = lost_at
             if cfg.refuted_wide_m > 0:

@@ -1240,6 +1240,30 @@ def test_a_returning_marker_is_left_to_the_lost_identity_its_neighbour_vouches_f
 
 
 @pytest.mark.parametrize("rule", [True, False])
+def test_a_coasting_track_does_not_take_a_point_its_neighbours_refute(rule):
+    """The two players' left hand at 50 Hz (cut, one-height light, seed 7, frame 322): A, on one body with N1 and N2
+    that swings 0.08 m around, is hidden from frame 40; its track coasts on a widening gate. X, a marker 45 mm from
+    A never seen before, comes into view at frame 42, inside that gate, and no lost identity claims it. X's
+    distances to N1 and N2 are off A's by far: A's track, three frames into its gap, misses the frame instead of
+    taking X (``refuted_gap_frames``); X starts its own identity and A gets its own back when it returns. Without
+    the rule A's identity takes X (one switch)."""
+    F, fps = 120, 50.0
+    t = np.arange(F) / fps
+    base = np.array([0.0, 0.0, 1.0]) + 0.08 * np.stack([np.sin(9 * t), np.cos(9 * t), np.zeros(F)], axis=1)
+    a = base + [0.05, 0.1, 0.0]
+    pos = np.stack([base, base + [0.12, 0.0, 0.0], a, a + [0.0, 0.045, 0.0]], axis=1)
+    hidden = np.zeros((F, 6, 4), dtype=bool)
+    hidden[40:70, :, 2] = True
+    hidden[:42, :, 3] = True
+    take = _scene_take("coasting", pos, fps, hidden)
+    report = _tracked(take, fps, TrackerConfig(refuted_gap_frames=3 if rule else 0))
+    if rule:
+        assert report.switches == 0 and report.idf1 > 0.99
+    else:
+        assert report.switches == 1 and report.idf1 < 0.92
+
+
+@pytest.mark.parametrize("rule", [True, False])
 def test_a_new_marker_that_a_lost_identitys_neighbours_refute_starts_its_own(rule):
     """The serve's left hand at 50 Hz (fresh seed 66, frame 232): A, on one body with N1 and N2 that swings 0.08 m
     around, is hidden for 30 frames and its identity's search radius grows wide; X, a marker never seen before,
@@ -1255,7 +1279,7 @@ def test_a_new_marker_that_a_lost_identitys_neighbours_refute_starts_its_own(rul
     hidden[40:70, :, 2] = True
     hidden[:55, :, 3] = True
     take = _scene_take("refuted", pos, fps, hidden)
-    config = TrackerConfig(refuted_wide_m=0.25 if rule else 0.0)
+    config = TrackerConfig(refuted_wide_m=0.25 if rule else 0.0, refuted_gap_frames=0)
     report = _tracked(take, fps, config)
     if rule:
         assert report.switches == 0 and report.idf1 > 0.99
