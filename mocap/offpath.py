@@ -11,6 +11,12 @@ stretch (at least ``min_side`` samples on each side) and empties the stretch whe
 that path by more than ``far_m`` and ``ratio`` times the fit's own worst residual: a stretch the identity's path
 passes through, or a path too irregular to say, is kept. The samples are removed (positions, residuals and camera
 masks), never moved: the output has a short gap where it had a wrong identity.
+
+:func:`give_hops_back` then gives back the hops that can be told whose they are: a single sample that hops out from
+both its identity's neighbours and back (more than ``far_m`` each way) and lies within ``near_m`` of where another
+identity, missing that frame only, passes (a cubic through its samples on both sides) goes to that identity (the whole
+sprint: a wheel marker's identity, glimpsed for three frames, held the hand passing by in the middle one while the
+hand's own identity missed it).
 """
 
 from __future__ import annotations
@@ -22,7 +28,7 @@ import numpy as np
 
 from mocap.trajectories import Trajectories
 
-__all__ = ["OffPathConfig", "withhold_off_path"]
+__all__ = ["OffPathConfig", "give_hops_back", "withhold_off_path"]
 
 log = logging.getLogger(__name__)
 
@@ -38,6 +44,7 @@ class OffPathConfig:
         span_s: longest time from a stretch's first sample to its last, s.
         far_m: every sample of a stretch misses the path by more than this, m ...
         ratio: ... and by more than this many times the fit's worst residual on the samples it was fitted to.
+        near_m: a hop lies this close to the path of the identity it is given to, m (:func:`give_hops_back`).
     """
 
     reach_s: float = 0.07
@@ -46,6 +53,7 @@ class OffPathConfig:
     span_s: float = 0.05
     far_m: float = 0.030
     ratio: float = 2.5
+    near_m: float = 0.005
 
 
 def withhold_off_path(traj: Trajectories, config: OffPathConfig | None = None) -> int:
@@ -67,6 +75,50 @@ def withhold_off_path(traj: Trajectories, config: OffPathConfig | None = None) -
     if withheld:
         log.info("withheld %d samples off their identity's path (hops onto a neighbour)", withheld)
     return withheld
+
+
+def give_hops_back(traj: Trajectories, config: OffPathConfig | None = None) -> int:
+    """Move, in place, single samples that hop out from their identity's path and back onto the path of an identity
+    that misses only their frame (module docstring). Returns the number of samples moved."""
+    cfg = config or OffPathConfig()
+    P = traj.positions  # (F, M, 3) m
+    seen = np.isfinite(P[..., 0])
+    if P.shape[0] < 3:
+        return 0
+    step = np.linalg.norm(np.diff(P, axis=0), axis=2)  # (F - 1, M) NaN where either side is missing
+    with np.errstate(invalid="ignore"):
+        hop = (step[:-1] > cfg.far_m) & (step[1:] > cfg.far_m)  # (F - 2, M): frame f + 1 hops out and back
+        gap = seen[:-2] & ~seen[1:-1] & seen[2:]  # (F - 2, M): frame f + 1 missing alone
+    moved = 0
+    for f, b in zip(*np.nonzero(hop & gap.any(axis=1)[:, None]), strict=True):
+        f += 1
+        candidates = np.flatnonzero(gap[f - 1])
+        if candidates.size == 0:  # (given a hop of this frame already)
+            continue
+        path = np.array([_across_gap(P[:, a], f) for a in candidates])  # (n, 3) m, NaN: too few samples
+        miss = np.linalg.norm(path - P[f, b], axis=1)
+        near = np.flatnonzero(miss < cfg.near_m)
+        if near.size != 1:
+            continue
+        a = candidates[near[0]]
+        P[f, a], traj.residuals[f, a], traj.camera_masks[f, a] = P[f, b], traj.residuals[f, b], traj.camera_masks[f, b]
+        P[f, b], traj.residuals[f, b], traj.camera_masks[f, b] = np.nan, np.nan, 0
+        gap[f - 1, a] = False
+        moved += 1
+    if moved:
+        log.info("gave %d samples that hopped off their identity's path to the identity whose path they lie on", moved)
+    return moved
+
+
+def _across_gap(x: np.ndarray, f: int, side: int = 2) -> np.ndarray:
+    """(3,) m: where an identity seen at ``x`` (F, 3) m (NaN: unseen) passes at frame ``f``, which it misses: a cubic
+    (a line with fewer samples) through its ``side`` frames on each side, all seen; NaN where they are not."""
+    frames = np.r_[f - side:f, f + 1:f + side + 1]
+    if frames[0] < 0 or frames[-1] >= len(x) or not np.isfinite(x[frames, 0]).all():
+        return np.full(3, np.nan)
+    basis = np.vander((frames - f).astype(float), min(4, len(frames)))
+    coef, *_ = np.linalg.lstsq(basis, x[frames], rcond=None)
+    return coef[-1]
 
 
 def _off_path(frames: np.ndarray, x: np.ndarray, reach: int, span: int, cfg: OffPathConfig) -> list[np.ndarray]:

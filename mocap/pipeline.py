@@ -266,14 +266,15 @@ def _report_repair(stats: RelabelStats, before: int, after: int, confirm: int) -
              "identity whose neighbours they fit; %d unconfirmed points joined identities' paths; %d gaps "
              "bridged by where the neighbours carry a marker; %d exchanges undone where two markers came back "
              "from a shared gap; %d junctions of three or more identities undone; %d exchanges undone in "
-             "skin-mounted clusters; %d samples withheld off their identity's path; %d pairs of identities of "
+             "skin-mounted clusters; %d samples that hopped off their identity's path given to the identity whose "
+             "path they lie on, %d withheld; %d pairs of identities of "
              "one marker that took turns or followed each other merged; %d identities that ended joined to "
              "their marker's return by its rigid neighbours; %d scattered identities (no %d frames running) "
              "withdrawn",
              stats.duplicates, stats.swaps, before, after, stats.reunited, stats.exchanges,
              stats.unscrambled, stats.plate_samples, stats.rejoined, stats.anchor_moves, stats.filled,
-             stats.bridged, stats.gap_exchanges, stats.junctions, stats.skin_exchanges, stats.off_path,
-             stats.merged, stats.orphans, stats.withdrawn, confirm)
+             stats.bridged, stats.gap_exchanges, stats.junctions, stats.skin_exchanges, stats.hops_given,
+             stats.off_path, stats.merged, stats.orphans, stats.withdrawn, confirm)
 
 
 def _repair_or_keep(traj: Trajectories, confirm: int, unconfirmed: UnconfirmedPoints, path: Path

@@ -83,7 +83,7 @@ from mocap.exchange import undo_exchanges
 from mocap.fill import fill_from_unconfirmed
 from mocap.gap_exchange import undo_gap_exchanges
 from mocap.junction import undo_junctions
-from mocap.offpath import withhold_off_path
+from mocap.offpath import give_hops_back, withhold_off_path
 from mocap.orphans import rejoin_orphans
 from mocap.plates import label_plates
 from mocap.quickstats import quick_median
@@ -257,8 +257,9 @@ class RelabelStats:
     samples moved to the plate member their shape names, fragments rejoined by their anchors, samples moved to the
     identity whose anchors they fit, unconfirmed points that joined an identity's path, links made across gaps by
     where the neighbours carry a marker, exchanges undone where two markers came back from a shared gap each under
-    the other's identity, exchanges undone between a skin-mounted cluster's identities, samples withheld off their
-    identity's path (hops onto a neighbour), identities of one marker that took turns or followed each other merged,
+    the other's identity, exchanges undone between a skin-mounted cluster's identities, samples that hopped off their
+    identity's path given to the identity whose path they lie on, samples withheld off their identity's path (hops
+    onto a neighbour), identities of one marker that took turns or followed each other merged,
     identities that ended joined to later ones their rigid neighbours carry them to, scattered identities
     withdrawn."""
 
@@ -276,6 +277,7 @@ class RelabelStats:
     gap_exchanges: int = 0
     junctions: int = 0
     skin_exchanges: int = 0
+    hops_given: int = 0
     off_path: int = 0
     merged: int = 0
     orphans: int = 0
@@ -946,7 +948,8 @@ def repair_identities(traj: Trajectories, config: RelabelConfig | None = None,
     under the other's (:mod:`mocap.gap_exchange`), the exchanges between a skin-mounted cluster's identities undone
     by the references both keep (:mod:`mocap.skin`), fragments rejoined by anchors once more (the identity a
     fragment fits may have held another marker over its frames until those passes gave it back), where hops are
-    clear (:meth:`RelabelConfig.hops_clear`), samples off their identity's own path withheld (:mod:`mocap.offpath`),
+    clear (:meth:`RelabelConfig.hops_clear`), single samples that hopped off their identity's path given to the
+    identity whose path they lie on and samples off their identity's own path withheld (:mod:`mocap.offpath`),
     the identities of one marker that take turns or follow each other merged (:mod:`mocap.alternate`), and identities
     that ended joined to later ones their rigid neighbours carry them to (:mod:`mocap.orphans`), in place; empty
     identity columns are dropped.
@@ -989,10 +992,12 @@ def repair_identities(traj: Trajectories, config: RelabelConfig | None = None,
     stats.rejoined += rejoin_by_anchors(traj)
     if limits.hops_clear(traj.fps):  # (at 50 Hz a swing's own samples leave any smooth path through their neighbours)
         stats.off_path = withhold_off_path(traj)
+        stats.hops_given = give_hops_back(traj)  # (a hop withheld above can leave the gap another hop fills)
     stats.merged = merge_alternating(traj)
     stats.orphans = rejoin_orphans(traj)
     stats.withdrawn = withdraw_scattered(traj, limits)
     if (stats.reunited or stats.rejoined or stats.plate_samples or stats.anchor_moves or stats.bridged
-            or stats.junctions or stats.off_path or stats.merged or stats.orphans or stats.withdrawn):
+            or stats.junctions or stats.hops_given or stats.off_path or stats.merged or stats.orphans
+            or stats.withdrawn):
         traj.drop_empty()  # (the re-linked identities are named M001 ... already: only a drop renames them)
     return stats

@@ -1,4 +1,5 @@
-"""Samples off their identity's own path are withheld: a hop onto a neighbour, not a hard turn of the marker itself."""
+"""Samples off their identity's own path are withheld: a hop onto a neighbour, not a hard turn of the marker itself;
+a single hop that lies on the path of an identity missing only its frame is given to that identity."""
 
 from pathlib import Path
 
@@ -6,7 +7,7 @@ import numpy as np
 import pytest
 
 from mocap.export.formats import read_trajectories
-from mocap.offpath import OffPathConfig, withhold_off_path
+from mocap.offpath import OffPathConfig, give_hops_back, withhold_off_path
 from mocap.relabel import RelabelConfig
 from mocap.trajectories import Trajectories
 
@@ -53,6 +54,30 @@ def test_a_hop_the_path_cannot_tell_is_kept():
     P[100] = hand[100] + np.array([0.0, 0.0, 0.025])  # 25 mm off: within the far_m of the default settings
     assert withhold_off_path(Trajectories(["M001"], FPS, P.copy())) == 0
     assert withhold_off_path(Trajectories(["M001"], FPS, P.copy()), OffPathConfig(far_m=0.02)) == 1
+
+
+def test_a_glimpsed_rim_markers_identity_gives_the_hand_back_to_the_hands():
+    """The whole sprint, frame 1869: the rim marker's identity, glimpsed for three frames, holds the hand passing by
+    in the middle one (60 mm out and back) while the hand's identity misses it: the sample goes to the hand's
+    identity, whose path runs through it. Where two gaps could take it, or the sample is off every path, nothing
+    moves."""
+    hand, rim = _hand_and_rim()
+    P = np.full((240, 2, 3), np.nan)
+    P[:, 0] = hand
+    P[99:102, 1] = rim[99:102]
+    P[100] = [np.nan, np.nan, np.nan], hand[100]
+    traj = Trajectories(["M001", "M002"], FPS, P.copy())
+    traj.residuals[100, 1], traj.camera_masks[100, 1] = 0.3, 0b101
+    assert give_hops_back(traj) == 1
+    np.testing.assert_array_equal(traj.positions[:, 0], hand)
+    assert np.isnan(traj.positions[100, 1]).all() and (traj.camera_masks[100] == [0b101, 0]).all()
+    assert traj.residuals[100, 0] == 0.3
+    off = P.copy()
+    off[100, 1] = hand[100] + [0.0, 0.0, 0.01]  # 10 mm off the hand's path
+    assert give_hops_back(Trajectories(["M001", "M002"], FPS, off)) == 0
+    twin = np.concatenate([P, P[:, :1] + [0.0, 0.0, 0.002]], axis=1)  # a second gap 2 mm away
+    twin[100, 2] = np.nan
+    assert give_hops_back(Trajectories(["M001", "M002", "M003"], FPS, twin)) == 0
 
 
 def test_the_pass_runs_only_where_hops_are_clear():
