@@ -911,6 +911,8 @@ def test_bad_input_is_a_user_error(rig):
         TrackerConfig(accel_damping=1.5)
     with pytest.raises(MocapError, match="rival_ratio"):
         TrackerConfig(rival_ratio=1.0)
+    with pytest.raises(MocapError, match="refuted_gap_frames"):
+        TrackerConfig(refuted_gap_frames=-1)
     with pytest.raises(MocapError, match="2 detection sets for 6 cameras"):
         Tracker(rig, 100.0).step(0, [Detections.empty(), Detections.empty()])
 
