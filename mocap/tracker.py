@@ -227,10 +227,11 @@ class TrackerConfig:
             serve's left-finger identity, lost 13 frames, took the tibia's return, which its hand's markers refute);
             0: off. (With no floor on the radius the 120 Hz sprint's forearm, whose glimpsed markers refute each
             other's identities in turn, lost 0.03 IDF1.)
-        refuted_gap_frames: a confirmed track this many frames (or more) into its gap, or its lost identity, may not
-            take a point that its steady neighbours measured this frame all refute (two or more; see
-            ``attached_check``), even where no lost identity claims it: the track misses the frame and the point
-            starts an identity of its own. A coasting track's gate has widened over the gap and holds a neighbour
+        refuted_gap_frames: a confirmed track this many frames (or more) into its gap, still searching
+            (``coast_frames``), may not take a point that its steady neighbours measured this frame all refute (two
+            or more; see ``attached_check``), even where no lost identity claims it: the track misses the frame and
+            the point starts an identity of its own (a longer-lost identity is judged by ``refuted_wide_m``: after
+            long, a static marker's steady neighbours may have left, while its search radius stays small). A coasting track's gate has widened over the gap and holds a neighbour
             coming back first (the two players' left hand at 50 Hz: the wrist's track, three frames into its gap, took
             the finger's return 88 mm from the wrist, and the repair then gave the finger's and the wrist's later
             samples the wrong identities); 0: off.
@@ -987,7 +988,8 @@ class Tracker:
                         lost_at: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None) -> np.ndarray | None:
         """(L, T) bool: which of the ``tracks`` (T,) may take which of the ``points`` (L, 3) m: a pair the track's
         identity's attached distances refute only where a lost identity fits the point (see
-        :meth:`_claimed_by_lost`; None: all, ``attached_check`` off). ``lost_at``: for lost identities being
+        :meth:`_claimed_by_lost`; None: all, ``attached_check`` off), or where the track is ``refuted_gap_frames``
+        into its gap and still searching (``coast_frames``). ``lost_at``: for lost identities being
         re-identified, where their search radius is measured from (predictions and last places (T, 3) m) and the
         radius (T,) m: a refuted pair is refused whoever claims the point where that radius is ``refuted_wide_m`` or
         wider, and an identity with no steady neighbour measured may not take a point whose distance to a measured
@@ -1000,8 +1002,10 @@ class Tracker:
         misfit, _ = verdicts(n_ok, n_off)
         refuse = misfit.copy()
         if refuse.any():
-            refuse &= (self._claimed_by_lost(points, t.ident[here], t.last_X[here], t.since >= 1)[:, None]
-                       | ((t.since[tracks] >= cfg.refuted_gap_frames)[None, :] if cfg.refuted_gap_frames else False))
+            since = t.since[tracks]  # (still searching: see refuted_gap_frames)
+            coasting = (since >= cfg.refuted_gap_frames) & (since <= cfg.coast_frames) if cfg.refuted_gap_frames \
+                else np.zeros(tracks.size, dtype=bool)
+            refuse &= self._claimed_by_lost(points, t.ident[here], t.last_X[here], t.since >= 1)[:, None] | coasting
         if lost_at is not None:
             predicted, last, radius = lost_at
             if cfg.refuted_wide_m > 0:
