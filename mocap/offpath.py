@@ -82,9 +82,9 @@ def give_hops_back(traj: Trajectories, config: OffPathConfig | None = None) -> i
     that misses only their frame (module docstring). Returns the number of samples moved."""
     cfg = config or OffPathConfig()
     P = traj.positions  # (F, M, 3) m
-    seen = np.isfinite(P[..., 0])
     if P.shape[0] < 3:
         return 0
+    seen = np.isfinite(P[..., 0])
     step = np.linalg.norm(np.diff(P, axis=0), axis=2)  # (F - 1, M) NaN where either side is missing
     with np.errstate(invalid="ignore"):
         hop = (step[:-1] > cfg.far_m) & (step[1:] > cfg.far_m)  # (F - 2, M): frame f + 1 hops out and back

@@ -230,11 +230,12 @@ class TrackerConfig:
         refuted_gap_frames: a confirmed track this many frames (or more) into its gap, still searching
             (``coast_frames``), may not take a point that its steady neighbours measured this frame all refute (two
             or more; see ``attached_check``), even where no lost identity claims it: the track misses the frame and
-            the point starts an identity of its own (a longer-lost identity is judged by ``refuted_wide_m``: after
-            long, a static marker's steady neighbours may have left, while its search radius stays small). A coasting track's gate has widened over the gap and holds a neighbour
-            coming back first (the two players' left hand at 50 Hz: the wrist's track, three frames into its gap, took
-            the finger's return 88 mm from the wrist, and the repair then gave the finger's and the wrist's later
-            samples the wrong identities); 0: off.
+            the point starts an identity of its own. A coasting track's gate has widened over the gap and holds a
+            neighbour coming back first (the two players' left hand at 50 Hz: the wrist's track, three frames into
+            its gap, took the finger's return 88 mm from the wrist, and the repair then gave the finger's and the
+            wrist's later samples the wrong identities). A longer-lost identity is judged by ``refuted_wide_m``:
+            after long, a static marker's steady neighbours may have left while its search radius stays small;
+            0: off.
         partial_area: a blob smaller than its marker's blob in that camera lately (a running average, scaled to
             the point's depth) by more than this / sqrt(that area) (the pixel count's spread), or ...
         partial_round: ... flatter by more than this / sqrt(area) and no larger, is the marker partly hidden (behind
