@@ -235,7 +235,9 @@ class TrackerConfig:
             its gap, took the finger's return 88 mm from the wrist, and the repair then gave the finger's and the
             wrist's later samples the wrong identities). A longer-lost identity is judged by ``refuted_wide_m``:
             after long, a static marker's steady neighbours may have left while its search radius stays small;
-            0: off.
+            0: off. The gated path judges a track to its last searching frame (``coast_frames`` + 1 into its gap),
+            re-acquisition from free points to ``coast_frames``: each bound measured better than the other there
+            (``docs/engine-log.md``, seventy-eighth session).
         partial_area: a blob smaller than its marker's blob in that camera lately (a running average, scaled to
             the point's depth) by more than this / sqrt(that area) (the pixel count's spread), or ...
         partial_round: ... flatter by more than this / sqrt(area) and no larger, is the marker partly hidden (behind
