@@ -252,6 +252,12 @@ class TrackerConfig:
         partial_frames: a blob judged partly hidden more than this many frames in a row is taken for the marker's
             blob now (an exposure change, a marker of another size taken over, a lasting cover), and the running
             average starts again from it: without it such a track would have no clean view again.
+        appearing_light: a blob of a marker measured in the previous frame, in a camera that had no blob of it then
+            (coming out from behind something), with less than this of the marker's light in that camera lately (at
+            the predicted depth; not judged where no light is known there yet) is taken for the marker partly
+            hidden: left out where two clean views remain, and not offered back by the re-pick; 0: off. A cut to
+            half a radius keeps 0.72-0.78 of the light, which the running deviation of a far camera's small blobs
+            lets pass as whole; the frame back is when a cut is most likely.
         dark_flux: a blob whose light (:attr:`mocap.detections.Detections.flux`) is less than its marker's blob's in
             that camera lately (a running average, scaled to depth as 1 / depth^4: a retroreflector lit from the
             camera) by more than this fraction, or by ``dark_spread`` times that light's running mean absolute
@@ -330,6 +336,7 @@ class TrackerConfig:
     partial_min_area: float = 4.0
     partial_suspect: bool = True
     partial_frames: int = 8
+    appearing_light: float = 0.92
     dark_flux: float = 0.08
     dark_spread: float = 4.0
     dark_max: float = 0.3
@@ -354,6 +361,8 @@ class TrackerConfig:
             raise MocapError(f"tracker setting refuted_wide_m = {self.refuted_wide_m} must be >= 0")
         if self.refuted_gap_frames < 0:
             raise MocapError(f"tracker setting refuted_gap_frames = {self.refuted_gap_frames} must be >= 0")
+        if self.appearing_light < 0:
+            raise MocapError(f"tracker setting appearing_light = {self.appearing_light} must be >= 0")
         if not 0 <= self.rival_ratio < 1:
             raise MocapError(f"tracker setting rival_ratio = {self.rival_ratio} must be in [0, 1)")
 
@@ -488,6 +497,7 @@ class _Tracks(_Rows):
     #   flux (grey levels) and its mean absolute relative deviation; the last clean view's flux and depth m
     cut_run: np.ndarray  # (K, C) consecutive views of it in that camera judged partly hidden
     dark_run: np.ndarray  # (K, C) ... judged darker
+    blob_unseen: np.ndarray  # (K, C) frames since a blob was assigned to it in that camera (used or left out)
 
     @classmethod
     def empty(cls, C: int) -> _Tracks:
@@ -496,7 +506,7 @@ class _Tracks(_Rows):
                    np.zeros((0, 3)), np.zeros((0, C, 6)), np.zeros((0, C, 6, 6)), np.zeros((0, C), dtype=bool),
                    np.zeros((0, C), dtype=np.intp), np.zeros((0, C, 3)), np.zeros((0, C, 2)), np.zeros((0, C, 2)),
                    np.zeros(0, dtype=bool), np.zeros((0, 3)), np.zeros(0), np.zeros((0, C, _BLOB_FIELDS)),
-                   np.zeros((0, C), dtype=np.intp), np.zeros((0, C), dtype=np.intp))
+                   np.zeros((0, C), dtype=np.intp), np.zeros((0, C), dtype=np.intp), np.zeros((0, C), dtype=np.intp))
 
     def __len__(self) -> int:
         return len(self.uid)
@@ -622,6 +632,7 @@ class Tracker:
         self._light = self._light or bool(np.isfinite(fr.flux[:, :1]).any())  # (a frame's first blobs tell)
         t.since += 1
         t.unseen2 += 1
+        t.blob_unseen += 1
         if self._blobs_followed:
             self._fit_light_power()
             self._expect = self._expected_blobs()
@@ -1253,12 +1264,13 @@ class Tracker:
         cfg = self._cfg
         asg = meas.asg
         partial = None  # (K, C) the views of ``judged`` (the assigned blobs) that show their marker partly hidden
+        assigned = asg >= 0
         if cfg.partial_area > 0:
-            partial = self._leave_out_partly_hidden(fr, crowded, asg)
+            partial, appeared = self._leave_out_partly_hidden(fr, crowded, asg)
             judged = asg.copy()
         tri, extra, sigma = self._triangulate_views(fr, crowded, asg)
         if partial is not None:  # (a partly hidden blob left out is free, and near the point: not offered back)
-            extra[self._partial_views(fr, extra, extra >= 0)] = -1
+            extra[self._partial_views(fr, extra, extra >= 0) | appeared] = -1
         more = (extra >= 0).any(axis=1).nonzero()[0]
         if more.size:
             asg[more] = np.where(extra[more] >= 0, extra[more], asg[more])
@@ -1286,6 +1298,7 @@ class Tracker:
         meas.X, meas.cov, meas.rms_px = tri.X, tri.cov, tri.rms_px
         if cfg.dark_flux < 1:
             self._judge_dark_views(fr, asg, tri, suspect, split, sigma, meas)
+        t.blob_unseen[assigned] = 0
 
     def _partial_views(self, fr: _Frame, asg: np.ndarray, views: np.ndarray) -> np.ndarray:
         """(K, C) bool: which of the ``views`` (K, C) bool of the detections ``asg`` (K, C) show their marker partly
@@ -1297,17 +1310,36 @@ class Tracker:
             out[k[part], c[part]] = True
         return out
 
-    def _leave_out_partly_hidden(self, fr: _Frame, crowded: np.ndarray, asg: np.ndarray) -> np.ndarray:
-        """Assigned detections ``asg`` (K, C) of a marker partly hidden (:meth:`_partly_hidden`) are left out (-1, in
-        place) where two clean ones (not crowded, not flagged merged) remain. Returns (K, C) bool: the partly hidden
-        views still assigned."""
+    def _appearing_views(self, fr: _Frame, asg: np.ndarray) -> np.ndarray:
+        """(K, C) bool: assigned detections ``asg`` (K, C) of tracks measured in the previous frame, in cameras that
+        had no blob of theirs then, whose light at the track's predicted depth is under ``appearing_light`` of their
+        marker's there lately (:meth:`_light_of_views`; none where it is not known yet): a marker coming out from
+        behind something is partly hidden the first frame back."""
+        t = self._t
+        out = (asg >= 0) & (t.blob_unseen >= 2) & (t.since == 1)[:, None]
+        if not self._light:
+            return np.zeros_like(out)
+        k, c = np.nonzero(out)
+        ratio, _, _ = self._light_of_views(fr, k, c, asg[k, c], t.x3[k, :3])
+        with np.errstate(invalid="ignore"):
+            out[k, c] = ratio < self._cfg.appearing_light  # (unknown light, NaN: kept)
+        return out
+
+    def _leave_out_partly_hidden(self, fr: _Frame, crowded: np.ndarray, asg: np.ndarray
+                                 ) -> tuple[np.ndarray, np.ndarray]:
+        """Assigned detections ``asg`` (K, C) of a marker partly hidden (:meth:`_partly_hidden`) or just coming back
+        into a camera darker (:meth:`_appearing_views`) are left out (-1, in place) where two clean ones (not
+        crowded, not flagged merged) remain. Returns (K, C) bool each: the partly hidden views still assigned, and
+        the coming-back views left out."""
         partial = self._partial_views(fr, asg, asg >= 0)
-        if not np.count_nonzero(partial):
-            return partial
-        clean = (asg >= 0) & ~crowded & ~_gather(fr.merged, asg) & ~partial
-        out = partial & (clean.sum(axis=1) >= 2)[:, None]
+        appearing = self._appearing_views(fr, asg) if self._cfg.appearing_light > 0 else np.zeros_like(partial)
+        leave = partial | appearing
+        if not np.count_nonzero(leave):
+            return partial, appearing
+        clean = (asg >= 0) & ~crowded & ~_gather(fr.merged, asg) & ~leave
+        out = leave & (clean.sum(axis=1) >= 2)[:, None]
         asg[out] = -1
-        return partial & ~out
+        return partial & ~out, appearing & out
 
     def _drop_partly_hidden_views(self, fr: _Frame, crowded: np.ndarray, asg: np.ndarray, tri: Triangulated,
                                   partial: np.ndarray) -> None:
@@ -1517,8 +1549,9 @@ class Tracker:
                                   t.last_uvv, t.lock2, t.unseen2)
         else:
             self._update_numpy(fr, meas, idx)
+        kk, cc = np.nonzero(meas.asg[idx] >= 0)
+        t.blob_unseen[idx[kk], cc] = 0
         if self._blobs_followed:
-            kk, cc = np.nonzero(meas.asg[idx] >= 0)
             self._follow_blobs(fr, idx[kk], cc, meas.asg[idx[kk], cc])
 
     def _update_numpy(self, fr: _Frame, meas: _Measurements, idx: np.ndarray) -> None:
@@ -1958,7 +1991,7 @@ class Tracker:
                       used, np.zeros((n, C), dtype=np.intp), np.zeros((n, C, 3)), last_uv,
                       np.zeros((n, C, 2)), ~pts.strong, pts.X.copy(), _point_std(pts.cov),
                       np.full((n, C, _BLOB_FIELDS), np.nan), np.zeros((n, C), dtype=np.intp),
-                      np.zeros((n, C), dtype=np.intp))
+                      np.zeros((n, C), dtype=np.intp), np.zeros((n, C), dtype=np.intp))
         base = len(self._t)
         self._t.extend(new)
         self._t.e2[base + k, c] = self._e2_from_3d(base + k, c)

@@ -309,7 +309,8 @@ def _random_tracker(rig, K: int, seed: int) -> Tracker:
                          rng.integers(0, 20, size=(K, C)), rng.uniform(0.05, 3.0, size=(K, C, 3)),
                          uv - vel2 / 100.0, vel2 + rng.normal(scale=10.0, size=(K, C, 2)), np.zeros(K, dtype=bool),
                          X.copy(), rng.uniform(1e-5, 1e-3, size=K), np.full((K, C, 7), np.nan),
-                         rng.integers(0, 5, size=(K, C)), rng.integers(0, 5, size=(K, C)))
+                         rng.integers(0, 5, size=(K, C)), rng.integers(0, 5, size=(K, C)),
+                         rng.integers(0, 5, size=(K, C)))
     if K:  # one track behind camera 0
         tracker._t.x3[0, :3] = -np.linalg.solve(P[0, :, :3], P[0, :, 3]) - 0.5 * P[0, 2, :3]
     tracker._expect = tracker._expected_blobs()
