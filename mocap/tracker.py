@@ -1316,9 +1316,9 @@ class Tracker:
         marker's there lately (:meth:`_light_of_views`; none where it is not known yet): a marker coming out from
         behind something is partly hidden the first frame back."""
         t = self._t
-        out = (asg >= 0) & (t.blob_unseen >= 2) & (t.since == 1)[:, None]
         if not self._light:
-            return np.zeros_like(out)
+            return np.zeros(asg.shape, dtype=bool)
+        out = (asg >= 0) & (t.blob_unseen >= 2) & (t.since == 1)[:, None]
         k, c = np.nonzero(out)
         ratio, _, _ = self._light_of_views(fr, k, c, asg[k, c], t.x3[k, :3])
         with np.errstate(invalid="ignore"):
