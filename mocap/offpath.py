@@ -101,8 +101,7 @@ def give_hops_back(traj: Trajectories, config: OffPathConfig | None = None) -> i
         if near.size != 1:
             continue
         a = candidates[near[0]]
-        P[f, a], traj.residuals[f, a], traj.camera_masks[f, a] = P[f, b], traj.residuals[f, b], traj.camera_masks[f, b]
-        P[f, b], traj.residuals[f, b], traj.camera_masks[f, b] = np.nan, np.nan, 0
+        traj.move_samples(f, b, a)
         gap[f - 1, a] = False
         moved += 1
     if moved:

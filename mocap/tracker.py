@@ -934,18 +934,18 @@ class Tracker:
         fit it and its search radius holds it (``attached_check``) or the track is ``refuted_gap_frames`` into its
         gap, miss the frame: the point is left to the new-marker search, which gives it to that identity (or to a
         new one)."""
-        t, gap = self._t, self._cfg.refuted_gap_frames
+        t = self._t
         rows = (meas.ok & (t.ident >= 0)).nonzero()[0]
+        coasting = self._coasting(rows, self._cfg.coast_frames + 1)  # (every track searching its gate: _in_play)
         # (a refutation needs two measured neighbours, and a lost identity to take the point or a gap behind it)
         if rows.size < 3 or not (np.count_nonzero((t.ident >= 0) & (t.since >= 1) & ~meas.ok)
-                                 or (gap and np.count_nonzero(t.since[rows] >= gap))):
+                                 or np.count_nonzero(coasting)):
             return
         misfit, _ = self._attached.judge(t.ident[rows], meas.X[rows], t.ident[rows], meas.X[rows])
         bad, kept = rows[misfit], rows[~misfit]
         if bad.size == 0:
             return
-        yields = bad[self._claimed_by_lost(meas.X[bad], t.ident[kept], meas.X[kept], ~meas.ok)
-                     | ((t.since[bad] >= gap) if gap else False)]
+        yields = bad[self._claimed_by_lost(meas.X[bad], t.ident[kept], meas.X[kept], ~meas.ok) | coasting[misfit]]
         if yields.size:
             meas.miss(yields, self._C)
 
@@ -998,6 +998,14 @@ class Tracker:
         _, fits = self._attached.judge_pairs(t.ident[lost], points, here_ident, here_X)
         return (fits & inside).any(axis=1)
 
+    def _coasting(self, tracks: np.ndarray, last: int) -> np.ndarray:
+        """(T,) bool: which of the ``tracks`` (T,) are ``refuted_gap_frames`` to ``last`` frames into their gap
+        (``since``), the steady neighbours' refutation then holding whether or not a lost identity claims the point;
+        none where ``refuted_gap_frames`` is 0. The gated path judges to ``coast_frames`` + 1, re-acquisition from
+        free points to ``coast_frames`` (see ``refuted_gap_frames``)."""
+        gap, since = self._cfg.refuted_gap_frames, self._t.since[tracks]
+        return (since >= gap) & (since <= last) if gap else np.zeros(tracks.size, dtype=bool)
+
     def _attached_allow(self, points: np.ndarray, tracks: np.ndarray,
                         lost_at: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None) -> np.ndarray | None:
         """(L, T) bool: which of the ``tracks`` (T,) may take which of the ``points`` (L, 3) m: a pair the track's
@@ -1016,10 +1024,8 @@ class Tracker:
         misfit, _ = verdicts(n_ok, n_off)
         refuse = misfit.copy()
         if refuse.any():
-            since = t.since[tracks]  # (still searching: see refuted_gap_frames)
-            coasting = (since >= cfg.refuted_gap_frames) & (since <= cfg.coast_frames) if cfg.refuted_gap_frames \
-                else np.zeros(tracks.size, dtype=bool)
-            refuse &= self._claimed_by_lost(points, t.ident[here], t.last_X[here], t.since >= 1)[:, None] | coasting
+            refuse &= self._claimed_by_lost(points, t.ident[here], t.last_X[here], t.since >= 1)[:, None] \
+                | self._coasting(tracks, cfg.coast_frames)
         if lost_at is not None:
             predicted, last, radius = lost_at
             if cfg.refuted_wide_m > 0:
@@ -1316,7 +1322,7 @@ class Tracker:
         marker's there lately (:meth:`_light_of_views`; none where it is not known yet): a marker coming out from
         behind something is partly hidden the first frame back."""
         t = self._t
-        if not self._light:
+        if not (self._light and self._cfg.appearing_light > 0):
             return np.zeros(asg.shape, dtype=bool)
         out = (asg >= 0) & (t.blob_unseen >= 2) & (t.since == 1)[:, None]
         k, c = np.nonzero(out)
@@ -1332,7 +1338,7 @@ class Tracker:
         crowded, not flagged merged) remain. Returns (K, C) bool each: the partly hidden views still assigned, and
         the coming-back views left out."""
         partial = self._partial_views(fr, asg, asg >= 0)
-        appearing = self._appearing_views(fr, asg) if self._cfg.appearing_light > 0 else np.zeros_like(partial)
+        appearing = self._appearing_views(fr, asg)
         leave = partial | appearing
         if not np.count_nonzero(leave):
             return partial, appearing
