@@ -614,6 +614,7 @@ class Tracker:
         self._first: int | None = None
         self._next_views: list[tuple[np.ndarray, np.ndarray, np.ndarray]] | None = None  # _next_images, this step's
         self._last = -1
+        self._assigned_blobs = np.zeros((0, self._C), dtype=bool)  # (K, C) blobs assigned this step (_measure)
         self._outlier_px = cfg.outlier_start_px  # camera rejection floor, px (follows the residual level)
         self._rms_px = cfg.outlier_start_px / max(cfg.outlier_rms_factor, 1.0)  # typical reprojection RMS, px
         kernels.announce()
@@ -639,6 +640,7 @@ class Tracker:
         self._predict()
         K = len(t)
         meas = _Measurements.empty(K, C)
+        self._assigned_blobs = np.zeros((K, C), dtype=bool)
         play = self._in_play()
         if K and fr.D.shape[1]:
             self._associate(fr, play, t.lock2, meas)
@@ -660,6 +662,7 @@ class Tracker:
             if self._cfg.yield_explained_blobs:
                 meas.miss(self._explained_elsewhere(fr, meas).nonzero()[0], C)
             self._update(fr, meas, meas.ok.nonzero()[0])
+            t.blob_unseen[self._assigned_blobs] = 0  # (after every measuring pass: each judges the frame's blobs alike)
             self._follow_residual_level(fr, meas)
         self._new_markers(fr, fr.valid & ~_taken(meas.asg, fr.valid.shape), meas)
         self._lifecycle(meas)
@@ -1304,7 +1307,7 @@ class Tracker:
         meas.X, meas.cov, meas.rms_px = tri.X, tri.cov, tri.rms_px
         if cfg.dark_flux < 1:
             self._judge_dark_views(fr, asg, tri, suspect, split, sigma, meas)
-        t.blob_unseen[assigned] = 0
+        self._assigned_blobs |= assigned
 
     def _partial_views(self, fr: _Frame, asg: np.ndarray, views: np.ndarray) -> np.ndarray:
         """(K, C) bool: which of the ``views`` (K, C) bool of the detections ``asg`` (K, C) show their marker partly

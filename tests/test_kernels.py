@@ -314,6 +314,7 @@ def _random_tracker(rig, K: int, seed: int) -> Tracker:
     if K:  # one track behind camera 0
         tracker._t.x3[0, :3] = -np.linalg.solve(P[0, :, :3], P[0, :, 3]) - 0.5 * P[0, 2, :3]
     tracker._expect = tracker._expected_blobs()
+    tracker._assigned_blobs = np.zeros((K, C), dtype=bool)
     return tracker
 
 

@@ -861,6 +861,31 @@ def test_a_marker_coming_back_darker_into_cameras_is_left_out_of_its_point_the_f
     assert np.nanmin(errs[1][hit]) > 0.001, errs[1][hit]  # with the rule off: the cut pair won
 
 
+def test_a_view_coming_back_is_judged_alike_by_every_measuring_pass_of_the_frame(rig, monkeypatch):
+    """The tracker measures a track again within a frame (from its neighbours' shift, for a rival, or from blobs
+    freed by another track); each pass must judge a blob coming back into a camera as the first did. The count of
+    frames since a camera last had a blob of the track is reset once, after the frame's last pass: reset by the
+    first pass, the second took the cut views back (the scene of the test above, every frame measured twice)."""
+    back = (80, 110)
+    gone = frozenset((k - d, c) for k in back for d in (1, 2) for c in (0, 1))
+    cut = {(k, c) for k in back for c in (0, 1)}
+    marker, frames = _partly_hidden_scene(rig, 4, cut, np.array([0.002, -0.001, 0.0]), light=True, gone=gone)
+    measure = Tracker._measure
+
+    def twice(self, fr, crowded, meas):
+        asg = meas.asg.copy()
+        measure(self, fr, crowded, meas)
+        meas.asg[:] = asg
+        measure(self, fr, crowded, meas)
+
+    monkeypatch.setattr(Tracker, "_measure", twice)
+    traj = _tracked_frames(rig, frames, TrackerConfig())
+    assert traj.n_markers == 1
+    errs = np.linalg.norm(traj.positions[:, 0] - marker, axis=1)
+    assert np.isfinite(errs[list(back)]).all()
+    assert np.nanmax(errs) < 0.0005, np.nanmax(errs)  # m
+
+
 def test_a_two_view_point_leaning_on_a_partly_hidden_view_is_output_only_where_the_prediction_agrees(rig):
     """A marker on a smooth path seen by two cameras only, one of which sees it partly hidden (its centroid off by
     a 2.2 mm shift of the point): the view is all the point has besides the clean one, so it is judged like a merged
