@@ -44,6 +44,7 @@ its residual is the RMS reprojection error back-projected to the marker's depth 
 
 from __future__ import annotations
 
+import math
 import mmap
 from collections import deque
 from collections.abc import Iterator
@@ -258,6 +259,12 @@ class TrackerConfig:
             hidden: left out where two clean views remain, and not offered back by the re-pick; 0: off. A cut to
             half a radius keeps 0.72-0.78 of the light, which the running deviation of a far camera's small blobs
             lets pass as whole; the frame back is when a cut is most likely.
+        appearing_borrowed: ... and where that camera has no light of the marker yet, a blob of ``partial_min_area``
+            px or more with less than this of the light its marker's other views give this frame (each moved to its
+            depth and taken over its camera's gain, learnt over the take) is taken for partly hidden too; 0: off.
+            Light compared across cameras at other depths errs by the depth power's fit and the cameras' gains:
+            at 0.8 whole blobs entering a far camera of the whole sprint's walkway were left out; a blob cut through
+            its centre keeps half the light.
         dark_flux: a blob whose light (:attr:`mocap.detections.Detections.flux`) is less than its marker's blob's in
             that camera lately (a running average, scaled to depth as 1 / depth^4: a retroreflector lit from the
             camera) by more than this fraction, or by ``dark_spread`` times that light's running mean absolute
@@ -337,6 +344,7 @@ class TrackerConfig:
     partial_suspect: bool = True
     partial_frames: int = 8
     appearing_light: float = 0.92
+    appearing_borrowed: float = 0.65
     dark_flux: float = 0.08
     dark_spread: float = 4.0
     dark_max: float = 0.3
@@ -361,8 +369,9 @@ class TrackerConfig:
             raise MocapError(f"tracker setting refuted_wide_m = {self.refuted_wide_m} must be >= 0")
         if self.refuted_gap_frames < 0:
             raise MocapError(f"tracker setting refuted_gap_frames = {self.refuted_gap_frames} must be >= 0")
-        if self.appearing_light < 0:
-            raise MocapError(f"tracker setting appearing_light = {self.appearing_light} must be >= 0")
+        for name in ("appearing_light", "appearing_borrowed"):
+            if getattr(self, name) < 0:
+                raise MocapError(f"tracker setting {name} = {getattr(self, name)} must be >= 0")
         if not 0 <= self.rival_ratio < 1:
             raise MocapError(f"tracker setting rival_ratio = {self.rival_ratio} must be in [0, 1)")
 
@@ -394,6 +403,7 @@ _IMAGE_VELOCITY_STD = 1e3
 _IMAGE_ACCEL_STD = 1e5
 _VAGUE_TYPICAL = 10.0  # a vague blob's std is also over this many times the frame's median (see vague_px)
 _BLOB_FIELDS = 7  # a track's blob record per camera (_Tracks.blob)
+_CAMERA_GAIN_ALPHA = 0.05  # smoothing of the cameras' light gains per frame (Tracker._learn_camera_gains)
 _FLUX_DEPTH_POWER = 4  # a retroreflector lit from the camera: its light there falls as 1 / depth^4 (before any fit)
 _FLUX_DEPTH_PRIOR = 0.04  # weight of that power against the fit's sum of squared log depth ratios
 _FLUX_DEPTH_RANGE = (1.0, 6.0)  # the fitted power is kept within
@@ -608,6 +618,7 @@ class Tracker:
         self._light = False  # some blob has carried its light (Detections.flux)
         self._light_fit = np.zeros(2)  # sums of x^2 and x y, x and y the log depth and light ratios of clean views
         self._light_power = float(_FLUX_DEPTH_POWER)  # the light falls as 1 / depth^power (_fit_light_power)
+        self._camera_gain = np.zeros(len(rig))  # (C,) log of each camera's light over the others' (_learn_camera_gains)
         self._result: Trajectories | None = None
         self._unconfirmed: UnconfirmedPoints | None = None
         self._clutter: deque[np.ndarray] = deque(maxlen=max(cfg.clutter_frames, 1))  # recent free detections
@@ -662,6 +673,8 @@ class Tracker:
             if self._cfg.yield_explained_blobs:
                 meas.miss(self._explained_elsewhere(fr, meas).nonzero()[0], C)
             self._update(fr, meas, meas.ok.nonzero()[0])
+            if self._light and self._cfg.appearing_borrowed > 0:
+                self._learn_camera_gains(fr, meas)
             t.blob_unseen[self._assigned_blobs] = 0  # (after every measuring pass: each judges the frame's blobs alike)
             self._follow_residual_level(fr, meas)
         self._new_markers(fr, fr.valid & ~_taken(meas.asg, fr.valid.shape), meas)
@@ -1322,17 +1335,53 @@ class Tracker:
     def _appearing_views(self, fr: _Frame, asg: np.ndarray) -> np.ndarray:
         """(K, C) bool: assigned detections ``asg`` (K, C) of tracks measured in the previous frame, in cameras that
         had no blob of theirs then, whose light at the track's predicted depth is under ``appearing_light`` of their
-        marker's there lately (:meth:`_light_of_views`; none where it is not known yet): a marker coming out from
-        behind something is partly hidden the first frame back."""
-        t = self._t
-        if not (self._light and self._cfg.appearing_light > 0):
+        marker's there lately (:meth:`_light_of_views`), or, where none is known there yet, under
+        ``appearing_borrowed`` of what the track's other views give this frame (:meth:`_light_levels`; blobs of
+        ``partial_min_area`` px or more, not flagged merged): a marker coming out from behind something is partly
+        hidden the first frame back."""
+        t, cfg = self._t, self._cfg
+        if not (self._light and cfg.appearing_light > 0):
             return np.zeros(asg.shape, dtype=bool)
         out = (asg >= 0) & (t.blob_unseen >= 2) & (t.since == 1)[:, None]
         k, c = np.nonzero(out)
-        ratio, _, _ = self._light_of_views(fr, k, c, asg[k, c], t.x3[k, :3])
+        ratio, merged, _ = self._light_of_views(fr, k, c, asg[k, c], t.x3[k, :3])
         with np.errstate(invalid="ignore"):
-            out[k, c] = ratio < self._cfg.appearing_light  # (unknown light, NaN: kept)
+            dark = ratio < cfg.appearing_light  # (unknown light, NaN: not dark)
+        unknown = (~np.isfinite(ratio) & ~merged & (fr.area[c, asg[k, c]] >= cfg.partial_min_area)).nonzero()[0]
+        if cfg.appearing_borrowed > 0 and unknown.size:
+            level = self._light_levels(fr, asg, t.x3[:, :3])
+            rows, cams = k[unknown], c[unknown]
+            others = np.where(out[rows], np.nan, level[rows])  # (the views judged do not judge each other)
+            has = np.isfinite(others).any(axis=1)
+            rows, cams, unknown, others = rows[has], cams[has], unknown[has], others[has]
+            dark[unknown] = level[rows, cams] - np.nanmedian(others, axis=1) < math.log(cfg.appearing_borrowed)
+        out[k, c] = dark
         return out
+
+    def _light_levels(self, fr: _Frame, asg: np.ndarray, X: np.ndarray) -> np.ndarray:
+        """(n, C) the log light of the detections ``asg`` (n, C) of points ``X`` (n, 3) m, moved to 1 m (x
+        depth^power) and taken over their camera's gain (:meth:`_learn_camera_gains`); NaN where none, not measured
+        or flagged merged. A marker's levels agree across its cameras where its blobs are whole."""
+        P = self._P[:, 2]
+        depth = X @ P[:, :3].T + P[:, 3]  # (n, C) m
+        with np.errstate(invalid="ignore", divide="ignore"):
+            level = np.log(_gather(fr.flux, asg)) + self._light_power * np.log(depth) - self._camera_gain
+        return np.where((asg >= 0) & ~_gather(fr.merged, asg) & np.isfinite(level), level, np.nan)
+
+    def _learn_camera_gains(self, fr: _Frame, meas: _Measurements) -> None:
+        """Running average (``_CAMERA_GAIN_ALPHA`` per frame) of each camera's log light (:meth:`_light_levels`) over
+        the median of the same points' in all their cameras, from this frame's measured points with three such
+        views or more; a camera with fewer than three of them this frame keeps its gain."""
+        ok = meas.ok.nonzero()[0]
+        level = self._light_levels(fr, meas.asg[ok], meas.X[ok])
+        level = level[np.isfinite(level).sum(axis=1) >= 3]
+        if not len(level):
+            return
+        off = level - np.nanmedian(level, axis=1)[:, None]
+        seen = np.isfinite(off)
+        count = seen.sum(axis=0)
+        mean = np.where(seen, off, 0.0).sum(axis=0) / np.maximum(count, 1)
+        self._camera_gain += np.where(count >= 3, _CAMERA_GAIN_ALPHA * mean, 0.0)
 
     def _leave_out_partly_hidden(self, fr: _Frame, crowded: np.ndarray, asg: np.ndarray
                                  ) -> tuple[np.ndarray, np.ndarray]:

@@ -861,6 +861,25 @@ def test_a_marker_coming_back_darker_into_cameras_is_left_out_of_its_point_the_f
     assert np.nanmin(errs[1][hit]) > 0.001, errs[1][hit]  # with the rule off: the cut pair won
 
 
+def test_a_marker_first_seen_by_cameras_partly_hidden_is_judged_by_the_light_of_its_other_views(rig):
+    """A marker seen by two cameras for 80 frames comes into two more at once, partly hidden (half its light, a whole
+    blob's size and shape, both centroids off together, consistently): those cameras have no light of it yet to
+    judge the blobs by, and the two cut views make a point over a millimetre off that the consensus cannot tell from
+    the whole pair's. The light its other views give this frame can: the blobs are left out (``appearing_borrowed``)
+    and the point comes from the whole views."""
+    gone = frozenset((k, c) for k in range(80) for c in (0, 1))
+    cut = {(80, 0), (80, 1)}
+    marker, frames = _partly_hidden_scene(rig, 4, cut, np.array([0.002, -0.001, 0.0]), light=True, gone=gone)
+    errs = []
+    for config in (TrackerConfig(), TrackerConfig(appearing_borrowed=0.0)):
+        traj = _tracked_frames(rig, frames, config)
+        assert traj.n_markers == 1
+        errs.append(np.linalg.norm(traj.positions[:, 0] - marker, axis=1))
+    assert np.isfinite(errs[0][80])
+    assert np.nanmax(errs[0]) < 0.0005, np.nanmax(errs[0])  # m: every frame, the one back too
+    assert errs[1][80] > 0.001, errs[1][80]  # with the rule off: the cut pair won
+
+
 def test_a_view_coming_back_is_judged_alike_by_every_measuring_pass_of_the_frame(rig, monkeypatch):
     """The tracker measures a track again within a frame (from its neighbours' shift, for a rival, or from blobs
     freed by another track); each pass must judge a blob coming back into a camera as the first did. The count of
@@ -961,6 +980,8 @@ def test_bad_input_is_a_user_error(rig):
         TrackerConfig(refuted_gap_frames=-1)
     with pytest.raises(MocapError, match="appearing_light"):
         TrackerConfig(appearing_light=-0.5)
+    with pytest.raises(MocapError, match="appearing_borrowed"):
+        TrackerConfig(appearing_borrowed=-0.1)
     with pytest.raises(MocapError, match="2 detection sets for 6 cameras"):
         Tracker(rig, 100.0).step(0, [Detections.empty(), Detections.empty()])
 
