@@ -571,6 +571,18 @@ def _tracked_frames(rig: Rig, frames: list[list[Detections]], config: TrackerCon
     return tracker.finish()
 
 
+def _one_marker_errors(rig: Rig, frames: list[list[Detections]], marker: np.ndarray, *configs: TrackerConfig
+                       ) -> list[np.ndarray]:
+    """Per config, the (F,) distance, m, of the one marker the tracker makes from ``frames`` to ``marker`` (F, 3)
+    (NaN where not output); asserts that each makes one marker."""
+    errs = []
+    for config in configs:
+        traj = _tracked_frames(rig, frames, config)
+        assert traj.n_markers == 1
+        errs.append(np.linalg.norm(traj.positions[:, 0] - marker, axis=1))
+    return errs
+
+
 def _tracked_error(rig: Rig, marker: np.ndarray, frames: list[list[Detections]]) -> np.ndarray:
     """(F,) distance, m, of the one marker the tracker makes from ``frames`` to ``marker`` (F, 3) (NaN where not
     output); asserts that one marker is made and that its first 50 frames (three clean views) are within 0.5 mm."""
@@ -829,11 +841,7 @@ def test_a_view_of_a_marker_partly_hidden_is_left_out_where_clean_views_remain(r
     comes from the whole views alone."""
     cut = {(k, c) for k in (80, 81, 110) for c in (0, 1)}
     marker, frames = _partly_hidden_scene(rig, 4, cut, np.array([0.002, -0.001, 0.0]))
-    errs = []
-    for config in (TrackerConfig(), TrackerConfig(partial_area=0.0)):
-        traj = _tracked_frames(rig, frames, config)
-        assert traj.n_markers == 1
-        errs.append(np.linalg.norm(traj.positions[:, 0] - marker, axis=1))
+    errs = _one_marker_errors(rig, frames, marker, TrackerConfig(), TrackerConfig(partial_area=0.0))
     hit = [80, 81, 110]
     assert np.nanmax(errs[0]) < 0.0005, np.nanmax(errs[0])  # m: every frame, the cut ones too
     assert np.isfinite(errs[0][hit]).all()
@@ -850,11 +858,7 @@ def test_a_marker_coming_back_darker_into_cameras_is_left_out_of_its_point_the_f
     gone = frozenset((k - d, c) for k in back for d in (1, 2) for c in (0, 1))
     cut = {(k, c) for k in back for c in (0, 1)}
     marker, frames = _partly_hidden_scene(rig, 4, cut, np.array([0.002, -0.001, 0.0]), light=True, gone=gone)
-    errs = []
-    for config in (TrackerConfig(), TrackerConfig(appearing_light=0.0)):
-        traj = _tracked_frames(rig, frames, config)
-        assert traj.n_markers == 1
-        errs.append(np.linalg.norm(traj.positions[:, 0] - marker, axis=1))
+    errs = _one_marker_errors(rig, frames, marker, TrackerConfig(), TrackerConfig(appearing_light=0.0))
     hit = list(back)
     assert np.isfinite(errs[0][hit]).all()
     assert np.nanmax(errs[0]) < 0.0005, np.nanmax(errs[0])  # m: every frame, the ones back too
@@ -870,11 +874,7 @@ def test_a_marker_first_seen_by_cameras_partly_hidden_is_judged_by_the_light_of_
     gone = frozenset((k, c) for k in range(80) for c in (0, 1))
     cut = {(80, 0), (80, 1)}
     marker, frames = _partly_hidden_scene(rig, 4, cut, np.array([0.002, -0.001, 0.0]), light=True, gone=gone)
-    errs = []
-    for config in (TrackerConfig(), TrackerConfig(appearing_borrowed=0.0)):
-        traj = _tracked_frames(rig, frames, config)
-        assert traj.n_markers == 1
-        errs.append(np.linalg.norm(traj.positions[:, 0] - marker, axis=1))
+    errs = _one_marker_errors(rig, frames, marker, TrackerConfig(), TrackerConfig(appearing_borrowed=0.0))
     assert np.isfinite(errs[0][80])
     assert np.nanmax(errs[0]) < 0.0005, np.nanmax(errs[0])  # m: every frame, the one back too
     assert errs[1][80] > 0.001, errs[1][80]  # with the rule off: the cut pair won
@@ -913,11 +913,7 @@ def test_a_two_view_point_leaning_on_a_partly_hidden_view_is_output_only_where_t
     through: the filter takes the withheld point, and its prediction follows.)"""
     cut = {(80, 1), (110, 1)}
     marker, frames = _partly_hidden_scene(rig, 6, cut, np.array([0.002, -0.001, 0.0]), cameras=2, jitter_m=0.0)
-    errs = []
-    for config in (TrackerConfig(), TrackerConfig(partial_suspect=False)):
-        traj = _tracked_frames(rig, frames, config)
-        assert traj.n_markers == 1
-        errs.append(np.linalg.norm(traj.positions[:, 0] - marker, axis=1))
+    errs = _one_marker_errors(rig, frames, marker, TrackerConfig(), TrackerConfig(partial_suspect=False))
     hit = [80, 110]
     assert np.isnan(errs[0][hit]).all()
     assert np.nanmax(errs[0]) < 0.0005 and np.isfinite(errs[0]).sum() >= len(frames) - 2 - 10  # (10: the start)
