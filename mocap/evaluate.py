@@ -52,6 +52,8 @@ _UNRELATED_FRACTION = 0.05  # fewer output points than this fraction matched: th
 _JUMP_REACH = 2  # frames: a switch this near a jump of its truth marker is put down to the jump
 _CLUSTER_M = 0.12  # m: two labels this near (median) may be exchanged by the recording ...
 _CLUSTER_SPREAD_M = 0.01  # m: ... if their distance holds this well (robust spread)
+_MOVED_GAP = 5  # frames: a label back after at most this many on another label's path, gone as long, moved there ...
+_MOVED_OFF_M = 0.03  # m: ... where its own path (as far extrapolated) leads at least this far from it
 _CONTEXT_M = 0.4  # m: neighbours within this tell the two apart ...
 _EXCHANGE_M = 0.03  # m: ... by how far each stands from one and the other; an exchange changes that by this at least
 _EXCHANGE_RATIO = 0.25  # and turns it round at every such neighbour (a + b below this fraction of a - b) ...
@@ -455,7 +457,8 @@ def _reference_jumps(truth_pos: np.ndarray, fps: float, exchanges: list[tuple[in
       a single sample stands for itself): the recording gave the marker another name. Both labels' samples
       either side of the change are flagged;
     * two labels exchanged across a gap (``exchanges``, from :func:`_exchanged_across_gaps`): both labels' samples
-      either side of it.
+      either side of it;
+    * a label moved onto another marker across a short gap (:func:`_moved_across_gaps`): its sample back.
     """
     cfg = RelabelConfig()
     jumps = np.zeros(truth_pos.shape[:2], dtype=bool)
@@ -481,7 +484,51 @@ def _reference_jumps(truth_pos: np.ndarray, fps: float, exchanges: list[tuple[in
     for before, after, a, b in exchanges:
         jumps[before, [a, b]] = True
         jumps[after, [a, b]] = True
+    frames, labels = _moved_across_gaps(truth_pos, cfg.duplicate_m)
+    jumps[frames, labels] = True
     return jumps
+
+
+def _moved_across_gaps(truth_pos: np.ndarray, duplicate_m: float) -> tuple[np.ndarray, np.ndarray]:
+    """(n,) frames and (n,) labels of samples where the recording moved a label onto another marker across a gap
+    (the whole sprint's frame 2156: the lateral epicondyle's label, missing one frame, lies on the upper arm's Marker2,
+    missing since 2154, 4.5 mm from where that marker's path leads and 47 mm from where its own does): a label's
+    first sample after a gap of at most ``_MOVED_GAP`` frames that lies within ``duplicate_m`` per frame extrapolated
+    of where another label's path leads (constant velocity from its last two samples, missing since at most as
+    long and at that frame), and at least ``_MOVED_OFF_M`` from where its own leads. ``truth_pos`` (F, M, 3) m."""
+    seen = np.isfinite(truth_pos[..., 0])
+    F, M = seen.shape
+    last = np.maximum.accumulate(np.where(seen, np.arange(F)[:, None], -1), axis=0)  # (F, M) last sample at or before
+    frames, labels = np.nonzero(~seen[:-1] & seen[1:])
+    frames = frames + 1  # (each label's samples back after a gap)
+
+    def lead(f: np.ndarray, m: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Where labels ``m`` (n,) lead at frames ``f`` (n,) from their last two samples before them, and how many
+        frames on from the last (NaN and 0 where they have no two)."""
+        e = last[f - 1, m]
+        e2 = np.where(e >= 1, last[np.maximum(e - 1, 0), m], -1)
+        ok = (e >= 0) & (e2 >= 0)
+        e, e2 = np.where(ok, e, 0), np.where(ok, e2, 0)
+        step = np.where(ok, f - e, 0)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            velocity = (truth_pos[e, m] - truth_pos[e2, m]) / np.where(ok, e - e2, 1)[:, None]
+        return np.where(ok[:, None], truth_pos[e, m] + velocity * step[:, None], np.nan), step
+
+    own, own_step = lead(frames, labels)
+    short = (own_step >= 2) & (own_step <= _MOVED_GAP + 1)
+    frames, labels, own = frames[short], labels[short], own[short]
+    here = truth_pos[frames, labels]
+    off_own = np.linalg.norm(here - own, axis=1) >= _MOVED_OFF_M
+    frames, labels, here = frames[off_own], labels[off_own], here[off_own]
+    moved = np.zeros(len(frames), dtype=bool)
+    for other in range(M):  # (a few dozen labels; the candidates are few)
+        rows = np.flatnonzero((labels != other) & ~seen[frames, other])
+        if not rows.size:
+            continue
+        where, step = lead(frames[rows], np.full(rows.size, other))
+        near = np.linalg.norm(here[rows] - where, axis=1) < duplicate_m * step
+        moved[rows[near & (step >= 1) & (step <= _MOVED_GAP + 1)]] = True
+    return frames[moved], labels[moved]
 
 
 def _exchanged_across_gaps(truth_pos: np.ndarray, fps: float) -> list[tuple[int, int, int, int]]:

@@ -195,6 +195,30 @@ def test_a_label_given_to_another_marker_for_one_frame_is_put_down_to_the_record
     assert report.reference_jumps == 0 and report.switches_at_reference_jumps == 0
 
 
+def test_a_label_moved_onto_another_marker_across_a_short_gap_is_put_down_to_the_recording(truth: Truth) -> None:
+    """The whole sprint's frame 2156: the lateral epicondyle's label, missing one frame, lies on the upper arm's
+    Marker2 (its label missing for the two frames before), on where that marker's path leads and 47 mm from where
+    its own does; then it is missing for a while. An output that follows the markers has Marker2's identity there,
+    and the switch there and back is the recording's."""
+    k, back = 30, 45
+    P = truth.positions
+    moved = copy.deepcopy(truth)
+    moved.visible[:] = True  # (every sample scored)
+    moved.positions[k - 2:back, 1] = np.nan  # label B missing from k - 2 ...
+    moved.positions[k - 1:back, 0] = np.nan  # ... label A from k - 1, back on marker 1 for frame k only
+    moved.positions[k, 0] = P[k, 1]
+    lead_b = P[k - 3, 1] + 3 * (P[k - 3, 1] - P[k - 4, 1])  # where B's path leads at k
+    lead_a = P[k - 2, 0] + 2 * (P[k - 2, 0] - P[k - 3, 0])  # ... and A's
+    assert np.linalg.norm(lead_b - P[k, 1]) < 0.009 and np.linalg.norm(lead_a - P[k, 1]) > 0.03  # (the premise)
+    report = evaluate(output_of(P), moved)  # the output follows the markers
+    assert report.switches == 2  # label A: output 0, output 1 at frame k, output 0 from frame 45
+    assert report.switches_at_reference_jumps == 2 and report.reference_jumps == 1
+    off = copy.deepcopy(moved)
+    off.positions[k, 0] += 0.01  # 10 mm off B's path: another marker, not a label moved
+    report = evaluate(output_of(P), off)
+    assert report.reference_jumps == 0 and report.switches_at_reference_jumps == 0
+
+
 def _arm_truth(exchange: bool) -> Truth:
     """An upper arm (three markers) and a forearm (three markers 0.12, 0.15 and 0.18 m from the elbow) whose elbow
     opens from 100 to 160 degrees while the arm moves on; the forearm is hidden for frames 30-49, and with
