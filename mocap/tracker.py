@@ -264,7 +264,8 @@ class TrackerConfig:
             depth and taken over its camera's gain, learnt over the take) is taken for partly hidden too; 0: off.
             Light compared across cameras at other depths errs by the depth power's fit and the cameras' gains:
             at 0.8 whole blobs entering a far camera of the whole sprint's walkway were left out; a blob cut through
-            its centre keeps half the light.
+            its centre keeps half the light. The darker-view judgement (``dark_flux``) judges a view the same way
+            where its camera knows no light of the marker.
         dark_flux: a blob whose light (:attr:`mocap.detections.Detections.flux`) is less than its marker's blob's in
             that camera lately (a running average, scaled to depth as 1 / depth^4: a retroreflector lit from the
             camera) by more than this fraction, or by ``dark_spread`` times that light's running mean absolute
@@ -1347,15 +1348,29 @@ class Tracker:
         ratio, merged, _ = self._light_of_views(fr, k, c, asg[k, c], t.x3[k, :3])
         with np.errstate(invalid="ignore"):
             dark = ratio < cfg.appearing_light  # (unknown light, NaN: not dark)
-        unknown = (~np.isfinite(ratio) & ~merged & (fr.area[c, asg[k, c]] >= cfg.partial_min_area)).nonzero()[0]
-        if cfg.appearing_borrowed > 0 and unknown.size:
-            level = self._light_levels(fr, asg, t.x3[:, :3])
-            rows, cams = k[unknown], c[unknown]
-            others = np.where(out[rows], np.nan, level[rows])  # (the views judged do not judge each other)
-            has = np.isfinite(others).any(axis=1)
-            rows, cams, unknown, others = rows[has], cams[has], unknown[has], others[has]
-            dark[unknown] = level[rows, cams] - np.nanmedian(others, axis=1) < math.log(cfg.appearing_borrowed)
+        # (the views judged do not judge each other)
+        dark |= self._darker_than_other_views(fr, asg, t.x3[:, :3], k, c, ratio, merged, out)
         out[k, c] = dark
+        return out
+
+    def _darker_than_other_views(self, fr: _Frame, asg: np.ndarray, X: np.ndarray, k: np.ndarray, c: np.ndarray,
+                                 ratio: np.ndarray, merged: np.ndarray, exclude: np.ndarray) -> np.ndarray:
+        """(n,) bool: the views of tracks ``k`` (n,) in cameras ``c`` (n,) on their detections ``asg`` (K, C), of
+        points ``X`` (K, 3) m, whose camera knows no light of the marker yet (``ratio`` (n,) NaN; not ``merged`` (n,),
+        of ``partial_min_area`` px or more) and whose light is under ``appearing_borrowed`` of the median of the
+        point's other views (:meth:`_light_levels`; not ``exclude`` (K, C); False where there are none)."""
+        cfg = self._cfg
+        out = np.zeros(len(k), dtype=bool)
+        unknown = (~np.isfinite(ratio) & ~merged & (fr.area[c, asg[k, c]] >= cfg.partial_min_area)).nonzero()[0]
+        if cfg.appearing_borrowed <= 0 or not unknown.size:
+            return out
+        level = self._light_levels(fr, asg, X)
+        rows, cams = k[unknown], c[unknown]
+        others = np.where(exclude[rows], np.nan, level[rows])
+        others[np.arange(rows.size), cams] = np.nan
+        has = np.isfinite(others).any(axis=1)
+        out[unknown[has]] = (level[rows[has], cams[has]] - np.nanmedian(others[has], axis=1)
+                             < math.log(cfg.appearing_borrowed))
         return out
 
     def _light_levels(self, fr: _Frame, asg: np.ndarray, X: np.ndarray) -> np.ndarray:
@@ -1793,6 +1808,8 @@ class Tracker:
         if k.size == 0:
             return
         ratio, merged, dark = self._light_of_views(fr, k, c, asg[k, c], tri.X[k])
+        dark |= self._darker_than_other_views(fr, np.where(tri.used, asg, -1), tri.X, k, c, ratio, merged,
+                                              np.zeros(asg.shape, dtype=bool))
         dark &= ~suspect[k, c]
         cut_flat = merged & (ratio < 1.0 - self._cfg.dark_max)  # (NaN: not judged)
         if np.count_nonzero(cut_flat):
