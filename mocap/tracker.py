@@ -264,8 +264,10 @@ class TrackerConfig:
             depth and taken over its camera's gain, learnt over the take) is taken for partly hidden too; 0: off.
             Light compared across cameras at other depths errs by the depth power's fit and the cameras' gains:
             at 0.8 whole blobs entering a far camera of the whole sprint's walkway were left out; a blob cut through
-            its centre keeps half the light. The darker-view judgement (``dark_flux``) judges a view the same way
-            where its camera knows no light of the marker.
+            its centre keeps half the light.
+        dark_borrowed: the darker-view judgement (``dark_flux``) of a view whose camera knows no light of the marker
+            yet: under this of the light of the point's other views (as ``appearing_borrowed`` judges) it is darker;
+            0: off. It withholds only points off their prediction, so it can judge more closely.
         dark_flux: a blob whose light (:attr:`mocap.detections.Detections.flux`) is less than its marker's blob's in
             that camera lately (a running average, scaled to depth as 1 / depth^4: a retroreflector lit from the
             camera) by more than this fraction, or by ``dark_spread`` times that light's running mean absolute
@@ -346,6 +348,7 @@ class TrackerConfig:
     partial_frames: int = 8
     appearing_light: float = 0.92
     appearing_borrowed: float = 0.65
+    dark_borrowed: float = 0.8
     dark_flux: float = 0.08
     dark_spread: float = 4.0
     dark_max: float = 0.3
@@ -370,7 +373,7 @@ class TrackerConfig:
             raise MocapError(f"tracker setting refuted_wide_m = {self.refuted_wide_m} must be >= 0")
         if self.refuted_gap_frames < 0:
             raise MocapError(f"tracker setting refuted_gap_frames = {self.refuted_gap_frames} must be >= 0")
-        for name in ("appearing_light", "appearing_borrowed"):
+        for name in ("appearing_light", "appearing_borrowed", "dark_borrowed"):
             if getattr(self, name) < 0:
                 raise MocapError(f"tracker setting {name} = {getattr(self, name)} must be >= 0")
         if not 0 <= self.rival_ratio < 1:
@@ -674,7 +677,7 @@ class Tracker:
             if self._cfg.yield_explained_blobs:
                 meas.miss(self._explained_elsewhere(fr, meas).nonzero()[0], C)
             self._update(fr, meas, meas.ok.nonzero()[0])
-            if self._light and self._cfg.appearing_borrowed > 0:
+            if self._light and (self._cfg.appearing_borrowed > 0 or self._cfg.dark_borrowed > 0):
                 self._learn_camera_gains(fr, meas)
             t.blob_unseen[self._assigned_blobs] = 0  # (after every measuring pass: each judges the frame's blobs alike)
             self._follow_residual_level(fr, meas)
@@ -1349,28 +1352,27 @@ class Tracker:
         with np.errstate(invalid="ignore"):
             dark = ratio < cfg.appearing_light  # (unknown light, NaN: not dark)
         # (the views judged do not judge each other)
-        dark |= self._darker_than_other_views(fr, asg, t.x3[:, :3], k, c, ratio, merged, out)
+        dark |= self._darker_than_other_views(fr, asg, t.x3[:, :3], k, c, ratio, merged, out, cfg.appearing_borrowed)
         out[k, c] = dark
         return out
 
     def _darker_than_other_views(self, fr: _Frame, asg: np.ndarray, X: np.ndarray, k: np.ndarray, c: np.ndarray,
-                                 ratio: np.ndarray, merged: np.ndarray, exclude: np.ndarray) -> np.ndarray:
+                                 ratio: np.ndarray, merged: np.ndarray, exclude: np.ndarray, bound: float
+                                 ) -> np.ndarray:
         """(n,) bool: the views of tracks ``k`` (n,) in cameras ``c`` (n,) on their detections ``asg`` (K, C), of
         points ``X`` (K, 3) m, whose camera knows no light of the marker yet (``ratio`` (n,) NaN; not ``merged`` (n,),
-        of ``partial_min_area`` px or more) and whose light is under ``appearing_borrowed`` of the median of the
-        point's other views (:meth:`_light_levels`; not ``exclude`` (K, C); False where there are none)."""
-        cfg = self._cfg
+        of ``partial_min_area`` px or more) and whose light is under ``bound`` (0: none) of the median of the point's
+        other views (:meth:`_light_levels`; not ``exclude`` (K, C); False where there are none)."""
         out = np.zeros(len(k), dtype=bool)
-        unknown = (~np.isfinite(ratio) & ~merged & (fr.area[c, asg[k, c]] >= cfg.partial_min_area)).nonzero()[0]
-        if cfg.appearing_borrowed <= 0 or not unknown.size:
+        unknown = (~np.isfinite(ratio) & ~merged & (fr.area[c, asg[k, c]] >= self._cfg.partial_min_area)).nonzero()[0]
+        if bound <= 0 or not unknown.size:
             return out
         level = self._light_levels(fr, asg, X)
         rows, cams = k[unknown], c[unknown]
         others = np.where(exclude[rows], np.nan, level[rows])
         others[np.arange(rows.size), cams] = np.nan
         has = np.isfinite(others).any(axis=1)
-        out[unknown[has]] = (level[rows[has], cams[has]] - np.nanmedian(others[has], axis=1)
-                             < math.log(cfg.appearing_borrowed))
+        out[unknown[has]] = level[rows[has], cams[has]] - np.nanmedian(others[has], axis=1) < math.log(bound)
         return out
 
     def _light_levels(self, fr: _Frame, asg: np.ndarray, X: np.ndarray) -> np.ndarray:
@@ -1809,7 +1811,7 @@ class Tracker:
             return
         ratio, merged, dark = self._light_of_views(fr, k, c, asg[k, c], tri.X[k])
         dark |= self._darker_than_other_views(fr, np.where(tri.used, asg, -1), tri.X, k, c, ratio, merged,
-                                              np.zeros(asg.shape, dtype=bool))
+                                              np.zeros(asg.shape, dtype=bool), self._cfg.dark_borrowed)
         dark &= ~suspect[k, c]
         cut_flat = merged & (ratio < 1.0 - self._cfg.dark_max)  # (NaN: not judged)
         if np.count_nonzero(cut_flat):

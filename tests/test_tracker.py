@@ -884,12 +884,12 @@ def test_a_two_view_point_leaning_on_a_darker_blob_of_a_camera_new_to_its_marker
     """A marker seen by cameras 0 and 2 passes from camera 2 to camera 1, which has never seen it and sees it partly
     hidden the first frame (half the light, its centroid off): the point from cameras 0 and 1 is 1-3 mm off and
     nothing else tells. Camera 1 knows no light of the marker, but the marker's other view does: the point is left
-    out of the written trajectories (``appearing_borrowed``), where with the rule off it is written; the tracking
+    out of the written trajectories (``dark_borrowed``), where with the rule off it is written; the tracking
     itself is the same either way."""
     gone = frozenset({(k, 1) for k in range(81)} | {(k, 2) for k in range(81, 140)})
     marker, frames = _partly_hidden_scene(rig, 6, {(81, 1)}, np.array([0.002, -0.001, 0.0]), cameras=3, light=True,
                                           gone=gone)
-    written = _written_with_the_light_rule_and_without(rig, frames, marker, TrackerConfig(appearing_borrowed=0.0))
+    written = _written_with_the_light_rule_and_without(rig, frames, marker, TrackerConfig(dark_borrowed=0.0))
     assert np.isnan(written[0][81])  # withheld
     assert np.nanmax(written[0]) < 0.0005, np.nanmax(written[0])  # m: every point written
     assert written[1][81] > 0.001, written[1][81]  # with the rule off: written, off
@@ -993,6 +993,8 @@ def test_bad_input_is_a_user_error(rig):
         TrackerConfig(appearing_light=-0.5)
     with pytest.raises(MocapError, match="appearing_borrowed"):
         TrackerConfig(appearing_borrowed=-0.1)
+    with pytest.raises(MocapError, match="dark_borrowed"):
+        TrackerConfig(dark_borrowed=-0.1)
     with pytest.raises(MocapError, match="2 detection sets for 6 cameras"):
         Tracker(rig, 100.0).step(0, [Detections.empty(), Detections.empty()])
 
