@@ -73,7 +73,7 @@ from mocap.fusion import (
 )
 from mocap.geometry import project_ideal, reprojection_jacobians
 from mocap.pairs import camera_pairs
-from mocap.quickstats import quick_median
+from mocap.quickstats import nanmedian_columns, quick_median
 from mocap.stereo import assign, dist2, epipolar_consistency, gate
 from mocap.trajectories import Trajectories, UnconfirmedPoints, WithheldPoints
 
@@ -1367,12 +1367,13 @@ class Tracker:
         unknown = (~np.isfinite(ratio) & ~merged & (fr.area[c, asg[k, c]] >= self._cfg.partial_min_area)).nonzero()[0]
         if bound <= 0 or not unknown.size:
             return out
-        level = self._light_levels(fr, asg, X)
         rows, cams = k[unknown], c[unknown]
-        others = np.where(exclude[rows], np.nan, level[rows])
+        level = self._light_levels(fr, asg[rows], X[rows])  # (n, C): the judged points' views only
+        own = level[np.arange(rows.size), cams]
+        others = np.where(exclude[rows], np.nan, level)
         others[np.arange(rows.size), cams] = np.nan
-        has = np.isfinite(others).any(axis=1)
-        out[unknown[has]] = level[rows[has], cams[has]] - np.nanmedian(others[has], axis=1) < math.log(bound)
+        with np.errstate(invalid="ignore"):  # (no other view: NaN, not darker)
+            out[unknown] = own - nanmedian_columns(others.T) < math.log(bound)
         return out
 
     def _light_levels(self, fr: _Frame, asg: np.ndarray, X: np.ndarray) -> np.ndarray:
@@ -1394,7 +1395,7 @@ class Tracker:
         level = level[np.isfinite(level).sum(axis=1) >= 3]
         if not len(level):
             return
-        off = level - np.nanmedian(level, axis=1)[:, None]
+        off = level - nanmedian_columns(level.T)[:, None]
         seen = np.isfinite(off)
         count = seen.sum(axis=0)
         mean = np.where(seen, off, 0.0).sum(axis=0) / np.maximum(count, 1)
