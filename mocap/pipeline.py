@@ -267,7 +267,7 @@ def _report_repair(stats: RelabelStats, before: int, after: int, confirm: int) -
              "bridged by where the neighbours carry a marker; %d exchanges undone where two markers came back "
              "from a shared gap; %d junctions of three or more identities undone; %d exchanges undone in "
              "skin-mounted clusters; %d samples that hopped off their identity's path given to the identity whose "
-             "path they lie on, %d withheld; %d pairs of identities of "
+             "path they lie on or continue, %d withheld; %d pairs of identities of "
              "one marker that took turns or followed each other merged; %d identities that ended joined to "
              "their marker's return by its rigid neighbours; %d scattered identities (no %d frames running) "
              "withdrawn",

@@ -83,7 +83,7 @@ from mocap.exchange import undo_exchanges
 from mocap.fill import fill_from_unconfirmed
 from mocap.gap_exchange import undo_gap_exchanges
 from mocap.junction import undo_junctions
-from mocap.offpath import give_hops_back, withhold_off_path
+from mocap.offpath import give_end_hops_back, give_hops_back, withhold_off_path
 from mocap.orphans import rejoin_orphans
 from mocap.plates import label_plates
 from mocap.quickstats import quick_median
@@ -949,7 +949,8 @@ def repair_identities(traj: Trajectories, config: RelabelConfig | None = None,
     by the references both keep (:mod:`mocap.skin`), fragments rejoined by anchors once more (the identity a
     fragment fits may have held another marker over its frames until those passes gave it back), where hops are
     clear (:meth:`RelabelConfig.hops_clear`), single samples that hopped off their identity's path given to the
-    identity whose path they lie on and samples off their identity's own path withheld (:mod:`mocap.offpath`),
+    identity whose path they lie on, samples off their identity's own path withheld and glimpses at the ends of an
+    identity's runs given to the identity whose path they continue (:mod:`mocap.offpath`),
     the identities of one marker that take turns or follow each other merged (:mod:`mocap.alternate`), and identities
     that ended joined to later ones their rigid neighbours carry them to (:mod:`mocap.orphans`), in place; empty
     identity columns are dropped.
@@ -993,6 +994,7 @@ def repair_identities(traj: Trajectories, config: RelabelConfig | None = None,
     if limits.hops_clear(traj.fps):  # (at 50 Hz a swing's own samples leave any smooth path through their neighbours)
         stats.off_path = withhold_off_path(traj)
         stats.hops_given = give_hops_back(traj)  # (a hop withheld above can leave the gap another hop fills)
+        stats.hops_given += give_end_hops_back(traj)
     stats.merged = merge_alternating(traj)
     stats.orphans = rejoin_orphans(traj)
     stats.withdrawn = withdraw_scattered(traj, limits)

@@ -1,5 +1,6 @@
 """Samples off their identity's own path are withheld: a hop onto a neighbour, not a hard turn of the marker itself;
-a single hop that lies on the path of an identity missing only its frame is given to that identity."""
+a single hop that lies on the path of an identity missing only its frame is given to that identity, and a glimpse at
+the end of an identity's run, off its path, to the identity whose path it continues."""
 
 from pathlib import Path
 
@@ -7,7 +8,7 @@ import numpy as np
 import pytest
 
 from mocap.export.formats import read_trajectories
-from mocap.offpath import OffPathConfig, give_hops_back, withhold_off_path
+from mocap.offpath import OffPathConfig, give_end_hops_back, give_hops_back, withhold_off_path
 from mocap.relabel import RelabelConfig
 from mocap.trajectories import Trajectories
 
@@ -78,6 +79,43 @@ def test_a_glimpsed_rim_markers_identity_gives_the_hand_back_to_the_hands():
     twin = np.concatenate([P, P[:, :1] + [0.0, 0.0, 0.002]], axis=1)  # a second gap 2 mm away
     twin[100, 2] = np.nan
     assert give_hops_back(Trajectories(["M001", "M002", "M003"], FPS, twin)) == 0
+
+
+def _forearm(frames: int = 160) -> np.ndarray:
+    """(F, 3, 3) three markers of a forearm pushing a wheel at 120 Hz (the wrist's circle, 1.3 m/s), 48-76 mm
+    apart, m."""
+    hand, _ = _hand_and_rim(frames)
+    return hand[:, None] + np.array([[0.0, 0.0, 0.0], [0.0, 0.048, 0.0], [0.076, 0.0, 0.0]])
+
+
+def test_a_glimpse_at_the_end_of_a_run_goes_to_the_identity_whose_path_it_continues():
+    """The whole sprint, frames 2135 and 2144: the forearm's markers are seen in glimpses, and one identity's run ends
+    with a sample of a neighbour just lost (its path runs on through it) or starts with one of a neighbour that comes
+    back a frame later. With no samples of its own on the glimpse's far side, the identity's path is only told by
+    its run's other side; the neighbour's path, extrapolated over the frame or two, takes the sample."""
+    x = _forearm()
+    P = x.copy()
+    P[61:, 0] = np.nan  # marker 0 hidden after frame 60 ...
+    P[61, 0] = x[61, 2]  # ... and its identity takes marker 2's point there,
+    P[60:80, 2] = np.nan  # while marker 2's own identity is lost from frame 60 (it is seen again at 80)
+    P[80:100, 1] = np.nan  # marker 1 hidden 80-99: its identity ...
+    P[100:120, 0] = x[100:120, 0]  # (marker 0 back at 100)
+    P[99, 0] = x[99, 1]  # ... is glimpsed in marker 0's identity the frame before marker 0 is back
+    P[99, 1] = np.nan
+    traj = Trajectories(["M001", "M002", "M003"], FPS, P.copy())
+    traj.residuals[61, 0], traj.camera_masks[61, 0] = 0.2, 0b11
+    assert give_end_hops_back(traj) == 2
+    assert np.isnan(traj.positions[[61, 99], 0]).all()
+    np.testing.assert_array_equal(traj.positions[61, 2], x[61, 2])
+    np.testing.assert_array_equal(traj.positions[99, 1], x[99, 1])
+    assert traj.residuals[61, 2] == 0.2 and traj.camera_masks[61, 2] == 0b11
+    spike = P.copy()
+    spike[61, 0] = x[60, 0] + [0.0, 0.0, 0.04]  # 40 mm off every path (a recording's glitch): nothing moves
+    spike[99, 0] = np.nan
+    assert give_end_hops_back(Trajectories(["M001", "M002", "M003"], FPS, spike)) == 0
+    twin = np.concatenate([P, P[:, 2:] + [0.0, 0.0, 0.003]], axis=1)  # a second lost identity 3 mm away: whose?
+    twin[99, 0] = np.nan
+    assert give_end_hops_back(Trajectories(["M001", "M002", "M003", "M004"], FPS, twin)) == 0
 
 
 def test_the_pass_runs_only_where_hops_are_clear():
