@@ -239,6 +239,10 @@ def reconstruct(take: str | os.PathLike, options: ReconstructOptions | None = No
         if stats is not None:
             _report_repair(stats, before, traj.n_markers, confirm)
     withheld = tracker.withheld().apply(traj)
+    rewritten = tracker.rewritten().apply(traj)
+    if rewritten:
+        log.info("partly hidden markers: %d points written without a view that held under %.0f %% of the marker's "
+                 "light there", rewritten, 100 * (opts.tracker or TrackerConfig()).dim_light)
     if withheld:
         log.info("partly hidden markers: %d samples withheld (points leaning on a blob that held less light than the "
                  "marker's: two-view points off their predictions, markers re-acquired from such blobs)", withheld)

@@ -19,7 +19,8 @@ Per frame, for all tracks at once (numpy arrays, no per-marker Python objects):
    off: it is left out where two clean views remain (``partial_area``), and is no clean view where it stays. A
    two-view point leaning on a blob that holds less light than the marker's lately (``dark_flux``), off its
    prediction, is left out of the written trajectories after the identity repair (:meth:`Tracker.withheld`), not
-   out of the tracking.
+   out of the tracking; a point with a view much darker than that (``dim_light``) and two clean views besides is
+   written as triangulated without it (:meth:`Tracker.rewritten`).
 5. **Update** the filters and the running errors with the measurements.
 6. **New markers** from the detections no track used: all-pairs epipolar matching, triangulation,
    multi-view support. A point near a track that missed this frame re-acquires it; a point inside
@@ -75,7 +76,7 @@ from mocap.geometry import project_ideal, reprojection_jacobians
 from mocap.pairs import camera_pairs
 from mocap.quickstats import nanmedian_columns, quick_median
 from mocap.stereo import assign, dist2, epipolar_consistency, gate
-from mocap.trajectories import Trajectories, UnconfirmedPoints, WithheldPoints
+from mocap.trajectories import RewrittenPoints, Trajectories, UnconfirmedPoints, WithheldPoints
 
 __all__ = ["TrackerConfig", "FrameResult", "Tracker"]
 
@@ -278,6 +279,12 @@ class TrackerConfig:
             pixel crosses the threshold, and leaving such views out of the tracking cost the 12-camera sprint's
             forearm cluster its identities (engine-log.md, 75th session). 1: off.
         dark_spread, dark_max: see ``dark_flux``.
+        dim_light: a view (not flagged merged) whose blob holds less than this of its marker's light in that camera
+            lately (as ``dark_flux`` measures it) is left out of the written point where two clean views remain
+            besides: the point is triangulated again without it and written so after the identity repair
+            (:meth:`Tracker.rewritten`), the tracking unchanged. Whole views of the default and one-height-light
+            renders hold under 0.8 of their light 0.13-0.15 % of the time, cut views still used 96 % of it
+            (engine-log.md, 80th session); 0: off.
     """
 
     confirm_frames: int = 4
@@ -350,6 +357,7 @@ class TrackerConfig:
     appearing_borrowed: float = 0.65
     dark_borrowed: float = 0.8
     dark_flux: float = 0.08
+    dim_light: float = 0.8
     dark_spread: float = 4.0
     dark_max: float = 0.3
     blob_alpha: float = 0.3
@@ -526,6 +534,20 @@ class _Tracks(_Rows):
         return len(self.uid)
 
 
+@dataclass(frozen=True)
+class _DimPoints:
+    """A frame's measured points triangulated again without their dim views (:meth:`Tracker._without_dim_views`)."""
+
+    tracked: np.ndarray  # (n, 3) the measured points, m
+    written: np.ndarray  # (n, 3) the same without their dim views, m
+    residual: np.ndarray  # (n,) their reprojection residuals, mm
+    mask: np.ndarray  # (n,) uint32 their cameras (bit c: camera c)
+
+    @classmethod
+    def none(cls) -> _DimPoints:
+        return cls(np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0), np.zeros(0, dtype=np.uint32))
+
+
 @dataclass
 class _Measurements(_Rows):
     """This frame's measurements of the K live tracks (row k: track k)."""
@@ -619,6 +641,8 @@ class Tracker:
         self._n_ident = 0
         self._records = _Records()
         self._withheld: list[tuple[np.ndarray, np.ndarray]] = []  # (frame (n,), position (n, 3)) (_judge_dark_views)
+        self._rewritten: list[tuple[np.ndarray, ...]] = []  # (frame, tracked, written, residual, mask)
+        self._dim_points = _DimPoints.none()  # this frame's points triangulated without their dim views
         self._light = False  # some blob has carried its light (Detections.flux)
         self._light_fit = np.zeros(2)  # sums of x^2 and x y, x and y the log depth and light ratios of clean views
         self._light_power = float(_FLUX_DEPTH_POWER)  # the light falls as 1 / depth^power (_fit_light_power)
@@ -656,6 +680,7 @@ class Tracker:
         K = len(t)
         meas = _Measurements.empty(K, C)
         self._assigned_blobs = np.zeros((K, C), dtype=bool)
+        self._dim_points = _DimPoints.none()
         play = self._in_play()
         if K and fr.D.shape[1]:
             self._associate(fr, play, t.lock2, meas)
@@ -676,6 +701,7 @@ class Tracker:
                 self._settle_hops(meas)
             if self._cfg.yield_explained_blobs:
                 meas.miss(self._explained_elsewhere(fr, meas).nonzero()[0], C)
+            self._dim_points = self._without_dim_views(fr, meas)  # (before the update: the tracks' last depths)
             self._update(fr, meas, meas.ok.nonzero()[0])
             if self._light and (self._cfg.appearing_borrowed > 0 or self._cfg.dark_borrowed > 0):
                 self._learn_camera_gains(fr, meas)
@@ -734,6 +760,53 @@ class Tracker:
             return WithheldPoints(np.zeros(0, np.int64), np.zeros((0, 3)))
         frame, pos = (np.concatenate(column) for column in zip(*self._withheld, strict=True))
         return WithheldPoints(frame.astype(np.int64) - first, pos)
+
+    def rewritten(self) -> RewrittenPoints:
+        """The tracked points the written trajectories give another position: points with a dim view (under
+        ``dim_light`` of their marker's light in that camera lately) and two clean views besides, triangulated again
+        without it (:meth:`_without_dim_views`). For :meth:`RewrittenPoints.apply` after the identity repair, as
+        :meth:`withheld`'s, so that this judgement never moves an identity."""
+        first = self._first if self._first is not None else 0
+        if not self._rewritten:
+            return RewrittenPoints.none()
+        frame, tracked, written, residual, mask = (np.concatenate(column) for column in zip(*self._rewritten,
+                                                                                             strict=True))
+        return RewrittenPoints(frame.astype(np.int64) - first, tracked, written, residual, mask)
+
+    def _without_dim_views(self, fr: _Frame, meas: _Measurements) -> _DimPoints:
+        """The measured points of ``meas`` with a view not flagged merged whose light, moved to the point's depth, is
+        under ``dim_light`` of its marker's there lately (:meth:`_light_of_views`) and two clean views besides (not
+        flagged merged, not dim), triangulated again without their dim views; a point whose clean views do not all
+        stay in it keeps its views."""
+        cfg = self._cfg
+        if not (self._light and cfg.dim_light > 0):
+            return _DimPoints.none()
+        rows = meas.ok.nonzero()[0]
+        asg = meas.asg[rows]
+        k, c = np.nonzero(asg >= 0)
+        if k.size == 0:
+            return _DimPoints.none()
+        ratio, merged, _ = self._light_of_views(fr, rows[k], c, asg[k, c], meas.X[rows[k]])
+        dim = np.zeros(asg.shape, dtype=bool)
+        with np.errstate(invalid="ignore"):  # (unknown light, NaN: not dim)
+            dim[k, c] = (ratio < cfg.dim_light) & ~merged
+        clean = (asg >= 0) & ~_gather(fr.merged, asg) & ~dim
+        sel = (dim.any(axis=1) & (clean.sum(axis=1) >= 2)).nonzero()[0]
+        if sel.size == 0:
+            return _DimPoints.none()
+        sub = np.where(dim[sel], -1, asg[sel])
+        t2 = robust_triangulate(self._P, _gather(fr.D, sub).swapaxes(0, 1), _gather(fr.S, sub).swapaxes(0, 1),
+                                meas.X[rows[sel]], cfg.outlier_sigma, self._outlier_px)
+        ok = np.isfinite(t2.X).all(axis=1) & ~(clean[sel] & ~t2.used).any(axis=1)
+        residual, mask = self._residual_and_mask(t2.X[ok], t2.used[ok], t2.rms_px[ok])
+        return _DimPoints(meas.X[rows[sel[ok]]], t2.X[ok], residual, mask)
+
+    def _residual_and_mask(self, X: np.ndarray, used: np.ndarray, rms_px: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(n,) residuals, mm (the reprojection RMS ``rms_px`` (n,) at the mean scale of the ``used`` (n, C) cameras
+        at points ``X`` (n, 3) m), and (n,) uint32 camera masks (bit c: camera c used)."""
+        depth = X @ self._P[:, 2, :3].T + self._P[:, 2, 3]
+        scale = np.where(used, depth / self._focal[None, :], 0.0).sum(axis=1) / np.maximum(used.sum(axis=1), 1)
+        return rms_px * scale * 1000.0, used @ (np.uint32(1) << np.arange(self._C, dtype=np.uint32))
 
     def unconfirmed(self) -> UnconfirmedPoints:
         """The points measured by tentative tracks that never got an identity, after :meth:`finish`."""
@@ -2133,12 +2206,18 @@ class Tracker:
         return idle, busy
 
     def _record(self, frame_index: int, fr: _Frame, meas: _Measurements) -> FrameResult:
-        t, C = self._t, self._C
+        t = self._t
         rows = (meas.out & (t.since == 0)).nonzero()[0]
         X, asg = meas.X[rows], meas.asg[rows]
         if np.count_nonzero(meas.withheld):
             withheld = rows[meas.withheld[rows]]
             self._withheld.append((np.full(len(withheld), frame_index), meas.X[withheld]))
+        dim = self._dim_points
+        if len(dim.tracked):  # (the tracks' rows may have moved since: the points are found by position)
+            keep = (dim.tracked[:, None, :] == X[None]).all(axis=2).any(axis=1)
+            if np.count_nonzero(keep):
+                self._rewritten.append((np.full(np.count_nonzero(keep), frame_index), dim.tracked[keep],
+                                        dim.written[keep], dim.residual[keep], dim.mask[keep]))
         bounds = list(accumulate(fr.counts, initial=0))  # all cameras' detections in one flat array
         if kernels.HAVE_NUMBA:
             res, mask, flat = kernels.frame_record(X, kernels.contiguous(asg, np.intp), meas.rms_px[rows],
@@ -2148,10 +2227,7 @@ class Tracker:
             assignments = [flat[a:b] for a, b in zip(bounds[:-1], bounds[1:], strict=True)]
             return FrameResult(frame_index, t.ident[rows][conf], X[conf], res[conf], mask[conf], assignments)
         used = asg >= 0
-        depth = X @ self._P[:, 2, :3].T + self._P[:, 2, 3]
-        scale = np.where(used, depth / self._focal[None, :], 0.0).sum(axis=1) / np.maximum(used.sum(axis=1), 1)
-        res = meas.rms_px[rows] * scale * 1000.0
-        mask = used @ (np.uint32(1) << np.arange(C, dtype=np.uint32))  # (K,) uint32, bit c: camera c used
+        res, mask = self._residual_and_mask(X, used, meas.rms_px[rows])
         self._records.append(frame=frame_index, uid=t.uid[rows], pos=X, res=res, mask=mask)
         conf = t.ident[rows] >= 0
         ids = t.ident[rows][conf]

@@ -7,7 +7,7 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["MISSING", "Trajectories", "UnconfirmedPoints", "WithheldPoints"]
+__all__ = ["MISSING", "RewrittenPoints", "Trajectories", "UnconfirmedPoints", "WithheldPoints"]
 
 MISSING = {"f": np.nan, "u": 0}  # a missing sample by array kind: positions and residuals NaN, camera mask 0
 
@@ -125,15 +125,56 @@ class WithheldPoints:
     def apply(self, traj: Trajectories) -> int:
         """Leave out, in place, each sample of ``traj`` in frame ``rows[i]`` at exactly ``positions[i]``; returns how
         many were (a position no sample holds any more, one the repair dropped or moved off its frame, is skipped)."""
-        inside = (self.rows >= 0) & (self.rows < traj.n_frames)
-        rows = self.rows[inside]
-        if rows.size == 0:
-            return 0
-        i, col = np.nonzero((traj.positions[rows] == self.positions[inside][:, None, :]).all(axis=2))
-        traj.positions[rows[i], col] = np.nan
-        traj.residuals[rows[i], col] = np.nan
-        traj.camera_masks[rows[i], col] = 0
-        return len(i)
+        _, rows, col = _located(traj, self.rows, self.positions)
+        traj.positions[rows, col] = np.nan
+        traj.residuals[rows, col] = np.nan
+        traj.camera_masks[rows, col] = 0
+        return len(rows)
+
+
+@dataclass
+class RewrittenPoints:
+    """Tracked samples the written trajectories give another position, applied after the identity repair as
+    :class:`WithheldPoints` are: points triangulated again without a view of their marker that held too little of
+    its light (:meth:`mocap.tracker.Tracker.rewritten`).
+
+    Attributes:
+        rows: (n,) frame index into the trajectories.
+        positions: (n, 3) the tracked positions, m (how the samples are found again).
+        written: (n, 3) the positions written instead, m.
+        residuals: (n,) their residuals, mm.
+        camera_masks: (n,) uint32 their cameras.
+    """
+
+    rows: np.ndarray
+    positions: np.ndarray
+    written: np.ndarray
+    residuals: np.ndarray
+    camera_masks: np.ndarray
+
+    @classmethod
+    def none(cls) -> RewrittenPoints:
+        return cls(np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0), np.zeros(0, np.uint32))
+
+    def apply(self, traj: Trajectories) -> int:
+        """Give, in place, each sample of ``traj`` in frame ``rows[i]`` at exactly ``positions[i]`` the position,
+        residual and cameras ``written[i]``; returns how many were (as :meth:`WithheldPoints.apply` finds them)."""
+        which, rows, col = _located(traj, self.rows, self.positions)
+        traj.positions[rows, col] = self.written[which]
+        traj.residuals[rows, col] = self.residuals[which]
+        traj.camera_masks[rows, col] = self.camera_masks[which]
+        return len(rows)
+
+
+def _located(traj: Trajectories, rows: np.ndarray, positions: np.ndarray) -> tuple[np.ndarray, ...]:
+    """(which (k,), frame (k,), column (k,)) of the samples of ``traj`` in frame ``rows[which]`` at exactly
+    ``positions[which]`` ((n,) and (n, 3) m; rows outside the take are skipped)."""
+    inside = np.flatnonzero((rows >= 0) & (rows < traj.n_frames))
+    if inside.size == 0:
+        empty = np.zeros(0, dtype=np.intp)
+        return empty, empty, empty
+    i, col = np.nonzero((traj.positions[rows[inside]] == positions[inside][:, None, :]).all(axis=2))
+    return inside[i], rows[inside[i]], col
 
 
 @dataclass

@@ -678,7 +678,8 @@ def _written_with_the_light_rule_and_without(rig: Rig, frames: list[list[Detecti
                                              off: TrackerConfig | None = None) -> list[np.ndarray]:
     """One marker ``marker`` (F, 3) m tracked at 100 Hz through ``frames`` with the light rule on and off (``off``,
     by default ``dark_flux`` 1): the tracked trajectories must be the same (the rule moves no identity); returns each
-    run's written trajectory's error (F,) m, NaN where withheld."""
+    run's written trajectory's error (F,) m, NaN where withheld (the points withheld and rewritten as the pipeline
+    writes them)."""
     tracked, written = [], []
     for config in (TrackerConfig(), off or TrackerConfig(dark_flux=1.0)):
         tracker = Tracker(rig, 100.0, config)
@@ -688,6 +689,7 @@ def _written_with_the_light_rule_and_without(rig: Rig, frames: list[list[Detecti
         assert traj.n_markers == 1
         tracked.append(traj.positions.copy())
         tracker.withheld().apply(traj)
+        tracker.rewritten().apply(traj)
         written.append(np.linalg.norm(traj.positions[:, 0] - marker, axis=1))
     np.testing.assert_array_equal(tracked[0], tracked[1])
     return written
@@ -706,6 +708,29 @@ def test_a_two_view_point_leaning_on_a_darker_blob_is_withheld_and_tracking_is_u
     assert np.nanmax(written[0]) < 0.0005, np.nanmax(written[0])  # m: every point written
     assert np.isnan(written[0][hit]).sum() >= 4  # (the cut ones withheld)
     assert np.nanmax(written[1][hit]) > 0.001  # with the rule off: written, off
+
+
+def test_a_view_holding_too_little_light_is_left_out_of_the_written_point_and_tracking_is_unchanged(rig):
+    """A marker seen by four cameras, one of them cutting it now and then (a blob of a whole one's size and shape but
+    half its light, its centroid off as a 2 mm shift of the point would put it): the pixel count misses it and three
+    clean views keep it in the point, which lies off. The written trajectories give those points as triangulated
+    from the clean views (:meth:`Tracker.rewritten`), with their residuals and cameras; the tracking itself is the
+    same as with the rule off (``dim_light`` 0), which writes them off."""
+    cut = {(k, 1) for k in (60, 61, 90, 91, 120)}
+    marker, frames = _partly_hidden_scene(rig, 8, cut, np.array([0.002, -0.001, 0.0]), cameras=4, light=True)
+    written = _written_with_the_light_rule_and_without(rig, frames, marker, TrackerConfig(dim_light=0.0))
+    hit = sorted(k for k, _ in cut)
+    assert np.nanmax(written[0]) < 0.0005, np.nanmax(written[0])  # m: every point written, within 0.5 mm
+    assert np.isfinite(written[0][hit]).all()
+    assert np.nanmax(written[1][hit]) > 0.0005  # with the rule off: written, off
+    tracker = Tracker(rig, 100.0)
+    for k, dets in enumerate(frames):
+        tracker.step(k, dets)
+    tracked = tracker.finish()
+    rewritten = tracker.rewritten()
+    assert sorted(rewritten.rows.tolist()) == hit
+    assert (rewritten.camera_masks == 0b1101).all()  # (camera 1 left out)
+    assert (rewritten.residuals < 0.5 * tracked.residuals[rewritten.rows, 0]).all()
 
 
 def test_a_marker_re_acquired_from_free_blobs_is_judged_by_their_light_at_its_depth(rig):
