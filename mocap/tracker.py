@@ -279,11 +279,12 @@ class TrackerConfig:
             pixel crosses the threshold, and leaving such views out of the tracking cost the 12-camera sprint's
             forearm cluster its identities (engine-log.md, 75th session). 1: off.
         dark_spread, dark_max: see ``dark_flux``.
-        dim_light: a view (not flagged merged) whose blob holds less than this of its marker's light in that camera
-            lately (as ``dark_flux`` measures it) is left out of the written point where two clean views remain
-            besides: the point is triangulated again without it and written so after the identity repair
-            (:meth:`Tracker.rewritten`), the tracking unchanged. Whole views of the default and one-height-light
-            renders hold under 0.8 of their light 0.13-0.15 % of the time, cut views still used 96 % of it
+        dim_light: a view whose blob holds less than this of its marker's light in that camera lately (as
+            ``dark_flux`` measures it) is the marker cut: where two clean views remain besides, the point is
+            triangulated again without it (a view not flagged merged) and written so after the identity repair
+            (:meth:`Tracker.rewritten`); where fewer remain, the point is not written (:meth:`Tracker.withheld`).
+            The tracking does not change. Whole views of the default and one-height-light renders hold under 0.8 of
+            their light 0.13-0.15 % of the time, the cut views the other rules leave in the points 96 % of it
             (engine-log.md, 80th session); 0: off.
     """
 
@@ -1875,8 +1876,9 @@ class Tracker:
         points that would not be output if their clean views (used, not ``suspect``) that hold less light
         (:meth:`_dark`) counted as no clean view (a two-view point leaning on such a view, off its prediction: a cut
         blob's centroid lies along the other camera's epipolar line as often as not, and nothing else tells); and
-        points with fewer than two clean views that use a blob flagged merged holding less than 1 - ``dark_max`` of
-        the marker's light (flat because cut, not because two markers merged, whose light adds up)."""
+        points with fewer than two clean views besides a view holding less than ``dim_light`` of the marker's light:
+        a blob flagged merged (flat because cut, not because two markers merged, whose light adds up), or a clean one
+        (so dim it is cut, whatever the prediction says: at 50 Hz a serve's prediction lets 2-3 mm through)."""
         meas.withheld = np.zeros(len(asg), dtype=bool)
         if not self._light:  # (no blob carried its light yet: centroid files, older logs)
             return
@@ -1887,10 +1889,12 @@ class Tracker:
         dark |= self._darker_than_other_views(fr, np.where(tri.used, asg, -1), tri.X, k, c, ratio, merged,
                                               np.zeros(asg.shape, dtype=bool), self._cfg.dark_borrowed)
         dark &= ~suspect[k, c]
-        cut_flat = merged & (ratio < 1.0 - self._cfg.dark_max)  # (NaN: not judged)
-        if np.count_nonzero(cut_flat):
-            rows = np.unique(k[cut_flat])
-            clean = tri.used[rows] & ~suspect[rows] & ~_gather(fr.merged, asg[rows])
+        dim = (ratio < self._cfg.dim_light) & (merged | ~suspect[k, c])  # (NaN: not judged)
+        if np.count_nonzero(dim):
+            rows = np.unique(k[dim])
+            views = np.zeros(asg.shape, dtype=bool)
+            views[k[dim], c[dim]] = True
+            clean = tri.used[rows] & ~suspect[rows] & ~_gather(fr.merged, asg[rows]) & ~views[rows]
             lean = rows[clean.sum(axis=1) < 2]
             meas.withheld[lean] = meas.out[lean]
         if not np.count_nonzero(dark):
