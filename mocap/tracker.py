@@ -281,7 +281,7 @@ class TrackerConfig:
         dark_spread, dark_max: see ``dark_flux``.
         dim_light: a view whose blob holds less than this of its marker's light in that camera lately (as
             ``dark_flux`` measures it) is the marker cut: where two clean views remain besides, the point is
-            triangulated again without it (a view not flagged merged) and written so after the identity repair
+            triangulated again without it (merged or not) and written so after the identity repair
             (:meth:`Tracker.rewritten`); where fewer remain, the point is not written (:meth:`Tracker.withheld`).
             The tracking does not change. Whole views of the default and one-height-light renders hold under 0.8 of
             their light 0.13-0.15 % of the time, the cut views the other rules leave in the points 96 % of it
@@ -775,10 +775,10 @@ class Tracker:
         return RewrittenPoints(frame.astype(np.int64) - first, tracked, written, residual, mask)
 
     def _without_dim_views(self, fr: _Frame, meas: _Measurements) -> _DimPoints:
-        """The measured points of ``meas`` with a view not flagged merged whose light, moved to the point's depth, is
-        under ``dim_light`` of its marker's there lately (:meth:`_light_of_views`) and two clean views besides (not
-        flagged merged, not dim), triangulated again without their dim views; a point whose clean views do not all
-        stay in it keeps its views."""
+        """The measured points of ``meas`` with a view whose light, moved to the point's depth, is under ``dim_light``
+        of its marker's there lately (:meth:`_light_of_views`; a blob flagged merged too: its variance is only
+        scaled) and two clean views besides (not flagged merged, not dim), triangulated again without their dim
+        views; a point whose clean views do not all stay in it keeps its views."""
         cfg = self._cfg
         if not (self._light and cfg.dim_light > 0):
             return _DimPoints.none()
@@ -790,7 +790,7 @@ class Tracker:
         ratio, merged, _ = self._light_of_views(fr, rows[k], c, asg[k, c], meas.X[rows[k]])
         dim = np.zeros(asg.shape, dtype=bool)
         with np.errstate(invalid="ignore"):  # (unknown light, NaN: not dim)
-            dim[k, c] = (ratio < cfg.dim_light) & ~merged
+            dim[k, c] = ratio < cfg.dim_light
         clean = (asg >= 0) & ~_gather(fr.merged, asg) & ~dim
         sel = (dim.any(axis=1) & (clean.sum(axis=1) >= 2)).nonzero()[0]
         if sel.size == 0:
