@@ -752,8 +752,9 @@ class Tracker:
     def withheld(self) -> WithheldPoints:
         """The tracked points the written trajectories leave out: two-view points leaning on a view of their
         marker partly hidden (darker than its blob lately; :meth:`_judge_dark_views`) that disagree with the
-        prediction, and points from the free blobs re-acquiring a track, or starting one that may inherit a lost
-        identity, that lean on such views (:meth:`_leans_on_dark_views`). For
+        prediction, points with fewer than two clean views besides a view under ``dim_light`` of the marker's light
+        (whatever the prediction), and points from the free blobs re-acquiring a track, or starting one that may
+        inherit a lost identity, that lean on darker views (:meth:`_leans_on_dark_views`). For
         :meth:`WithheldPoints.apply` after the identity repair, which works on the tracked points, so that this
         judgement never moves an identity."""
         first = self._first if self._first is not None else 0
