@@ -18,8 +18,8 @@ identity, missing that frame only, passes (a cubic through its samples on both s
 sprint: a wheel marker's identity, glimpsed for three frames, held the hand passing by in the middle one while the
 hand's own identity missed it).
 
-:func:`give_end_hops_back` does the same for a stretch (``most`` samples at most) at an end of an identity's run, next
-to a gap of more than ``reach_s``: where :func:`withhold_off_path` has no samples on the gap's side, a quadratic
+:func:`give_end_hops_back` does the same for a stretch (``end_most`` samples at most) at an end of an identity's run,
+next to a gap of more than ``reach_s``: where :func:`withhold_off_path` has no samples on the gap's side, a quadratic
 through the ``min_side`` or more samples on the run's side, extrapolated over the stretch, must miss it by more than
 ``far_m`` (and ``ratio`` times its worst residual), and the stretch goes to the one identity, unseen there, whose path
 (a quadratic through its samples just before, or else just after) passes within ``end_near_m`` of every sample of it.
@@ -56,7 +56,9 @@ class OffPathConfig:
         ratio: ... and by more than this many times the fit's worst residual on the samples it was fitted to.
         near_m: a hop lies this close to the path of the identity it is given to, m (:func:`give_hops_back`).
         end_near_m: a stretch at the end of a run lies this close to the path (extrapolated over up to ``reach_s``)
-            of the identity it is given to, m (:func:`give_end_hops_back`).
+            of the identity it is given to, m (:func:`give_end_hops_back`) ...
+        end_most: ... and has this many samples at most: the path it continues says whose it is, where a stretch
+            inside a run, withheld, is only off its own.
     """
 
     reach_s: float = 0.07
@@ -67,6 +69,7 @@ class OffPathConfig:
     ratio: float = 2.5
     near_m: float = 0.005
     end_near_m: float = 0.015
+    end_most: int = 5
 
 
 def withhold_off_path(traj: Trajectories, config: OffPathConfig | None = None) -> int:
@@ -210,14 +213,15 @@ def _off_path_at_ends(frames: np.ndarray, x: np.ndarray, reach: int, span: int, 
     """The stretches (frame arrays) at the ends of one identity's runs (``frames`` (n,) seen at ``x`` (n, 3) m; runs
     cut where no sample is within ``reach`` frames) that miss the path the run's other samples make: a quadratic
     through the ``min_side`` or more samples within ``reach`` frames of the stretch, on its one side, extrapolated
-    over it, misses each of its samples by more than ``far_m`` and ``ratio`` times the fit's worst residual."""
+    over it, misses each of its samples by more than ``far_m`` and ``ratio`` times the fit's worst residual
+    (``end_most`` samples at most, within ``span`` frames)."""
     found: list[np.ndarray] = []
     cuts = np.flatnonzero(np.diff(frames) > reach) + 1
     for run in np.split(np.arange(len(frames)), cuts):
         if len(run) <= cfg.min_side:
             continue
         for order in (run, run[::-1]):  # the run's first samples, then its last ones: stretch first, then its side
-            for k in range(1, cfg.most + 1):
+            for k in range(1, cfg.end_most + 1):
                 stretch, rest = order[:k], order[k:]
                 if len(rest) < cfg.min_side or abs(int(frames[stretch[-1]] - frames[stretch[0]])) > span:
                     break

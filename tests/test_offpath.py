@@ -113,6 +113,12 @@ def test_a_glimpse_at_the_end_of_a_run_goes_to_the_identity_whose_path_it_contin
     spike[61, 0] = x[60, 0] + [0.0, 0.0, 0.04]  # 40 mm off every path (a recording's glitch): nothing moves
     spike[99, 0] = np.nan
     assert give_end_hops_back(Trajectories(["M001", "M002", "M003"], FPS, spike)) == 0
+    longer = P.copy()  # four samples of marker 2 at the end of marker 0's run (the whole sprint's seed 72)
+    longer[61:65, 0] = x[61:65, 2]
+    longer[99, 0] = np.nan
+    traj = Trajectories(["M001", "M002", "M003"], FPS, longer)
+    assert give_end_hops_back(traj) == 4
+    np.testing.assert_array_equal(traj.positions[61:65, 2], x[61:65, 2])
     twin = np.concatenate([P, P[:, 2:] + [0.0, 0.0, 0.003]], axis=1)  # a second lost identity 3 mm away: whose?
     twin[99, 0] = np.nan
     assert give_end_hops_back(Trajectories(["M001", "M002", "M003", "M004"], FPS, twin)) == 0
