@@ -131,9 +131,7 @@ def _across_gap(x: np.ndarray, f: int, side: int = 2) -> np.ndarray:
     frames = np.r_[f - side:f, f + 1:f + side + 1]
     if frames[0] < 0 or frames[-1] >= len(x) or not np.isfinite(x[frames, 0]).all():
         return np.full(3, np.nan)
-    basis = np.vander((frames - f).astype(float), min(4, len(frames)))
-    coef, *_ = np.linalg.lstsq(basis, x[frames], rcond=None)
-    return coef[-1]
+    return _path_fit(frames.astype(float), x[frames], np.array([float(f)]), min(4, len(frames)))[0][0]
 
 
 def _off_path(frames: np.ndarray, x: np.ndarray, reach: int, span: int, cfg: OffPathConfig) -> list[np.ndarray]:
@@ -198,14 +196,14 @@ def give_end_hops_back(traj: Trajectories, config: OffPathConfig | None = None) 
     return moved
 
 
-def _path_fit(frames: np.ndarray, x: np.ndarray, at: np.ndarray) -> tuple[np.ndarray, float]:
-    """A quadratic in time through samples ``x`` (m, 3) m at ``frames`` (m,), evaluated at frames ``at`` (k,):
-    (k, 3) m, and its worst residual on the samples, m."""
+def _path_fit(frames: np.ndarray, x: np.ndarray, at: np.ndarray, terms: int = 3) -> tuple[np.ndarray, float]:
+    """A polynomial in time of ``terms`` coefficients (a quadratic by default) through samples ``x`` (m, 3) m at
+    ``frames`` (m,), evaluated at frames ``at`` (k,): (k, 3) m, and its worst residual on the samples, m."""
     t0 = float(at[0])
-    basis = np.vander(frames - t0, 3)
+    basis = np.vander(frames - t0, terms)
     coef, *_ = np.linalg.lstsq(basis, x, rcond=None)
     worst = float(np.linalg.norm(basis @ coef - x, axis=1).max())
-    return np.vander(at - t0, 3) @ coef, worst
+    return np.vander(at - t0, terms) @ coef, worst
 
 
 def _off_path_at_ends(frames: np.ndarray, x: np.ndarray, reach: int, span: int, cfg: OffPathConfig

@@ -535,20 +535,6 @@ class _Tracks(_Rows):
         return len(self.uid)
 
 
-@dataclass(frozen=True)
-class _DimPoints:
-    """A frame's measured points triangulated again without their dim views (:meth:`Tracker._without_dim_views`)."""
-
-    tracked: np.ndarray  # (n, 3) the measured points, m
-    written: np.ndarray  # (n, 3) the same without their dim views, m
-    residual: np.ndarray  # (n,) their reprojection residuals, mm
-    mask: np.ndarray  # (n,) uint32 their cameras (bit c: camera c)
-
-    @classmethod
-    def none(cls) -> _DimPoints:
-        return cls(np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0), np.zeros(0, dtype=np.uint32))
-
-
 @dataclass
 class _Measurements(_Rows):
     """This frame's measurements of the K live tracks (row k: track k)."""
@@ -560,12 +546,20 @@ class _Measurements(_Rows):
     rms_px: np.ndarray  # (K,) reprojection RMS, px
     asg: np.ndarray  # (K, C) detection used per camera, -1: none
     withheld: np.ndarray  # (K,) output points the written trajectories leave out (Tracker._judge_dark_views)
+    written: np.ndarray  # (K, 3) m, the position written instead of X (Tracker._without_dim_views); NaN: X
+    written_residual: np.ndarray  # (K,) its residual, mm
+    written_mask: np.ndarray  # (K,) uint32 its cameras (bit c: camera c)
 
     @classmethod
     def empty(cls, K: int, C: int) -> _Measurements:
         return cls(np.zeros(K, dtype=bool), np.zeros(K, dtype=bool), np.full((K, 3), np.nan),
                    np.full((K, 3, 3), np.nan), np.full(K, np.nan), np.full((K, C), -1, dtype=np.intp),
-                   np.zeros(K, dtype=bool))
+                   np.zeros(K, dtype=bool), *_Measurements.unwritten(K))
+
+    @staticmethod
+    def unwritten(K: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``written``, ``written_residual`` and ``written_mask`` of K points written as measured."""
+        return np.full((K, 3), np.nan), np.full(K, np.nan), np.zeros(K, dtype=np.uint32)
 
     def rows(self, rows: np.ndarray) -> _Measurements:
         """A copy of the rows ``rows``."""
@@ -643,7 +637,6 @@ class Tracker:
         self._records = _Records()
         self._withheld: list[tuple[np.ndarray, np.ndarray]] = []  # (frame (n,), position (n, 3)) (_judge_dark_views)
         self._rewritten: list[tuple[np.ndarray, ...]] = []  # (frame, tracked, written, residual, mask)
-        self._dim_points = _DimPoints.none()  # this frame's points triangulated without their dim views
         self._light = False  # some blob has carried its light (Detections.flux)
         self._light_fit = np.zeros(2)  # sums of x^2 and x y, x and y the log depth and light ratios of clean views
         self._light_power = float(_FLUX_DEPTH_POWER)  # the light falls as 1 / depth^power (_fit_light_power)
@@ -681,7 +674,6 @@ class Tracker:
         K = len(t)
         meas = _Measurements.empty(K, C)
         self._assigned_blobs = np.zeros((K, C), dtype=bool)
-        self._dim_points = _DimPoints.none()
         play = self._in_play()
         if K and fr.D.shape[1]:
             self._associate(fr, play, t.lock2, meas)
@@ -702,7 +694,7 @@ class Tracker:
                 self._settle_hops(meas)
             if self._cfg.yield_explained_blobs:
                 meas.miss(self._explained_elsewhere(fr, meas).nonzero()[0], C)
-            self._dim_points = self._without_dim_views(fr, meas)  # (before the update: the tracks' last depths)
+            self._without_dim_views(fr, meas)  # (before the update: the tracks' last depths)
             self._update(fr, meas, meas.ok.nonzero()[0])
             if self._light and (self._cfg.appearing_borrowed > 0 or self._cfg.dark_borrowed > 0):
                 self._learn_camera_gains(fr, meas)
@@ -775,19 +767,20 @@ class Tracker:
                                                                                              strict=True))
         return RewrittenPoints(frame.astype(np.int64) - first, tracked, written, residual, mask)
 
-    def _without_dim_views(self, fr: _Frame, meas: _Measurements) -> _DimPoints:
-        """The measured points of ``meas`` with a view whose light, moved to the point's depth, is under ``dim_light``
-        of its marker's there lately (:meth:`_light_of_views`; a blob flagged merged too: its variance is only
-        scaled) and two clean views besides (not flagged merged, not dim), triangulated again without their dim
-        views; a point whose clean views do not all stay in it keeps its views."""
+    def _without_dim_views(self, fr: _Frame, meas: _Measurements) -> None:
+        """``meas.written*``: the measured points of ``meas`` with a view whose light, moved to the point's depth, is
+        under ``dim_light`` of its marker's there lately (:meth:`_light_of_views`; a blob flagged merged too: its
+        variance is only scaled) and two clean views besides (not flagged merged, not dim), triangulated again
+        without their dim views, with their residuals and cameras; a point whose clean views do not all stay in it
+        keeps its views."""
         cfg = self._cfg
         if not (self._light and cfg.dim_light > 0):
-            return _DimPoints.none()
+            return
         rows = meas.ok.nonzero()[0]
         asg = meas.asg[rows]
         k, c = np.nonzero(asg >= 0)
         if k.size == 0:
-            return _DimPoints.none()
+            return
         ratio, merged, _ = self._light_of_views(fr, rows[k], c, asg[k, c], meas.X[rows[k]])
         dim = np.zeros(asg.shape, dtype=bool)
         with np.errstate(invalid="ignore"):  # (unknown light, NaN: not dim)
@@ -795,13 +788,15 @@ class Tracker:
         clean = (asg >= 0) & ~_gather(fr.merged, asg) & ~dim
         sel = (dim.any(axis=1) & (clean.sum(axis=1) >= 2)).nonzero()[0]
         if sel.size == 0:
-            return _DimPoints.none()
+            return
         sub = np.where(dim[sel], -1, asg[sel])
         t2 = robust_triangulate(self._P, _gather(fr.D, sub).swapaxes(0, 1), _gather(fr.S, sub).swapaxes(0, 1),
                                 meas.X[rows[sel]], cfg.outlier_sigma, self._outlier_px)
         ok = np.isfinite(t2.X).all(axis=1) & ~(clean[sel] & ~t2.used).any(axis=1)
-        residual, mask = self._residual_and_mask(t2.X[ok], t2.used[ok], t2.rms_px[ok])
-        return _DimPoints(meas.X[rows[sel[ok]]], t2.X[ok], residual, mask)
+        put = rows[sel[ok]]
+        meas.written[put] = t2.X[ok]
+        meas.written_residual[put], meas.written_mask[put] = self._residual_and_mask(t2.X[ok], t2.used[ok],
+                                                                                      t2.rms_px[ok])
 
     def _residual_and_mask(self, X: np.ndarray, used: np.ndarray, rms_px: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(n,) residuals, mm (the reprojection RMS ``rms_px`` (n,) at the mean scale of the ``used`` (n, C) cameras
@@ -2019,7 +2014,7 @@ class Tracker:
                 out &= ~self._flat_and_shared(fr, asg, rows, clean_view[got] & (n_clean[got] == 2)[:, None])
             withheld = out & self._leans_on_dark_views(fr, rows, pts.det[got], pts.X[got])
             meas.put(rows, _Measurements(np.ones(got.size, dtype=bool), out, pts.X[got], pts.cov[got],
-                                         pts.rms_px[got], pts.det[got], withheld))
+                                         pts.rms_px[got], pts.det[got], withheld, *_Measurements.unwritten(got.size)))
             self._update(fr, meas, rows)
         # 2) Tracks start only from points two clean cameras support: two blobs of merged markers (or a merged
         #    blob and a reflection) match across cameras at a point between the markers, which then moves.
@@ -2153,7 +2148,7 @@ class Tracker:
         self._t.e2[base + k, c] = self._e2_from_3d(base + k, c)
         out = _clean_views(fr.merged, pts.det) >= 2  # (all: _new_markers starts only such points)
         meas.extend(_Measurements(np.ones(n, dtype=bool), out, pts.X, pts.cov, pts.rms_px, pts.det,
-                                  out & lean))
+                                  out & lean, *_Measurements.unwritten(n)))
 
     def _lifecycle(self, meas: _Measurements) -> None:
         """Confirm tentative tracks, drop failed tentative ones and retired identities."""
@@ -2217,12 +2212,10 @@ class Tracker:
         if np.count_nonzero(meas.withheld):
             withheld = rows[meas.withheld[rows]]
             self._withheld.append((np.full(len(withheld), frame_index), meas.X[withheld]))
-        dim = self._dim_points
-        if len(dim.tracked):  # (the tracks' rows may have moved since: the points are found by position)
-            keep = (dim.tracked[:, None, :] == X[None]).all(axis=2).any(axis=1)
-            if np.count_nonzero(keep):
-                self._rewritten.append((np.full(np.count_nonzero(keep), frame_index), dim.tracked[keep],
-                                        dim.written[keep], dim.residual[keep], dim.mask[keep]))
+        written = rows[np.isfinite(meas.written[rows, 0])]
+        if written.size:
+            self._rewritten.append((np.full(written.size, frame_index), meas.X[written], meas.written[written],
+                                    meas.written_residual[written], meas.written_mask[written]))
         bounds = list(accumulate(fr.counts, initial=0))  # all cameras' detections in one flat array
         if kernels.HAVE_NUMBA:
             res, mask, flat = kernels.frame_record(X, kernels.contiguous(asg, np.intp), meas.rms_px[rows],
