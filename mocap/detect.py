@@ -50,6 +50,17 @@ the same blobs, pixels and order as the numpy path here, which stays the referen
    ``seeds``: a flagged blob holding two or more of them is fitted as that many discs started there (kept only
    if every disc's fit succeeds), so such a pair is measured after all.
 
+6. **Partly hidden markers**: a limb passing in front of a marker hides part of its disc, and the centroid (and a
+   whole disc's fit) slides up to 0.42 radius toward the part in view. A single disc whose fit misfits
+   (reduced chi-square against the noise plus 1 % of its height, over the frame's median, above ``MISFIT_CUT``),
+   or a blob flagged merged for its shape or size, is fitted again as a disc cut by a straight edge
+   (:mod:`mocap.cutdisc`); where that fit explains the blob (its misfit within ``CUT_ACCEPT`` times the frame's and
+   ``CUT_GAIN`` times the whole disc's, 0.3-0.97 of the disc in view, the centre known to ``CUT_MAX_STD`` px), its
+   centre and covariance are reported. The blob's area, light, roundness and merged flag stay as seen: they are
+   what tells the tracker a view is partly hidden. On rendered discs of 1.5-4 px radius cut half a radius out or
+   through the centre the centres come out 0.01-0.06 px rms off (0.3-2 px before), where two markers merged into
+   one blob are not taken for a cut one (too little of such a disc would be in view).
+
 ROI mode (``rois``): only blobs whose centroid lies in one of the given boxes are measured and
 reported; the coarse 4x4 pass still covers the frame (it is ~5 % of the cost) so that a blob crossing a
 box edge is measured whole, exactly as a full scan measures it. Callers that track markers pass
@@ -66,7 +77,7 @@ import numpy as np
 from scipy import special
 from scipy.spatial import cKDTree
 
-from mocap import detect_kernels, kernels
+from mocap import cutdisc, detect_kernels, kernels
 from mocap.detections import Detections, floored_covariance
 
 __all__ = ["background_level", "detect", "flattened_background", "StreamDetector", "K_SIGMA", "MIN_CONTRAST"]
@@ -84,6 +95,17 @@ ROUND_SPLIT = 0.85  # roundness below this: searched for two or more peaks (one 
 AREA_MERGED = 2.5  # area above this many times the neighbours' median: flagged as merged
 MAX_DISCS = 8  # a blob is split into at most this many markers
 SPLIT_PART_FLUX = 1.25  # a split blob's parts brighter (summed) than this times their neighbours' median: merged
+MISFIT_CUT = 2.0  # a single disc whose fit misfits this many times the frame's median (floored at 1), or that is
+#   flagged merged for its shape or size, is refitted as a disc cut by an edge (:mod:`mocap.cutdisc`) ...
+CUT_ACCEPT = 2.0  # ... and measured so where that fit misfits at most this many times the frame's median
+CUT_GAIN = 0.6  # ... and at most this times as much as the whole disc
+CUT_MAX_STD = 0.5  # px: ... and places its centre to within this (std along the worst axis)
+CUT_MIN_VISIBLE = 0.3  # ... and leaves at least this share of its disc in view (a bright disc's sliver, widely
+#   blurred, can mimic two markers merged) and at most this (more: a whole disc, its fit kept)
+CUT_MAX_VISIBLE = 0.97
+CUT_BLUR = 1.35  # ... and blurs its edges at most this many times as much as the frame's whole discs' fits (two
+#   markers merged into one round blob pass for a disc blurred more)
+MISFIT_MODEL_ERROR = 0.01  # of a disc's height: the model error a disc fit's misfit allows per pixel
 FIT_MAX_AREA = 1000  # px: larger blobs (with a raised max_area) get the weighted centroid, not a fit
 FIT_ITERATIONS = 2  # Gauss-Newton steps for a single disc (from the weighted centroid)
 SPLIT_ITERATIONS = 6  # ... for two or more discs fitted jointly (from the peaks)
@@ -396,7 +418,7 @@ def _joined(a: tuple[_Pixels, _Owners, np.ndarray] | None, b: tuple[_Pixels, _Ow
 
 # --------------------------------------------------------------------------- blob model fit
 def _fit_discs(values: np.ndarray, ox: np.ndarray, oy: np.ndarray, seg: np.ndarray, starts: np.ndarray,
-               params: np.ndarray, iterations: int) -> tuple[np.ndarray, np.ndarray]:
+               params: np.ndarray, iterations: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Least-squares fit of blurred discs plus an offset, vectorised over blobs: a fixed number of
     lightly damped Gauss–Newton steps.
 
@@ -416,16 +438,16 @@ def _fit_discs(values: np.ndarray, ox: np.ndarray, oy: np.ndarray, seg: np.ndarr
         iterations: Gauss–Newton steps.
 
     Returns:
-        params (N, 1 + 5K) and the unscaled covariance ``(J^T J)^-1`` of the centres (N, 2K, 2K), from the
-        Jacobian at the last step's start.
+        params (N, 1 + 5K), the unscaled covariance ``(J^T J)^-1`` of the centres (N, 2K, 2K), from the
+        Jacobian at the last step's start, and the residuals' sum of squares (N,) there, grey levels^2.
     """
     if kernels.HAVE_NUMBA:
         params = kernels.contiguous(params)
-        cov = detect_kernels.fit_discs(values, ox, oy, np.append(starts, len(seg)), params, iterations,
+        cov, ss = detect_kernels.fit_discs(values, ox, oy, np.append(starts, len(seg)), params, iterations,
                                        _EDGE_TABLES, _EDGE_STEPS, float(_Z_RES), float(_Z_ORIGIN), float(_Z_LAST),
                                        _MIN_FOOTPRINT, DAMPING, *_BOUNDS_F64)
         pos = (1 + 5 * np.arange((params.shape[1] - 1) // 5)[:, None] + np.arange(2)).ravel()
-        return params, cov[:, pos[:, None], pos]
+        return params, cov[:, pos[:, None], pos], ss
     params = params.astype(np.float32)
     n, n_par = params.shape
     disc = params[:, 1:].reshape(n, -1, 5)  # (N, K, 5) view
@@ -486,6 +508,7 @@ def _fit_discs(values: np.ndarray, ox: np.ndarray, oy: np.ndarray, seg: np.ndarr
             lhs.reshape(n, -1)[:, :: n_par + 1] += 1e-9
             step = np.linalg.solve(lhs, grad)[:, :, 0]
         else:  # the last step is undamped: its inverse is also the covariance
+            ss = np.add.reduceat(resid.astype(np.float64) ** 2, starts)
             try:
                 cov = np.linalg.inv(jtj)
             except np.linalg.LinAlgError:  # a degenerate window somewhere
@@ -495,7 +518,7 @@ def _fit_discs(values: np.ndarray, ox: np.ndarray, oy: np.ndarray, seg: np.ndarr
         disc += np.minimum(np.maximum(step[:, 1:].reshape(disc.shape), -_STEP_BOUND), _STEP_BOUND)
         np.minimum(np.maximum(disc, _PARAM_LOW, out=disc), _PARAM_HIGH, out=disc)
     pos = (1 + 5 * np.arange(n_discs)[:, None] + np.arange(2)).ravel()
-    return params.astype(np.float64), cov[:, pos[:, None], pos]
+    return params.astype(np.float64), cov[:, pos[:, None], pos], ss
 
 
 # --------------------------------------------------------------------------- peaks (merged markers)
@@ -757,26 +780,45 @@ def _disc_starts(blobs: np.ndarray, k: int, origin: np.ndarray, peaks: tuple[np.
 
 def _measure(image: np.ndarray, owners: _Owners, blobs: np.ndarray, k: int, radius: np.ndarray,
              peaks: tuple[np.ndarray, np.ndarray, np.ndarray], stats: _Blobs, level: float, sigma: float, t: int,
-             pixel_var: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+             pixel_var: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Fit ``k`` discs to each blob in ``blobs`` (N,) on the pixels within ``radius`` (N,) px of its
     centroid (``pixel_var`` (N,): px^2 per axis in a single disc's centroid besides its noise).
 
     Returns:
-        centres (N, k, 2) px, their covariances (N, k, 2, 2) px^2 and (N,) whether a disc's fit failed. A fit that
-        fails (no usable pixel, not finite, or a centre that wandered more than max(1.5 px, its radius) from its
-        start) falls back to the start: the weighted centroid (k = 1) or the peaks (k > 1), with the centroid's
-        noise covariance.
+        centres (N, k, 2) px, their covariances (N, k, 2, 2) px^2, (N,) whether a disc's fit failed and (N, 2) the
+        fit's misfit (:func:`_misfit`) and its discs' edge blur (px; k = 1), NaN where it failed. A fit that fails
+        (no usable pixel, not finite, or a centre that wandered more than max(1.5 px, its radius) from its start)
+        falls back to the start: the weighted centroid (k = 1) or the peaks (k > 1), with the centroid's noise
+        covariance.
     """
     n = len(blobs)
     origin, seg, count, ox, oy, values = _window(stats.centroid[blobs], radius, image, owners, blobs, t, level)
     start = _disc_starts(blobs, k, origin, peaks, stats, level)
-    params, pcov = start.copy(), np.full((n, 2 * k, 2 * k), np.nan)  # no usable pixel (NaN): the fallback
+    params, pcov, ss = start.copy(), np.full((n, 2 * k, 2 * k), np.nan), np.full(n, np.nan)  # (NaN: the fallback)
     fitted = count > 0
-    count = count[fitted]
-    params[fitted], pcov[fitted] = _fit_discs(values, ox, oy, (np.cumsum(fitted) - 1).take(seg),
-                                              np.cumsum(count) - count, start[fitted],
-                                              FIT_ITERATIONS if k == 1 else SPLIT_ITERATIONS)
-    return _fit_results(params, pcov, start, origin, stats.centroid_cov[blobs], float(sigma), k, pixel_var)
+    params[fitted], pcov[fitted], ss[fitted] = _fit_discs(values, ox, oy, (np.cumsum(fitted) - 1).take(seg),
+                                                          np.cumsum(count[fitted]) - count[fitted], start[fitted],
+                                                          FIT_ITERATIONS if k == 1 else SPLIT_ITERATIONS)
+    centres, covs, failed = _fit_results(params, pcov, start, origin, stats.centroid_cov[blobs], float(sigma), k,
+                                         pixel_var)
+    peak = np.zeros(n)
+    if fitted.any():
+        peak[fitted] = np.maximum.reduceat(values, np.cumsum(count[fitted]) - count[fitted])
+    quality = np.stack([_misfit(ss, count, params.shape[1], params[:, 3::5].sum(axis=1), peak, sigma),
+                        params[:, 5]], axis=1)
+    return centres, covs, failed, np.where(failed[:, None], np.nan, quality)
+
+
+def _misfit(ss: np.ndarray, count: np.ndarray, n_par: int, height: np.ndarray, peak: np.ndarray, sigma: float
+            ) -> np.ndarray:
+    """(N,) reduced chi-square of fits: the residuals' sum of squares ``ss`` (N,) grey levels^2 over the ``count``
+    (N,) pixels less the ``n_par`` parameters, against the noise ``sigma`` (grey levels) plus a model error of
+    ``MISFIT_MODEL_ERROR`` times the fitted ``height`` (N,) or the window's ``peak`` (N,) grey levels above the
+    background, the higher (a saturated or oddly blurred spot misfits in proportion to its height; a saturated
+    disc's fitted height can run off where the clipped core leaves only its edge)."""
+    scale = sigma**2 + (MISFIT_MODEL_ERROR * np.maximum(height, peak)) ** 2
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return ss / np.maximum(count - n_par, 1) / scale
 
 
 def _fit_results(params: np.ndarray, pcov: np.ndarray, start: np.ndarray, origin: np.ndarray,
@@ -808,6 +850,61 @@ def _fit_results(params: np.ndarray, pcov: np.ndarray, start: np.ndarray, origin
     start_xy = start[:, 1:].reshape(n, k, 5)[:, :, :2] + origin[:, None]
     return (start_xy + np.where(bad[:, :, None], 0.0, offset), np.where(bad[:, :, None, None], fallback_cov, cov),
             bad.any(axis=1))
+
+
+def _usual_fit(quality: np.ndarray, flagged: np.ndarray) -> tuple[float, float]:
+    """The median misfit (floored at 1) and edge blur (px) of the single disc fits ``quality`` (N, 2) (NaN: none) of
+    the frame's blobs not ``flagged`` (N,) merged: what a whole marker's fit gives here (a renderer or lens whose
+    spots are no blurred discs, a hard edge or a halo, misfits every blob alike). (1, inf) without such blobs."""
+    usual = quality[~flagged & np.isfinite(quality).all(axis=1)]
+    if not usual.size:
+        return 1.0, math.inf
+    misfit, blur = np.median(usual, axis=0)
+    return max(1.0, float(misfit)), float(blur)
+
+
+def _measure_cut(image: np.ndarray, owners: _Owners, blobs: np.ndarray, radius: np.ndarray, stats: _Blobs,
+                 level: float, sigma: float, t: int, usual: tuple[float, float], disc_misfit: np.ndarray
+                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Fit the single blobs ``blobs`` (N,) that a whole disc misfits (``disc_misfit`` (N,)) as discs cut by an edge
+    (:func:`mocap.cutdisc.fit_cut_discs`, on the pixels within ``radius`` (N,) px of their centroids).
+
+    Returns:
+        (N,) bool: measured so (the fit misfits at most ``CUT_ACCEPT`` times the frame's ``usual`` misfit (``usual``:
+        that and the blur, :func:`_usual_fit`) and ``CUT_GAIN`` times the whole disc's, its edges are blurred at most
+        ``CUT_BLUR`` times as much as the frame's discs, it leaves ``CUT_MIN_VISIBLE`` to ``CUT_MAX_VISIBLE`` of the
+        disc in view, its centre is known to ``CUT_MAX_STD`` px and lies within its radius of the weighted
+        centroid); their centres (N, 2) px and covariances (N, 2, 2) px^2 (NaN where not measured so).
+    """
+    n = len(blobs)
+    accepted, centre, cov = np.zeros(n, bool), np.full((n, 2), np.nan), np.full((n, 2, 2), np.nan)
+    if n == 0:
+        return accepted, centre, cov
+    origin, seg, count, ox, oy, values = _window(stats.centroid[blobs], radius, image, owners, blobs, t, level)
+    fitted = count > 2 * cutdisc.N_PAR  # (a window this small cannot tell an edge from noise)
+    if not fitted.any():
+        return accepted, centre, cov
+    keep = fitted.take(seg)
+    seg = (np.cumsum(fitted) - 1).take(seg[keep])
+    start = _disc_starts(blobs[fitted], 1, origin[fitted], None, stats, level)
+    sxx, sxy, syy = stats.second[blobs[fitted]].reshape(-1, 4)[:, [0, 1, 3]].T
+    minor_axis = 0.5 * np.arctan2(-2.0 * sxy, syy - sxx)  # (the normal of a straight cut: the blob's shortest axis)
+    params, pcov, ss = cutdisc.fit_cut_discs(values[keep], ox[keep], oy[keep], seg, start, minor_axis)
+    peak, disc_misfit = stats.peak[blobs[fitted]] - level, disc_misfit[fitted]
+    misfit = _misfit(ss, count[fitted], cutdisc.N_PAR, params[:, 3], peak, sigma)
+    shown = cutdisc.visible_fraction(params[:, 4], params[:, 7])
+    cov_xy = pcov[:, 1:3, 1:3] * sigma**2
+    with np.errstate(invalid="ignore"):
+        worst = np.linalg.eigvalsh(np.where(np.isfinite(cov_xy), cov_xy, 0.0))
+        good = (np.isfinite(cov_xy).all(axis=(1, 2)) & (worst[:, 0] > 0) & (worst[:, 1] <= CUT_MAX_STD**2)
+                & (misfit <= CUT_ACCEPT * usual[0]) & (misfit <= CUT_GAIN * disc_misfit)
+                & (params[:, 5] <= CUT_BLUR * math.hypot(usual[1], math.sqrt(1 / 12)))  # (its blur: the pixel's too)
+                & (shown >= CUT_MIN_VISIBLE) & (shown <= CUT_MAX_VISIBLE)
+                & (np.hypot(*(params[:, 1:3] + origin[fitted] - stats.centroid[blobs[fitted]]).T) <= params[:, 4]))
+    accepted[np.flatnonzero(fitted)[good]] = True
+    centre[accepted] = params[good, 1:3] + origin[accepted]
+    cov[accepted] = cov_xy[good]
+    return accepted, centre, cov
 
 
 def detect(image: np.ndarray, *, threshold: float | None = None, min_area: int = MIN_AREA, max_area: int = MAX_AREA,
@@ -908,18 +1005,34 @@ def _detect(image: np.ndarray, threshold: float | None, min_area: int, max_area:
     radius = stats.reach[ids] + SKIRT + faint[ids]  # (a faint blob's pixels: where the 3x3 mean clears its threshold)
     pixel_var = np.where(faint[ids], FAINT_PIXEL_VAR, FALLBACK_PIXEL_VAR)
     groups = []  # (blobs (N,) of ids, centres (N, k, 2), covariances (N, k, 2, 2)) per fitted disc count
+    quality = np.full((len(ids), 2), np.nan)  # single discs' misfit (:func:`_misfit`) and blur
     for k in np.unique(n_discs[fit]):
         group = np.flatnonzero(fit & (n_discs == k))
-        centres, covs, failed = _measure(image, owners, ids[group], int(k), radius[group], peaks, stats, level,
-                                         sigma, t, pixel_var[group])
+        centres, covs, failed, fit_quality = _measure(image, owners, ids[group], int(k), radius[group], peaks, stats,
+                                                      level, sigma, t, pixel_var[group])
         whole = failed & seeded[group]  # a seeded split that failed: measured whole below
         n_discs[group[whole]] = 1
         groups.append((group[~whole], centres[~whole], covs[~whole]))
+        if k == 1:
+            quality[group] = fit_quality
     again = np.flatnonzero(seeded & (n_discs == 1))
     if again.size:
-        groups.append((again, *_measure(image, owners, ids[again], 1, radius[again], peaks, stats, level, sigma,
-                                        t, pixel_var[again])[:2]))
+        centres, covs, _, quality[again] = _measure(image, owners, ids[again], 1, radius[again], peaks, stats, level,
+                                                    sigma, t, pixel_var[again])
+        groups.append((again, centres, covs))
+    misfit = quality[:, 0]
+    usual = _usual_fit(quality, flagged)
+    with np.errstate(invalid="ignore"):
+        candidates = np.flatnonzero(((misfit > MISFIT_CUT * usual[0]) | (flagged & np.isfinite(misfit))) & ~faint[ids])
+    cut, cut_xy, cut_cov = _measure_cut(image, owners, ids[candidates], radius[candidates], stats, level, sigma, t,
+                                        usual, misfit[candidates])
+    candidates = candidates[cut]
     for group, centres, covs in groups:  # (N, k, ...) per group
+        if centres.shape[1] == 1:  # a partly hidden marker: the cut disc's centre
+            row = np.searchsorted(group, candidates)  # (groups are sorted; a single disc's blob is in one of them)
+            mine = row < len(group)
+            mine[mine] = group[row[mine]] == candidates[mine]
+            centres[row[mine], 0], covs[row[mine], 0] = cut_xy[cut][mine], cut_cov[cut][mine]
         xy.append(centres.reshape(-1, 2))
         cov.append(covs.reshape(-1, 2, 2))
         part.append(np.repeat(group, centres.shape[1]))

@@ -1,5 +1,5 @@
 """Compiled kernels of blob detection (:mod:`mocap.detect`): background tiles, coarse pass, labelling, per-blob
-sums, neighbour medians, peaks, fit windows, the disc fit and its checks.
+sums, neighbour medians, peaks, fit windows, the disc fit and its checks, the cut disc fit.
 
 Each computes what the numpy stages of :mod:`mocap.detect` compute, with one loop over the pixels of a frame
 instead of dozens of numpy calls on small arrays; :mod:`mocap.detect` switches to them where
@@ -16,7 +16,7 @@ import numpy as np
 from mocap.kernels import _jit
 
 __all__ = ["subsampled_histogram", "tile_quantiles", "coarse_groups", "label_blobs", "blob_sums",
-           "neighbour_medians", "peaks", "window", "fit_discs", "fit_results"]
+           "neighbour_medians", "peaks", "window", "fit_discs", "fit_results", "fit_cut_discs"]
 
 
 # ---------------------------------------------------------------------------------------------- coarse search
@@ -480,9 +480,9 @@ def _disc_terms(dx, dy, amp, r, s, tables, steps, half, z_res, z_origin, z_last,
 def _normal_equations_one_disc(values, ox, oy, first, end, params, tables, steps, half, z_res, z_origin, z_last,
                                min_footprint, jtj, grad):
     """``jtj`` (6, 6) and ``grad`` (6,) of one blob fitted as one disc (its pixels ``first`` to ``end``, ``params``
-    (6,)): :func:`fit_discs`'s sums with every entry in a register."""
+    (6,)): :func:`fit_discs`'s sums with every entry in a register. Returns the residuals' sum of squares."""
     b0, cx, cy, amp, r, s = params[0], params[1], params[2], params[3], params[4], params[5]
-    g0 = g1 = g2 = g3 = g4 = g5 = 0.0
+    g0 = g1 = g2 = g3 = g4 = g5 = ss = 0.0
     a00 = a01 = a02 = a03 = a04 = a05 = a11 = a12 = a13 = a14 = a15 = 0.0
     a22 = a23 = a24 = a25 = a33 = a34 = a35 = a44 = a45 = a55 = 0.0
     for p in range(first, end):
@@ -490,6 +490,7 @@ def _normal_equations_one_disc(values, ox, oy, first, end, params, tables, steps
                                         z_last, min_footprint)
         j3 = f
         resid = values[p] - (b0 + amp * f)
+        ss += resid * resid
         g0 += resid
         g1 += j1 * resid
         g2 += j2 * resid
@@ -524,6 +525,7 @@ def _normal_equations_one_disc(values, ox, oy, first, end, params, tables, steps
     jtj[3, 3], jtj[3, 4], jtj[3, 5] = a33, a34, a35
     jtj[4, 4], jtj[4, 5] = a44, a45
     jtj[5, 5] = a55
+    return ss
 
 
 @_jit
@@ -532,11 +534,13 @@ def fit_discs(values, ox, oy, starts, params, iterations, tables, steps, z_res, 
     """Detection's ``_fit_discs`` (:mod:`mocap.detect`), blob by blob, pixel by pixel, in float64 (the numpy one
     runs its pixel arithmetic in float32: centres agree to ~1e-6 px). ``starts`` (N + 1,): each blob's first pixel
     and the end; ``params`` (N, 1 + 5K) float64 starts, updated in place; the edge ``tables``/``steps`` and the
-    bounds as in :mod:`mocap.detect`. Returns the unscaled covariance (N, 1 + 5K, 1 + 5K) of the last step."""
+    bounds as in :mod:`mocap.detect`. Returns the unscaled covariance (N, 1 + 5K, 1 + 5K) of the last step and the
+    residuals' sum of squares (N,) at its start."""
     n, n_par = params.shape
     n_discs = (n_par - 1) // 5
     half = tables.shape[0] // 2
     cov_out = np.empty((n, n_par, n_par))
+    ss_out = np.empty(n)
     J = np.empty(n_par)
     jtj = np.empty((n_par, n_par))
     grad = np.empty(n_par)
@@ -545,11 +549,12 @@ def fit_discs(values, ox, oy, starts, params, iterations, tables, steps, z_res, 
     for b in range(n):
         for step_no in range(iterations):
             if n_discs == 1:
-                _normal_equations_one_disc(values, ox, oy, starts[b], starts[b + 1], params[b], tables, steps, half,
-                                           z_res, z_origin, z_last, min_footprint, jtj, grad)
+                ss = _normal_equations_one_disc(values, ox, oy, starts[b], starts[b + 1], params[b], tables, steps,
+                                                half, z_res, z_origin, z_last, min_footprint, jtj, grad)
             else:
                 jtj[:] = 0.0
                 grad[:] = 0.0
+                ss = 0.0
                 for p in range(starts[b], starts[b + 1]):
                     model = params[b, 0]
                     J[0] = 1.0
@@ -562,6 +567,7 @@ def fit_discs(values, ox, oy, starts, params, iterations, tables, steps, z_res, 
                         model += amp * f
                         J[q + 2] = f
                     resid = values[p] - model
+                    ss += resid * resid
                     for i in range(n_par):
                         grad[i] += J[i] * resid
                         for j in range(i, n_par):
@@ -579,6 +585,7 @@ def fit_discs(values, ox, oy, starts, params, iterations, tables, steps, z_res, 
                 else:
                     step[:] = np.linalg.solve(damped, grad)
             else:  # the last step is undamped: its inverse is also the covariance
+                ss_out[b] = ss
                 lhs[:] = jtj
                 if _cholesky(lhs):
                     for i in range(n_par):
@@ -595,7 +602,7 @@ def fit_discs(values, ox, oy, starts, params, iterations, tables, steps, z_res, 
                     q = 1 + 5 * k + i
                     v = params[b, q] + min(max(step[q], -step_bound[i]), step_bound[i])
                     params[b, q] = min(max(v, low[i]), high[i])
-    return cov_out
+    return cov_out, ss_out
 
 
 @_jit
@@ -641,3 +648,105 @@ def fit_results(params, pcov, start, origin, centroid_cov, sigma, k, vague_facto
                 centres[i, j, 0], centres[i, j, 1] = sx + dx, sy + dy
                 covs[i, j, 0, 0], covs[i, j, 0, 1], covs[i, j, 1, 0], covs[i, j, 1, 1] = a, b, c, d
     return centres, covs, failed
+
+
+# ---------------------------------------------------------------------------------------------- cut disc fit
+_INV_SQRT_2PI = 1.0 / math.sqrt(2.0 * math.pi)
+_SQRT_HALF = math.sqrt(0.5)
+
+
+@_jit
+def _cut_disc_pixel(dx, dy, p, cos, sin, inv_s, J):
+    """The cut disc's model (less its offset) at a pixel ``dx, dy`` px from the centre ``p[1:3]`` (``p`` (8,):
+    :mod:`mocap.cutdisc`'s parameters; ``cos``, ``sin`` of its edge's normal, ``inv_s`` 1 / its blur); fills ``J``
+    (8,) with its Jacobian unless ``J`` is empty."""
+    amp, r, d = p[3], p[4], p[7]
+    rho = math.sqrt(dx * dx + dy * dy)
+    u, v = (r - rho) * inv_s, (d - (dx * cos + dy * sin)) * inv_s
+    disc, cut = 0.5 * math.erfc(-u * _SQRT_HALF), 0.5 * math.erfc(-v * _SQRT_HALF)
+    if J.shape[0]:
+        disc_slope = math.exp(-0.5 * u * u) * _INV_SQRT_2PI * inv_s
+        cut_slope = math.exp(-0.5 * v * v) * _INV_SQRT_2PI * inv_s
+        radial = amp * disc_slope * cut / max(rho, 1e-9)
+        edge = amp * disc * cut_slope
+        J[0] = 1.0
+        J[1] = radial * dx + edge * cos
+        J[2] = radial * dy + edge * sin
+        J[3] = disc * cut
+        J[4] = amp * disc_slope * cut
+        J[5] = -(amp * disc_slope * cut * u + edge * v)
+        J[6] = edge * (dx * sin - dy * cos)
+        J[7] = edge
+    return amp * disc * cut
+
+
+@_jit
+def _cut_disc_sums(values, ox, oy, first, end, p, J, jtj, grad):
+    """The residuals' sum of squares of one blob's pixels ``first`` to ``end`` under the cut disc ``p`` (8,); with a
+    non-empty ``J`` also ``jtj`` (8, 8) and ``grad`` (8,)."""
+    ss = 0.0
+    if J.shape[0]:
+        jtj[:] = 0.0
+        grad[:] = 0.0
+    cos, sin, inv_s = math.cos(p[6]), math.sin(p[6]), 1.0 / p[5]
+    for q in range(first, end):
+        resid = values[q] - p[0] - _cut_disc_pixel(ox[q] - p[1], oy[q] - p[2], p, cos, sin, inv_s, J)
+        ss += resid * resid
+        if J.shape[0]:
+            for i in range(8):
+                grad[i] += J[i] * resid
+                for j in range(i, 8):
+                    jtj[i, j] += J[i] * J[j]
+    if J.shape[0]:
+        for i in range(8):
+            for j in range(i):
+                jtj[i, j] = jtj[j, i]
+    return ss
+
+
+@_jit
+def fit_cut_discs(values, ox, oy, starts, start_params, n_starts, iterations, low, high, bound):
+    """:func:`mocap.cutdisc.fit_cut_discs` blob by blob: ``starts`` (N + 1,) each blob's first pixel and the end,
+    ``start_params`` (N * n_starts, 8), the parameters' bounds ``low``, ``high`` and the step ``bound`` (8,). Returns
+    the best start's parameters (N, 8), ``(J^T J)^-1`` (N, 8, 8; NaN where singular) and sums of squares (N,)."""
+    n = starts.shape[0] - 1
+    out = np.empty((n, 8))
+    cov_out = np.full((n, 8, 8), np.nan)
+    cost_out = np.empty(n)
+    J, none = np.empty(8), np.empty(0)
+    jtj, grad, lhs, best_jtj = np.empty((8, 8)), np.empty(8), np.empty((8, 8)), np.empty((8, 8))
+    p, trial = np.empty(8), np.empty(8)
+    for b in range(n):
+        first, end = starts[b], starts[b + 1]
+        best = np.inf
+        out[b] = start_params[b * n_starts]
+        best_jtj[:] = np.nan
+        for k in range(n_starts):
+            p[:] = start_params[b * n_starts + k]
+            cost = _cut_disc_sums(values, ox, oy, first, end, p, J, jtj, grad)
+            damping = 1e-2
+            for _ in range(iterations):
+                lhs[:] = jtj
+                for i in range(8):
+                    lhs[i, i] = jtj[i, i] * (1.0 + damping) + 1e-9
+                step = np.linalg.solve(lhs, grad)
+                for i in range(8):
+                    trial[i] = min(max(p[i] + min(max(step[i], -bound[i]), bound[i]), low[i]), high[i])
+                trial_cost = _cut_disc_sums(values, ox, oy, first, end, trial, none, jtj, grad)
+                if trial_cost < cost:
+                    p[:] = trial
+                    cost = trial_cost
+                    damping = max(damping / 3.0, 1e-6)
+                    _cut_disc_sums(values, ox, oy, first, end, p, J, jtj, grad)
+                else:
+                    damping = min(damping * 4.0, 1e6)
+            if cost < best:
+                best = cost
+                out[b] = p
+                best_jtj[:] = jtj
+        cost_out[b] = best if best < np.inf else np.nan
+        if np.isfinite(best_jtj).all():
+            singular = np.linalg.svd(best_jtj)[1]
+            if singular[7] > 0.0 and singular[0] < 1e12 * singular[7]:
+                cov_out[b] = np.linalg.inv(best_jtj)
+    return out, cov_out, cost_out
