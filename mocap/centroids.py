@@ -5,11 +5,12 @@ Two interchangeable formats (documented in docs/take-format.md), one file per ca
 
 - CSV: optional first line ``# frames = N``; a header naming the columns; one row per blob,
   rows sorted by frame. Required columns ``frame,x,y`` (distorted pixels); optional ``area``,
-  ``roundness``, ``cov_xx``, ``cov_xy``, ``cov_yy`` (px^2), ``merged`` (0/1), ``flux`` (grey levels:
-  :class:`mocap.detections.Detections`). A frame with no rows had no blobs. Read in chunks, so a long take
+  ``roundness``, ``cov_xx``, ``cov_xy``, ``cov_yy`` (px^2), ``merged`` (0/1), ``flux`` (grey levels),
+  ``cut`` (0/1: :class:`mocap.detections.Detections`). A frame with no rows had no blobs. Read in chunks, so a long take
   never sits in memory whole.
 - NPZ: arrays ``frame`` (N,) int, ``xy`` (N, 2) float and optionally ``area`` (N,), ``roundness`` (N,),
-  ``cov`` (N, 2, 2), ``merged`` (N,) bool, ``flux`` (N,) and a scalar ``n_frames``. Loaded whole.
+  ``cov`` (N, 2, 2), ``merged`` (N,) bool, ``flux`` (N,), ``cut`` (N,) bool and a scalar ``n_frames``. Loaded
+  whole.
 
 Rows with NaN or infinite values are dropped with a warning; a negative or fractional frame
 number, a missing column or unsorted frames are errors naming the file and the fix.
@@ -35,7 +36,7 @@ __all__ = ["CENTROID_SUFFIXES", "CentroidFile", "open_centroids", "write_centroi
 log = logging.getLogger(__name__)
 
 CENTROID_SUFFIXES = (".centroids.csv", ".centroids.npz")
-COLUMNS = ("frame", "x", "y", "area", "roundness", "cov_xx", "cov_xy", "cov_yy", "merged", "flux")
+COLUMNS = ("frame", "x", "y", "area", "roundness", "cov_xx", "cov_xy", "cov_yy", "merged", "flux", "cut")
 REQUIRED = ("frame", "x", "y")
 _CHUNK_ROWS = 65536
 _FRAMES_RE = re.compile(r"^#\s*frames\s*=\s*(\d+)\s*$")
@@ -52,9 +53,9 @@ def _rows_to_detections(rows: np.ndarray, cols: dict[str, int]) -> Detections:
         cov[:, 0, 0] = col("cov_xx")
         cov[:, 0, 1] = cov[:, 1, 0] = col("cov_xy")
         cov[:, 1, 1] = col("cov_yy")
-    merged = col("merged")
+    merged, cut = col("merged"), col("cut")
     return Detections(rows[:, [cols["x"], cols["y"]]], col("area"), col("roundness"), cov,
-                      None if merged is None else merged != 0, col("flux"))
+                      None if merged is None else merged != 0, col("flux"), None if cut is None else cut != 0)
 
 
 class CentroidFile:
@@ -182,7 +183,7 @@ class CentroidFile:
                              "and 'xy' (N, 2)")
         n = len(data["frame"])
         shapes = {"frame": (n,), "xy": (n, 2), "area": (n,), "roundness": (n,), "cov": (n, 2, 2), "merged": (n,),
-                  "flux": (n,), "n_frames": ()}
+                  "flux": (n,), "cut": (n,), "n_frames": ()}
         for key, value in data.items():
             if key in shapes and value.shape != shapes[key]:
                 raise MocapError(f"{self.path}: array '{key}' has shape {value.shape}, expected {shapes[key]}")
@@ -190,7 +191,7 @@ class CentroidFile:
         try:
             for key in shapes:
                 if key in data:
-                    out[key] = data[key].astype(bool if key == "merged" else np.float64)
+                    out[key] = data[key].astype(bool if key in ("merged", "cut") else np.float64)
         except (TypeError, ValueError):
             raise MocapError(f"{self.path}: array '{key}' must be numeric") from None
         if "n_frames" in out:
@@ -241,7 +242,8 @@ class CentroidFile:
                                  a["roundness"][lo:hi] if "roundness" in a else None,
                                  a["cov"][lo:hi] if "cov" in a else None,
                                  a["merged"][lo:hi] if "merged" in a else None,
-                                 a["flux"][lo:hi] if "flux" in a else None)
+                                 a["flux"][lo:hi] if "flux" in a else None,
+                                 a["cut"][lo:hi] if "cut" in a else None)
             return
         yield from self._csv_frames(start, stop)
 
@@ -308,16 +310,20 @@ def write_centroids(path: str | os.PathLike, frames: Iterable[tuple[int, Detecti
         if n:
             blocks.append(np.column_stack([np.full(n, frame_index), det.xy, det.area, det.roundness,
                                            det.cov[:, 0, 0], det.cov[:, 0, 1], det.cov[:, 1, 1], det.merged,
-                                           det.flux]))
+                                           det.flux, det.cut]))
     rows = np.concatenate(blocks) if blocks else np.zeros((0, len(COLUMNS)))
     measured = np.isfinite(rows[:, 9]).all()  # (flux: written where every blob has it)
-    columns = COLUMNS if measured else COLUMNS[:9]
+    cut = rows[:, 10].any()  # (the cut flag: where some blob has it)
+    keep = [k for k in range(len(COLUMNS)) if (k != 9 or measured) and (k != 10 or cut)]
+    columns = [COLUMNS[k] for k in keep]
     with atomic_output(path) as tmp:
         if name.endswith(".npz"):
             cov = np.stack([rows[:, 5], rows[:, 6], rows[:, 6], rows[:, 7]], axis=1).reshape(-1, 2, 2)
             extra = {} if n_frames is None else {"n_frames": np.int64(n_frames)}
             if measured:
                 extra["flux"] = rows[:, 9]
+            if cut:
+                extra["cut"] = rows[:, 10].astype(bool)
             with tmp.open("wb") as f:
                 np.savez_compressed(f, frame=rows[:, 0].astype(np.int64), xy=rows[:, 1:3], area=rows[:, 3],
                                     roundness=rows[:, 4], cov=cov, merged=rows[:, 8].astype(bool), **extra)
@@ -326,7 +332,6 @@ def write_centroids(path: str | os.PathLike, frames: Iterable[tuple[int, Detecti
                 if n_frames is not None:
                     f.write(f"# frames = {int(n_frames)}\n")
                 f.write(",".join(columns) + "\n")
-                np.savetxt(f, rows[:, :len(columns)], delimiter=",",
-                           fmt=["%d", "%.6f", "%.6f", "%.3f", "%.5f", "%.6g", "%.6g", "%.6g", "%d",
-                                "%.6g"][:len(columns)])
+                formats = ["%d", "%.6f", "%.6f", "%.3f", "%.5f", "%.6g", "%.6g", "%.6g", "%d", "%.6g", "%d"]
+                np.savetxt(f, rows[:, keep], delimiter=",", fmt=[formats[k] for k in keep])
     return len(rows)

@@ -33,6 +33,7 @@ ITERATIONS = 10  # Levenberg–Marquardt steps from each start
 N_PAR = 8  # b, cx, cy, A, r, s, theta, d
 _START_SHIFT = 0.25  # radii: the centre's start, from the whole disc's fit toward the edge's (hidden) side
 _START_EDGE = 0.25  # radii: the edge's start distance from that centre
+_NO_CUT = 1e6  # px: an edge this far out hides nothing and its parameters get no gradient (the whole disc's fit)
 _LOW = np.array([-np.inf, -np.inf, -np.inf, 1.0, 0.3, 0.15, -np.inf, -np.inf])
 _HIGH = np.array([np.inf, np.inf, np.inf, np.inf, 100.0, 5.0, np.inf, np.inf])
 _MAX_STEP_PX = 1.0  # a centre, radius or edge moves at most this far per step, px (the edge's normal 0.5 rad)
@@ -79,50 +80,56 @@ def _normal_equations(jac: np.ndarray, resid: np.ndarray, starts: np.ndarray) ->
     return jtj, np.add.reduceat(jac * resid[:, None], starts, axis=0)
 
 
-def _starts(disc: np.ndarray, axis: np.ndarray) -> np.ndarray:
-    """(N * STARTS, 8) starting parameters from the whole-disc fits ``disc`` (N, 6) ``b, cx, cy, A, r, s``, the
-    edge's normal at STARTS directions from ``axis`` (N,) rad on."""
-    theta = (axis[:, None] + 2.0 * np.pi * np.arange(STARTS) / STARTS).ravel()
-    start = np.repeat(disc, STARTS, axis=0)
+def _starts(disc: np.ndarray, axis: np.ndarray, cut: bool) -> np.ndarray:
+    """(N * S, 8) starting parameters from the whole-disc fits ``disc`` (N, 6) ``b, cx, cy, A, r, s``: with a
+    ``cut``, S = STARTS, the edge's normal at STARTS directions from ``axis`` (N,) rad on and the centre moved toward
+    it; without, S = 1, the edge ``_NO_CUT`` px out (the whole disc in the same model)."""
+    starts = STARTS if cut else 1
+    theta = (axis[:, None] + 2.0 * np.pi * np.arange(starts) / starts).ravel()
+    start = np.repeat(disc, starts, axis=0)
     r = start[:, 4]
+    shift = _START_SHIFT if cut else 0.0
     params = np.empty((len(start), N_PAR))
     params[:, 0] = start[:, 0]
-    params[:, 1] = start[:, 1] + _START_SHIFT * r * np.cos(theta)
-    params[:, 2] = start[:, 2] + _START_SHIFT * r * np.sin(theta)
+    params[:, 1] = start[:, 1] + shift * r * np.cos(theta)
+    params[:, 2] = start[:, 2] + shift * r * np.sin(theta)
     params[:, 3] = start[:, 3]
-    params[:, 4] = r * (1.0 + _START_SHIFT)
+    params[:, 4] = r * (1.0 + shift)
     params[:, 5] = start[:, 5]
     params[:, 6] = theta
-    params[:, 7] = _START_EDGE * r
+    params[:, 7] = _START_EDGE * r if cut else _NO_CUT
     return params
 
 
 def fit_cut_discs(values: np.ndarray, ox: np.ndarray, oy: np.ndarray, seg: np.ndarray, disc: np.ndarray,
-                  axis: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Fit a disc cut by an edge to each of N blobs' windows.
+                  axis: np.ndarray, cut: bool = True) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Fit a disc cut by an edge (or, without ``cut``, the same model's whole disc) to each of N blobs' windows.
 
     Args:
         values: (T,) grey levels minus the frame's background level; ox, oy: (T,) pixel offsets from each window's
             origin, px; seg: (T,) the blob (0..N-1) of each pixel, non-decreasing, every blob with some pixels.
         disc: (N, 6) the blobs' whole-disc fits ``b, cx, cy, A, r, s`` (centres relative to the window origin).
         axis: (N,) the blobs' shortest axis (of their second moments), rad: a cut's normal lies along it.
+        cut: fit the edge; False: keep it out of reach (its parameters get no gradient and stay), a whole disc.
 
     Returns:
         params (N, 8) ``b, cx, cy, A, r, s, theta, d`` of each blob's best start, the unscaled covariance
-        ``(J^T J)^-1`` (N, 8, 8) there (NaN where singular) and the residuals' sum of squares (N,), grey levels^2.
+        ``(J^T J)^-1`` (N, 8, 8) there (NaN where singular: always without ``cut``) and the residuals' sum of
+        squares (N,), grey levels^2.
     """
     n = len(disc)
     count = np.bincount(seg, minlength=n)
     first = np.cumsum(count) - count
-    params = _starts(np.asarray(disc, dtype=np.float64), np.asarray(axis, dtype=np.float64))
+    starts = STARTS if cut else 1
+    params = _starts(np.asarray(disc, dtype=np.float64), np.asarray(axis, dtype=np.float64), cut)
     if kernels.HAVE_NUMBA:
         return detect_kernels.fit_cut_discs(values.astype(np.float64), ox.astype(np.float64), oy.astype(np.float64),
-                                            np.append(first, len(seg)), params, STARTS, ITERATIONS, _LOW, _HIGH,
+                                            np.append(first, len(seg)), params, starts, ITERATIONS, _LOW, _HIGH,
                                             _BOUND)
-    problem_count = np.repeat(count, STARTS)  # problem p = blob * STARTS + start
+    problem_count = np.repeat(count, starts)  # problem p = blob * starts + start
     problem_first = np.cumsum(problem_count) - problem_count
-    pixel = np.repeat(np.repeat(first, STARTS) - problem_first, problem_count) + np.arange(problem_count.sum())
-    pseg = np.repeat(np.arange(n * STARTS), problem_count)
+    pixel = np.repeat(np.repeat(first, starts) - problem_first, problem_count) + np.arange(problem_count.sum())
+    pseg = np.repeat(np.arange(n * starts), problem_count)
     px, py, pv = ox.take(pixel).astype(np.float64), oy.take(pixel).astype(np.float64), values.take(pixel)
     model, jac = _model_and_jacobian(params, px, py, pseg)
     resid = pv - model
@@ -148,7 +155,7 @@ def fit_cut_discs(values: np.ndarray, ox: np.ndarray, oy: np.ndarray, seg: np.nd
         if better.any():
             model, jac = _model_and_jacobian(params, px, py, pseg)
             resid = pv - model
-    best = np.nanargmin(np.where(np.isfinite(cost), cost, np.inf).reshape(n, STARTS), axis=1) + STARTS * np.arange(n)
+    best = np.nanargmin(np.where(np.isfinite(cost), cost, np.inf).reshape(n, starts), axis=1) + starts * np.arange(n)
     jtj, _ = _normal_equations(jac, resid, problem_first)
     jtj = jtj[best]
     cov = np.full_like(jtj, np.nan)

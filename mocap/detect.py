@@ -51,15 +51,18 @@ the same blobs, pixels and order as the numpy path here, which stays the referen
    if every disc's fit succeeds), so such a pair is measured after all.
 
 6. **Partly hidden markers**: a limb passing in front of a marker hides part of its disc, and the centroid (and a
-   whole disc's fit) slides up to 0.42 radius toward the part in view. A single disc whose fit misfits
-   (reduced chi-square against the noise plus 1 % of its height, over the frame's median, above ``MISFIT_CUT``),
-   or a blob flagged merged for its shape or size, is fitted again as a disc cut by a straight edge
-   (:mod:`mocap.cutdisc`); where that fit explains the blob (its misfit within ``CUT_ACCEPT`` times the frame's and
-   ``CUT_GAIN`` times the whole disc's, 0.3-0.97 of the disc in view, the centre known to ``CUT_MAX_STD`` px), its
-   centre and covariance are reported. The blob's area, light, roundness and merged flag stay as seen: they are
-   what tells the tracker a view is partly hidden. On rendered discs of 1.5-4 px radius cut half a radius out or
-   through the centre the centres come out 0.01-0.06 px rms off (0.3-2 px before), where two markers merged into
-   one blob are not taken for a cut one (too little of such a disc would be in view).
+   whole disc's fit) slides up to 0.42 radius toward the part in view. A single disc of ``MIN_SHAPE_AREA`` px or
+   more whose fit misfits (reduced chi-square against the noise plus 1 % of its height, over the frame's median,
+   above ``MISFIT_CUT``), or that is flagged merged for its shape or size, is fitted again as a disc cut by a
+   straight edge (:mod:`mocap.cutdisc`). Where that fit explains the blob (its misfit within ``CUT_ACCEPT`` times
+   the frame's and ``CUT_GAIN`` times the same model's whole disc's, its blur within ``CUT_BLUR`` times the
+   frame's discs', 0.3-0.88 of the disc in view, the centre known to ``CUT_MAX_STD`` px), the blob is reported at
+   the cut disc's centre, with its covariance (x ``CUT_COV_SCALE``), flagged ``cut`` and not merged for its shape;
+   its area, light and roundness stay those of the part in view. On rendered cut discs of 9 px or more the centres
+   come out 0.02-0.06 px rms off (0.4-0.55 px as whole discs); on smaller blobs the fit finds the cut's side too
+   seldom. Two markers merged into one round blob are not taken for a cut one (too much blur, or too little of
+   the disc in view), nor are a renderer's hard-edged whole discs, which a disc fit misfits (the cut would leave
+   over 0.88 of them in view).
 
 ROI mode (``rois``): only blobs whose centroid lies in one of the given boxes are measured and
 reported; the coarse 4x4 pass still covers the frame (it is ~5 % of the cost) so that a blob crossing a
@@ -98,11 +101,13 @@ SPLIT_PART_FLUX = 1.25  # a split blob's parts brighter (summed) than this times
 MISFIT_CUT = 2.0  # a single disc whose fit misfits this many times the frame's median (floored at 1), or that is
 #   flagged merged for its shape or size, is refitted as a disc cut by an edge (:mod:`mocap.cutdisc`) ...
 CUT_ACCEPT = 2.0  # ... and measured so where that fit misfits at most this many times the frame's median
-CUT_GAIN = 0.6  # ... and at most this times as much as the whole disc
+CUT_GAIN = 0.6  # ... and at most this times as much as the same model's whole disc
 CUT_MAX_STD = 0.5  # px: ... and places its centre to within this (std along the worst axis)
+CUT_COV_SCALE = 2.0  # the cut fit's covariance, scaled: its errors on rendered cut discs of 9 px or more are 1.3-1.5x
+#   its std (the straight-edge model of the disc's rim, the cut's side and depth found from few pixels)
 CUT_MIN_VISIBLE = 0.3  # ... and leaves at least this share of its disc in view (a bright disc's sliver, widely
 #   blurred, can mimic two markers merged) and at most this (more: a whole disc, its fit kept)
-CUT_MAX_VISIBLE = 0.97
+CUT_MAX_VISIBLE = 0.88
 CUT_BLUR = 1.35  # ... and blurs its edges at most this many times as much as the frame's whole discs' fits (two
 #   markers merged into one round blob pass for a disc blurred more)
 MISFIT_MODEL_ERROR = 0.01  # of a disc's height: the model error a disc fit's misfit allows per pixel
@@ -864,14 +869,15 @@ def _usual_fit(quality: np.ndarray, flagged: np.ndarray) -> tuple[float, float]:
 
 
 def _measure_cut(image: np.ndarray, owners: _Owners, blobs: np.ndarray, radius: np.ndarray, stats: _Blobs,
-                 level: float, sigma: float, t: int, usual: tuple[float, float], disc_misfit: np.ndarray
+                 level: float, sigma: float, t: int, usual: tuple[float, float]
                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Fit the single blobs ``blobs`` (N,) that a whole disc misfits (``disc_misfit`` (N,)) as discs cut by an edge
+    """Fit the single blobs ``blobs`` (N,) that a whole disc misfits as discs cut by an edge
     (:func:`mocap.cutdisc.fit_cut_discs`, on the pixels within ``radius`` (N,) px of their centroids).
 
     Returns:
         (N,) bool: measured so (the fit misfits at most ``CUT_ACCEPT`` times the frame's ``usual`` misfit (``usual``:
-        that and the blur, :func:`_usual_fit`) and ``CUT_GAIN`` times the whole disc's, its edges are blurred at most
+        that and the blur, :func:`_usual_fit`) and ``CUT_GAIN`` times the same model's whole disc's (a renderer's
+        hard edges, which a disc fit misfits, are no cut), its edges are blurred at most
         ``CUT_BLUR`` times as much as the frame's discs, it leaves ``CUT_MIN_VISIBLE`` to ``CUT_MAX_VISIBLE`` of the
         disc in view, its centre is known to ``CUT_MAX_STD`` px and lies within its radius of the weighted
         centroid); their centres (N, 2) px and covariances (N, 2, 2) px^2 (NaN where not measured so).
@@ -881,29 +887,25 @@ def _measure_cut(image: np.ndarray, owners: _Owners, blobs: np.ndarray, radius: 
     if n == 0:
         return accepted, centre, cov
     origin, seg, count, ox, oy, values = _window(stats.centroid[blobs], radius, image, owners, blobs, t, level)
-    fitted = count > 2 * cutdisc.N_PAR  # (a window this small cannot tell an edge from noise)
-    if not fitted.any():
-        return accepted, centre, cov
-    keep = fitted.take(seg)
-    seg = (np.cumsum(fitted) - 1).take(seg[keep])
-    start = _disc_starts(blobs[fitted], 1, origin[fitted], None, stats, level)
-    sxx, sxy, syy = stats.second[blobs[fitted]].reshape(-1, 4)[:, [0, 1, 3]].T
+    start = _disc_starts(blobs, 1, origin, None, stats, level)
+    sxx, sxy, syy = stats.second[blobs].reshape(-1, 4)[:, [0, 1, 3]].T
     minor_axis = 0.5 * np.arctan2(-2.0 * sxy, syy - sxx)  # (the normal of a straight cut: the blob's shortest axis)
-    params, pcov, ss = cutdisc.fit_cut_discs(values[keep], ox[keep], oy[keep], seg, start, minor_axis)
-    peak, disc_misfit = stats.peak[blobs[fitted]] - level, disc_misfit[fitted]
-    misfit = _misfit(ss, count[fitted], cutdisc.N_PAR, params[:, 3], peak, sigma)
+    params, pcov, ss = cutdisc.fit_cut_discs(values, ox, oy, seg, start, minor_axis)
+    peak = stats.peak[blobs] - level
+    misfit = _misfit(ss, count, cutdisc.N_PAR, params[:, 3], peak, sigma)
+    whole, _, whole_ss = cutdisc.fit_cut_discs(values, ox, oy, seg, start, minor_axis, cut=False)
+    whole_misfit = _misfit(whole_ss, count, cutdisc.N_PAR - 2, whole[:, 3], peak, sigma)
     shown = cutdisc.visible_fraction(params[:, 4], params[:, 7])
     cov_xy = pcov[:, 1:3, 1:3] * sigma**2
     with np.errstate(invalid="ignore"):
         worst = np.linalg.eigvalsh(np.where(np.isfinite(cov_xy), cov_xy, 0.0))
-        good = (np.isfinite(cov_xy).all(axis=(1, 2)) & (worst[:, 0] > 0) & (worst[:, 1] <= CUT_MAX_STD**2)
-                & (misfit <= CUT_ACCEPT * usual[0]) & (misfit <= CUT_GAIN * disc_misfit)
-                & (params[:, 5] <= CUT_BLUR * math.hypot(usual[1], math.sqrt(1 / 12)))  # (its blur: the pixel's too)
-                & (shown >= CUT_MIN_VISIBLE) & (shown <= CUT_MAX_VISIBLE)
-                & (np.hypot(*(params[:, 1:3] + origin[fitted] - stats.centroid[blobs[fitted]]).T) <= params[:, 4]))
-    accepted[np.flatnonzero(fitted)[good]] = True
-    centre[accepted] = params[good, 1:3] + origin[accepted]
-    cov[accepted] = cov_xy[good]
+        accepted = (np.isfinite(cov_xy).all(axis=(1, 2)) & (worst[:, 0] > 0) & (worst[:, 1] <= CUT_MAX_STD**2)
+                    & (misfit <= CUT_ACCEPT * usual[0]) & (misfit <= CUT_GAIN * whole_misfit)
+                    & (params[:, 5] <= CUT_BLUR * math.hypot(usual[1], math.sqrt(1 / 12)))  # (its blur: the pixel's)
+                    & (shown >= CUT_MIN_VISIBLE) & (shown <= CUT_MAX_VISIBLE)
+                    & (np.hypot(*(params[:, 1:3] + origin - stats.centroid[blobs]).T) <= params[:, 4]))
+    centre[accepted] = params[accepted, 1:3] + origin[accepted]
+    cov[accepted] = CUT_COV_SCALE * cov_xy[accepted]
     return accepted, centre, cov
 
 
@@ -933,8 +935,9 @@ def detect(image: np.ndarray, *, threshold: float | None = None, min_area: int =
 
     Returns:
         :class:`Detections`: centroids (distorted px), area (px above threshold; the parts of a split
-        blob share it equally), roundness, centroid covariance (px^2), the merged flag and flux (grey levels above
-        the background summed over the thresholded pixels, shared as the area).
+        blob share it equally), roundness, centroid covariance (px^2), the merged flag, flux (grey levels above
+        the background summed over the thresholded pixels, shared as the area) and the cut flag (measured as a
+        marker partly hidden by an edge; not merged then for its shape).
     """
     return _detect(image, threshold, min_area, max_area, rois, noise_sigma, refine, seeds, math.inf if faint else 0)[0]
 
@@ -1023,9 +1026,10 @@ def _detect(image: np.ndarray, threshold: float | None, min_area: int, max_area:
     misfit = quality[:, 0]
     usual = _usual_fit(quality, flagged)
     with np.errstate(invalid="ignore"):
-        candidates = np.flatnonzero(((misfit > MISFIT_CUT * usual[0]) | (flagged & np.isfinite(misfit))) & ~faint[ids])
+        candidates = np.flatnonzero(((misfit > MISFIT_CUT * usual[0]) | (flagged & np.isfinite(misfit))) & ~faint[ids]
+                                    & (stats.area[ids] >= MIN_SHAPE_AREA))  # (smaller: too few pixels to tell a cut)
     cut, cut_xy, cut_cov = _measure_cut(image, owners, ids[candidates], radius[candidates], stats, level, sigma, t,
-                                        usual, misfit[candidates])
+                                        usual)
     candidates = candidates[cut]
     for group, centres, covs in groups:  # (N, k, ...) per group
         if centres.shape[1] == 1:  # a partly hidden marker: the cut disc's centre
@@ -1042,9 +1046,12 @@ def _detect(image: np.ndarray, threshold: float | None, min_area: int, max_area:
     # area: where halos join, the area between two markers rises above the threshold, their light hardly.)
     area = stats.area[ids][part] / n_discs[part]
     split = (n_discs[part] > 1) & (stats.flux[ids][part] / n_discs[part] <= SPLIT_PART_FLUX * typical_flux[part])
+    refit = np.zeros(len(ids), bool)
+    refit[candidates] = True  # (single discs: one part each)
     return Detections(np.concatenate(xy), area, np.where(split, 1.0, roundness[part]),
-                      floored_covariance(np.concatenate(cov)), (flagged[part] | (n_discs[part] > 1)) & ~split,
-                      stats.flux[ids][part] / n_discs[part]), n_raw, n_faint
+                      floored_covariance(np.concatenate(cov)),
+                      ((too_big | flagged & ~refit)[part] | (n_discs[part] > 1)) & ~split,
+                      stats.flux[ids][part] / n_discs[part], refit[part]), n_raw, n_faint
 
 
 class StreamDetector:

@@ -24,6 +24,9 @@ class Detections:
         merged: (N,) bool, True where the blob is probably two or more markers merged.
         flux: (N,) the blob's light, grey levels above the background summed over its pixels (the parts of a
             split blob share it equally); NaN: not measured (older logs, centroid files without it).
+        cut: (N,) bool, True where the blob was measured as a marker partly hidden by an edge (its centre and
+            covariance from the cut disc's fit, :mod:`mocap.cutdisc`; its area, roundness and light as seen, of the
+            part in view).
     """
 
     xy: np.ndarray
@@ -32,6 +35,7 @@ class Detections:
     cov: np.ndarray | None = None
     merged: np.ndarray | None = None
     flux: np.ndarray | None = None
+    cut: np.ndarray | None = None
 
     DEFAULT_SIGMA_PX = 0.1
 
@@ -48,11 +52,14 @@ class Detections:
             self.merged = np.zeros(n, dtype=bool)
         if self.flux is None:
             self.flux = np.full(n, np.nan)
+        if self.cut is None:
+            self.cut = np.zeros(n, dtype=bool)
         self.area = np.asarray(self.area, dtype=np.float64).reshape(n)
         self.roundness = np.asarray(self.roundness, dtype=np.float64).reshape(n)
         self.cov = np.asarray(self.cov, dtype=np.float64).reshape(n, 2, 2)
         self.merged = np.asarray(self.merged, dtype=bool).reshape(n)
         self.flux = np.asarray(self.flux, dtype=np.float64).reshape(n)
+        self.cut = np.asarray(self.cut, dtype=bool).reshape(n)
 
     def __len__(self) -> int:
         return len(self.xy)
@@ -64,7 +71,7 @@ class Detections:
     def subset(self, index: np.ndarray) -> Detections:
         """The blobs selected by a boolean mask or an index array."""
         return Detections(self.xy[index], self.area[index], self.roundness[index], self.cov[index],
-                          self.merged[index], self.flux[index])
+                          self.merged[index], self.flux[index], self.cut[index])
 
 
 def floored_covariance(cov: np.ndarray, std_px: float = MIN_CENTROID_STD_PX) -> np.ndarray:

@@ -880,16 +880,22 @@ class Tracker:
         fill = np.arange(N) < np.array(counts)[:, None]  # the (C, N) slots in use, camera-major like the concatenations
         area = np.zeros((C, N))
         flux = np.full((C, N), np.nan)
+        roundness = np.ones(0)
         if N:
-            area[fill] = np.concatenate([det.area for det in detections])
-            flux[fill] = np.concatenate([det.flux for det in detections])
+            # A blob measured as a marker partly hidden (Detections.cut) is a clean view at its fitted centre: its
+            # size, shape and light, of the part in view, are no measure of the marker's (NaN: not judged, and
+            # left out of the running averages that judge the others).
+            cut = np.concatenate([det.cut for det in detections])
+            area[fill] = np.where(cut, np.nan, np.concatenate([det.area for det in detections]))
+            flux[fill] = np.where(cut, np.nan, np.concatenate([det.flux for det in detections]))
+            roundness = np.where(cut, 1.0, np.concatenate([det.roundness for det in detections]))
         lenses = self._lenses.compiled
         if N and lenses is not None:  # (all of the steps below in one call)
             cfg = self._cfg
             return _Frame(*kernels.prepare_frame(
                 np.concatenate([det.xy for det in detections]), np.array(counts), *lenses,
                 np.concatenate([det.cov for det in detections]), np.concatenate([det.merged for det in detections]),
-                area[fill], np.concatenate([det.roundness for det in detections]),
+                area[fill], roundness,
                 MIN_SHAPE_AREA, MIN_CENTROID_STD_PX, Detections.DEFAULT_SIGMA_PX, self._centre, self._focal_xy,
                 cfg.round_merged, cfg.vague_px**2, _VAGUE_TYPICAL**2, cfg.merged_variance_scale),
                 area, flux, counts)
@@ -903,15 +909,14 @@ class Tracker:
         if N and kernels.HAVE_NUMBA:  # (the same steps in one call)
             var = kernels.frame_detections(
                 D, S, merged, round_, np.concatenate([det.cov for det in detections]),
-                np.concatenate([det.merged for det in detections]), area[fill],
-                np.concatenate([det.roundness for det in detections]), np.array(counts), MIN_SHAPE_AREA,
+                np.concatenate([det.merged for det in detections]), area[fill], roundness, np.array(counts),
+                MIN_SHAPE_AREA,
                 MIN_CENTROID_STD_PX, Detections.DEFAULT_SIGMA_PX, self._centre, self._focal_xy, self._cfg.round_merged)
         else:
             if N:
                 S[fill] = floored_covariance(np.concatenate([det.cov for det in detections]))
                 merged[fill] = np.concatenate([det.merged for det in detections])
-                round_[fill] = np.where(area[fill] >= MIN_SHAPE_AREA,
-                                        np.concatenate([det.roundness for det in detections]), 1.0)
+                round_[fill] = np.where(area[fill] >= MIN_SHAPE_AREA, roundness, 1.0)
             # A sphere's image is an ellipse of axis ratio cos(field angle); a blob much flatter than that is two
             # markers merged without a saddle, or one partly hidden: its centroid is off by up to a radius.
             merged |= round_ < self._cfg.round_merged / _secant_field_angle(D, self._centre[:, None, :],

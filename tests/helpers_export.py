@@ -30,7 +30,7 @@ def synthetic_trajectories(n_frames: int = 240, n_markers: int = 12, fps: float 
 
 def synthetic_detections(rig: Rig, points: np.ndarray, rng: np.random.Generator, clutter: int = 3) -> list[Detections]:
     """One :class:`Detections` per camera: the projections of ``points`` (N, 3) m that land in the image,
-    plus ``clutter`` random blobs, with random (exactly representable-or-not) float64 fields."""
+    plus ``clutter`` random blobs, with random (exactly representable-or-not) float64 fields and flags."""
     out = []
     for cam in rig:
         uv = cam.project(points)
@@ -38,5 +38,6 @@ def synthetic_detections(rig: Rig, points: np.ndarray, rng: np.random.Generator,
         n = len(uv)
         a = rng.uniform(0.01, 0.2, (n, 2, 2))
         out.append(Detections(uv + rng.normal(0, 0.05, uv.shape), rng.uniform(4, 60, n), rng.uniform(0.5, 1, n),
-                              a @ a.transpose(0, 2, 1), rng.random(n) < 0.1, rng.uniform(50, 9000, n)))
+                              a @ a.transpose(0, 2, 1), rng.random(n) < 0.1, rng.uniform(50, 9000, n),
+                              rng.random(n) < 0.1))
     return out

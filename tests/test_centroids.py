@@ -65,6 +65,26 @@ def test_the_blobs_light_makes_the_round_trip_where_every_blob_has_it(tmp_path, 
 
 
 @pytest.mark.parametrize("suffix", [".centroids.csv", ".centroids.npz"])
+def test_the_cut_flag_makes_the_round_trip_where_some_blob_has_it(tmp_path, suffix):
+    rng = np.random.default_rng(3)
+    frames = [(k, Detections(d.xy, d.area, d.roundness, d.cov, d.merged, rng.uniform(50, 9000, len(d)),
+                             rng.random(len(d)) < 0.3)) for k, d in random_frames(rng, 12)]
+    assert any(d.cut.any() for _, d in frames)
+    path = tmp_path / f"cam1{suffix}"
+    write_centroids(path, frames)
+    for (_, want), got in zip(frames, open_centroids(path).frames(), strict=True):
+        np.testing.assert_array_equal(got.cut, want.cut)
+        np.testing.assert_allclose(got.flux, want.flux, rtol=1e-5)
+    if suffix.endswith("csv"):
+        assert path.read_text().splitlines()[0].endswith("merged,flux,cut")
+    plain = tmp_path / f"cam2{suffix}"  # (no blob cut: no column, and none read back cut)
+    write_centroids(plain, [(k, d.subset(~d.cut)) for k, d in frames])
+    assert not any(d.cut.any() for d in open_centroids(plain).frames())
+    if suffix.endswith("csv"):
+        assert "cut" not in plain.read_text().splitlines()[0]
+
+
+@pytest.mark.parametrize("suffix", [".centroids.csv", ".centroids.npz"])
 def test_a_blob_with_no_light_is_read_as_not_measured_with_a_warning(tmp_path, suffix, caplog):
     """Zero or negative light (a corrupt or hand-made file) would make the tracker take the blob for its marker
     partly hidden: it is read as not measured, and the file named in a warning; the other blobs keep theirs."""

@@ -589,9 +589,9 @@ class _CutSensor(Sensor):
 @pytest.mark.parametrize("edge", [0.5, 0.0])
 def test_a_disc_partly_hidden_by_an_edge_is_measured_at_its_centre(radius, amplitude, saturating, edge, monkeypatch):
     # A disc cut half a radius out (or through its centre) has its centroid 0.2 (0.42) radius toward the part in view;
-    # the whole disc's fit misfits it, the cut disc's finds the centre, with a covariance that matches its errors.
-    # The whole discs of the same frame keep their fit, and every blob keeps its area, light, roundness and flags as
-    # seen (what tells the tracker a marker is partly hidden).
+    # the whole disc's fit misfits it, the cut disc's finds the centre, with a covariance that matches its errors,
+    # and flags it cut (not merged for its shape). The whole discs of the same frame keep their fit, and every blob
+    # keeps its area, light and roundness as seen.
     rng = np.random.default_rng(31)
     sensor = _CutSensor()
     gx, gy = np.meshgrid(np.arange(30, SHAPE[1] - 15, 30), np.arange(30, SHAPE[0] - 15, 30))
@@ -613,8 +613,11 @@ def test_a_disc_partly_hidden_by_an_edge_is_measured_at_its_centre(radius, ampli
     whole = detect(image)
     assert np.median(np.hypot(*(whole.xy[idx[cut]] - uv[cut]).T)) > 0.15 * radius
     np.testing.assert_array_equal(whole.xy[idx[~cut]], det.xy[idx[~cut]])
-    for name in ("area", "flux", "roundness", "merged"):
+    for name in ("area", "flux", "roundness"):
         np.testing.assert_array_equal(getattr(whole, name), getattr(det, name))
+    assert det.cut[idx[cut]].all() and not det.cut[idx[~cut]].any() and not whole.cut.any()
+    assert not det.merged[idx].any()  # (a half disc is flat: merged for its shape, unless measured as cut)
+    np.testing.assert_array_equal(whole.merged[idx[~cut]], False)
 
 
 def test_two_markers_merged_into_one_round_blob_are_not_taken_for_a_cut_one(monkeypatch):

@@ -170,9 +170,9 @@ def test_centroids_come_back_bit_exact_and_trajectories_exact(tmp_path, rig, tak
     for frame, frame_dets in log.centroids(FIRST + 5, FIRST + 30):
         seen.append(frame)
         for got, want in zip(frame_dets, dets[frame - FIRST], strict=True):
-            for name in ("xy", "area", "roundness", "cov", "merged", "flux"):
+            for name in ("xy", "area", "roundness", "cov", "merged", "flux", "cut"):
                 assert np.array_equal(getattr(got, name), getattr(want, name)), name
-            assert got.merged.dtype == bool
+            assert got.merged.dtype == bool and got.cut.dtype == bool
     assert seen == list(range(FIRST + 5, FIRST + 30))
     back = read_mcap_trajectories(path)
     np.testing.assert_array_equal(back.positions, traj.positions)
@@ -190,6 +190,15 @@ def test_a_log_written_before_the_blobs_light_was_logged_reads_it_as_unknown():
     np.testing.assert_array_equal(det.xy[:, 0], [1.0, 2.0, 3.0])
     np.testing.assert_array_equal(det.merged, [False, True, False])
     assert np.isnan(det.flux).all()
+
+
+def test_a_log_written_before_blobs_were_flagged_cut_reads_none_as_cut():
+    """Logs of earlier versions have no ``cut`` field: no blob reads back as measured partly hidden."""
+    old = np.zeros(3, dtype=[(name, "<f8") for name, _ in CENTROID_LAYOUT if name != "cut"])
+    old["x"], old["merged"], old["flux"] = [1.0, 2.0, 3.0], [0.0, 1.0, 0.0], [90.0, 80.0, 70.0]
+    det = _detections(old)
+    np.testing.assert_array_equal(det.cut, [False, False, False])
+    np.testing.assert_array_equal(det.flux, [90.0, 80.0, 70.0])
 
 
 def test_a_failed_run_never_replaces_an_existing_log(tmp_path, rig, take):

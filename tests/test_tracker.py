@@ -754,6 +754,33 @@ def test_a_two_view_point_leaning_on_a_blob_with_too_little_light_is_withheld_ev
     np.testing.assert_array_equal(np.isnan(written[0][kept]), np.isnan(written[1][kept]))
 
 
+def test_a_blob_the_detector_measured_as_cut_is_a_clean_view_whatever_its_size_and_light(rig):
+    """Two cameras; camera 1 sees the marker partly hidden at some frames: a blob with half its light (or 45 %
+    smaller and flatter) but, as the detector's cut disc fit measures it (``Detections.cut``), centred on the marker.
+    Flagged cut, it is a clean view: every point is written, on the marker, from both cameras. Unflagged, the blobs
+    with half the light lean two-view points on a view the light calls partly hidden: withheld."""
+    cut = {(k, 1) for k in (60, 61, 90, 91, 120)}
+    hit = sorted(k for k, _ in cut)
+    for light in (True, False):
+        marker, frames = _partly_hidden_scene(rig, 9, cut, np.zeros(3), cameras=2, light=light, jitter_m=0.0003)
+        written = []
+        for flag in (True, False):
+            for k, c in cut:
+                frames[k][c].cut[:] = flag
+            tracker = Tracker(rig, 100.0)
+            for k, dets in enumerate(frames):
+                tracker.step(k, dets)
+            traj = tracker.finish()
+            tracker.withheld().apply(traj)
+            tracker.rewritten().apply(traj)
+            written.append(np.linalg.norm(traj.positions[:, 0] - marker, axis=1))
+            if flag:
+                assert (traj.camera_masks[hit, 0] == 0b11).all()
+        assert np.isfinite(written[0]).all() and np.nanmax(written[0][hit]) < 0.0005, written[0][hit]
+        if light:
+            assert np.isnan(written[1][hit]).sum() >= 4, written[1][hit]
+
+
 def test_a_marker_re_acquired_from_free_blobs_is_judged_by_their_light_at_its_depth(rig):
     """A track whose gated measurement failed (at 50 Hz: its views disagreed) re-acquires its marker from the free
     blobs (:meth:`Tracker._new_markers`), a path the measurement's judgement does not take; a marker coming out from

@@ -9,8 +9,9 @@ topic                    schema                      content
 ``/camN/calibration``    foxglove.CameraCalibration  intrinsics, once at time 0
 ``/camN/centroids``      foxglove.PointCloud         every 2D blob with all its fields, float64:
                                                      x, y, area, roundness, cov_xx, cov_xy, cov_yx,
-                                                     cov_yy, merged (0/1), flux -- what a re-run
-                                                     reads (logs without flux: NaN)
+                                                     cov_yy, merged (0/1), flux, cut (0/1) -- what
+                                                     a re-run reads (logs without flux: NaN; without
+                                                     cut: none cut)
 ``/camN/detections``     foxglove.ImageAnnotations   centroids as points, marker identities as text
                                                      at their reprojection in the cameras that saw them
 ``/markers``             foxglove.SceneUpdate        one sphere per identity, colour by identity,
@@ -65,7 +66,7 @@ log = logging.getLogger(__name__)
 
 CALIBRATION_ATTACHMENT = "calibration.toml"
 CENTROID_LAYOUT = [(name, "<f8") for name in
-                   ("x", "y", "area", "roundness", "cov_xx", "cov_xy", "cov_yx", "cov_yy", "merged", "flux")]
+                   ("x", "y", "area", "roundness", "cov_xx", "cov_xy", "cov_yx", "cov_yy", "merged", "flux", "cut")]
 MARKER_LAYOUT = [("x", "<f8"), ("y", "<f8"), ("z", "<f8"), ("residual_mm", "<f8"), ("id", "<u4"),
                  ("camera_mask", "<u4")]
 _TEXT_OFFSET_PX = np.array([8.0, -8.0])
@@ -182,7 +183,8 @@ class McapLogger:
         colors = _PALETTE[ids % len(_PALETTE)]
         for c, (layout, det) in enumerate(zip(self._centroids, detections, strict=True)):
             name = layout.frame_id
-            table = np.column_stack([det.xy, det.area, det.roundness, det.cov.reshape(-1, 4), det.merged, det.flux])
+            table = np.column_stack([det.xy, det.area, det.roundness, det.cov.reshape(-1, 4), det.merged, det.flux,
+                                     det.cut])
             self._write(_topic(name, "centroids"), PointCloud, layout.encode(t, table.tobytes()), t, frame_index)
             seen = (masks >> np.uint32(c)) & 1 == 1
             uv = self.rig[c].project(positions[seen]) + _TEXT_OFFSET_PX if seen.any() else np.zeros((0, 2))
@@ -381,7 +383,7 @@ def _detections(points: np.ndarray) -> Detections:
     have = points.dtype.names
     cols = [points[name] if name in have else np.full(len(points), np.nan) for name, _ in CENTROID_LAYOUT]
     return Detections(np.column_stack(cols[:2]), cols[2], cols[3], np.column_stack(cols[4:8]).reshape(-1, 2, 2),
-                      cols[8] != 0, cols[9])
+                      cols[8] != 0, cols[9], cols[10] == 1)  # (logs without the cut flag: NaN, none cut)
 
 
 def read_mcap_take(path: str | os.PathLike) -> McapTake:
