@@ -51,7 +51,7 @@ the same blobs, pixels and order as the numpy path here, which stays the referen
    if every disc's fit succeeds), so such a pair is measured after all.
 
 6. **Partly hidden markers**: a limb passing in front of a marker hides part of its disc, and the centroid (and a
-   whole disc's fit) slides up to 0.42 radius toward the part in view. A single disc of ``MIN_SHAPE_AREA`` px or
+   whole disc's fit) slides up to 0.42 radius toward the part in view. A single disc of ``CUT_MIN_AREA`` px or
    more whose fit misfits (reduced chi-square against the noise plus 1 % of its height, over the frame's median,
    above ``MISFIT_CUT``), or that is flagged merged for its shape or size, is fitted again as a disc cut by a
    straight edge (:mod:`mocap.cutdisc`). Where that fit explains the blob (its misfit within ``CUT_ACCEPT`` times
@@ -59,7 +59,8 @@ the same blobs, pixels and order as the numpy path here, which stays the referen
    frame's discs', 0.3-0.88 of the disc in view, the centre known to ``CUT_MAX_STD`` px), the blob is reported at
    the cut disc's centre, with its covariance (x ``CUT_COV_SCALE``), flagged ``cut`` and not merged for its shape;
    its area, light and roundness stay those of the part in view. On rendered cut discs of 9 px or more the centres
-   come out 0.02-0.06 px rms off (0.4-0.55 px as whole discs); on smaller blobs the fit finds the cut's side too
+   come out 0.02-0.06 px rms off (0.4-0.55 px as whole discs); blobs of 7-8 px get the cut disc's centre (0.13 px
+   rms off, 0.52 before, some to 1.2 px) but not the flag; on smaller ones the fit finds the cut's side too
    seldom. Two markers merged into one round blob are not taken for a cut one (too much blur, or too little of
    the disc in view), nor are a renderer's hard-edged whole discs, which a disc fit misfits (the cut would leave
    over 0.88 of them in view).
@@ -103,6 +104,8 @@ MISFIT_CUT = 2.0  # a single disc whose fit misfits this many times the frame's 
 CUT_ACCEPT = 2.0  # ... and measured so where that fit misfits at most this many times the frame's median
 CUT_GAIN = 0.6  # ... and at most this times as much as the same model's whole disc
 CUT_MAX_STD = 0.5  # px: ... and places its centre to within this (std along the worst axis)
+CUT_MIN_AREA = 7  # px: smaller blobs are not refitted (too few pixels to tell a cut's side); those under
+#   MIN_SHAPE_AREA get the cut disc's centre but not the cut flag (0.13 px rms off, not trusted as a clean view)
 CUT_COV_SCALE = 2.0  # the cut fit's covariance, scaled: its errors on rendered cut discs of 9 px or more are 1.3-1.5x
 #   its std (the straight-edge model of the disc's rim, the cut's side and depth found from few pixels)
 CUT_MIN_VISIBLE = 0.3  # ... and leaves at least this share of its disc in view (a bright disc's sliver, widely
@@ -1027,7 +1030,7 @@ def _detect(image: np.ndarray, threshold: float | None, min_area: int, max_area:
     usual = _usual_fit(quality, flagged)
     with np.errstate(invalid="ignore"):
         candidates = np.flatnonzero(((misfit > MISFIT_CUT * usual[0]) | (flagged & np.isfinite(misfit))) & ~faint[ids]
-                                    & (stats.area[ids] >= MIN_SHAPE_AREA))  # (smaller: too few pixels to tell a cut)
+                                    & (stats.area[ids] >= CUT_MIN_AREA))
     cut, cut_xy, cut_cov = _measure_cut(image, owners, ids[candidates], radius[candidates], stats, level, sigma, t,
                                         usual)
     candidates = candidates[cut]
@@ -1047,7 +1050,7 @@ def _detect(image: np.ndarray, threshold: float | None, min_area: int, max_area:
     area = stats.area[ids][part] / n_discs[part]
     split = (n_discs[part] > 1) & (stats.flux[ids][part] / n_discs[part] <= SPLIT_PART_FLUX * typical_flux[part])
     refit = np.zeros(len(ids), bool)
-    refit[candidates] = True  # (single discs: one part each)
+    refit[candidates] = stats.area[ids[candidates]] >= MIN_SHAPE_AREA  # (single discs: one part each)
     return Detections(np.concatenate(xy), area, np.where(split, 1.0, roundness[part]),
                       floored_covariance(np.concatenate(cov)),
                       ((too_big | flagged & ~refit)[part] | (n_discs[part] > 1)) & ~split,
