@@ -53,7 +53,7 @@ the same blobs, pixels and order as the numpy path here, which stays the referen
 6. **Partly hidden markers**: a limb passing in front of a marker hides part of its disc, and the centroid (and a
    whole disc's fit) slides up to 0.42 radius toward the part in view. A single disc of ``CUT_MIN_AREA`` px or
    more whose fit misfits (reduced chi-square against the noise plus 1 % of its height, over the frame's median,
-   above ``MISFIT_CUT``), or that is flagged merged for its shape or size, is fitted again as a disc cut by a
+   above ``MISFIT_CUT``), or that is flagged merged for its shape, is fitted again as a disc cut by a
    straight edge (:mod:`mocap.cutdisc`). Where that fit explains the blob (its misfit within ``CUT_ACCEPT`` times
    the frame's and ``CUT_GAIN`` times the same model's whole disc's, its blur within ``CUT_BLUR`` times the
    frame's discs', 0.3-0.88 of the disc in view, the centre known to ``CUT_MAX_STD`` px), the blob is reported at
@@ -100,7 +100,8 @@ AREA_MERGED = 2.5  # area above this many times the neighbours' median: flagged 
 MAX_DISCS = 8  # a blob is split into at most this many markers
 SPLIT_PART_FLUX = 1.25  # a split blob's parts brighter (summed) than this times their neighbours' median: merged
 MISFIT_CUT = 2.0  # a single disc whose fit misfits this many times the frame's median (floored at 1), or that is
-#   flagged merged for its shape or size, is refitted as a disc cut by an edge (:mod:`mocap.cutdisc`) ...
+#   flagged merged for its shape (not its size: a cut disc is smaller), is refitted as a disc cut by an edge
+#   (:mod:`mocap.cutdisc`) ...
 CUT_ACCEPT = 2.0  # ... and measured so where that fit misfits at most this many times the frame's median
 CUT_GAIN = 0.6  # ... and at most this times as much as the same model's whole disc
 CUT_MAX_STD = 0.5  # px: ... and places its centre to within this (std along the worst axis)
@@ -896,17 +897,23 @@ def _measure_cut(image: np.ndarray, owners: _Owners, blobs: np.ndarray, radius: 
     params, pcov, ss = cutdisc.fit_cut_discs(values, ox, oy, seg, start, minor_axis)
     peak = stats.peak[blobs] - level
     misfit = _misfit(ss, count, cutdisc.N_PAR, params[:, 3], peak, sigma)
-    whole, _, whole_ss = cutdisc.fit_cut_discs(values, ox, oy, seg, start, minor_axis, cut=False)
-    whole_misfit = _misfit(whole_ss, count, cutdisc.N_PAR - 2, whole[:, 3], peak, sigma)
     shown = cutdisc.visible_fraction(params[:, 4], params[:, 7])
     cov_xy = pcov[:, 1:3, 1:3] * sigma**2
     with np.errstate(invalid="ignore"):
         worst = np.linalg.eigvalsh(np.where(np.isfinite(cov_xy), cov_xy, 0.0))
         accepted = (np.isfinite(cov_xy).all(axis=(1, 2)) & (worst[:, 0] > 0) & (worst[:, 1] <= CUT_MAX_STD**2)
-                    & (misfit <= CUT_ACCEPT * usual[0]) & (misfit <= CUT_GAIN * whole_misfit)
+                    & (misfit <= CUT_ACCEPT * usual[0])
                     & (params[:, 5] <= CUT_BLUR * math.hypot(usual[1], math.sqrt(1 / 12)))  # (its blur: the pixel's)
                     & (shown >= CUT_MIN_VISIBLE) & (shown <= CUT_MAX_VISIBLE)
                     & (np.hypot(*(params[:, 1:3] + origin - stats.centroid[blobs]).T) <= params[:, 4]))
+    if accepted.any():  # (the same model's whole disc, for the blobs that pass the rest)
+        pixels = accepted.take(seg)
+        whole, _, whole_ss = cutdisc.fit_cut_discs(values[pixels], ox[pixels], oy[pixels],
+                                                   (np.cumsum(accepted) - 1).take(seg[pixels]), start[accepted],
+                                                   minor_axis[accepted], cut=False)
+        gain = misfit[accepted] <= CUT_GAIN * _misfit(whole_ss, count[accepted], cutdisc.N_PAR - 2, whole[:, 3],
+                                                      peak[accepted], sigma)
+        accepted[accepted] = gain
     centre[accepted] = params[accepted, 1:3] + origin[accepted]
     cov[accepted] = CUT_COV_SCALE * cov_xy[accepted]
     return accepted, centre, cov
@@ -1029,8 +1036,8 @@ def _detect(image: np.ndarray, threshold: float | None, min_area: int, max_area:
     misfit = quality[:, 0]
     usual = _usual_fit(quality, flagged)
     with np.errstate(invalid="ignore"):
-        candidates = np.flatnonzero(((misfit > MISFIT_CUT * usual[0]) | (flagged & np.isfinite(misfit))) & ~faint[ids]
-                                    & (stats.area[ids] >= CUT_MIN_AREA))
+        candidates = np.flatnonzero(((misfit > MISFIT_CUT * usual[0]) | (flagged & ~too_big & np.isfinite(misfit)))
+                                    & ~faint[ids] & (stats.area[ids] >= CUT_MIN_AREA))
     cut, cut_xy, cut_cov = _measure_cut(image, owners, ids[candidates], radius[candidates], stats, level, sigma, t,
                                         usual)
     candidates = candidates[cut]
