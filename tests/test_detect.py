@@ -592,6 +592,7 @@ def test_a_disc_partly_hidden_by_an_edge_is_measured_at_its_centre(radius, ampli
     # the whole disc's fit misfits it, the cut disc's finds the centre, with a covariance that matches its errors,
     # and flags it cut (not merged for its shape). The whole discs of the same frame keep their fit, and every blob
     # keeps its area, light and roundness as seen.
+    monkeypatch.setattr(mocap.detect, "CUT_FIT", True)  # (off by default: engine-log.md, eighty-first session)
     rng = np.random.default_rng(31)
     sensor = _CutSensor()
     gx, gy = np.meshgrid(np.arange(30, SHAPE[1] - 15, 30), np.arange(30, SHAPE[0] - 15, 30))
@@ -623,6 +624,7 @@ def test_a_disc_partly_hidden_by_an_edge_is_measured_at_its_centre(radius, ampli
 def test_two_markers_merged_into_one_round_blob_are_not_taken_for_a_cut_one(monkeypatch):
     # Two discs closer than about their diameter make one blob with no saddle; a bright disc's sliver, widely
     # blurred, can mimic it, but leaves too little of its disc in view: the blob is measured as before.
+    monkeypatch.setattr(mocap.detect, "CUT_FIT", True)  # (off by default: engine-log.md, eighty-first session)
     rng = np.random.default_rng(8)
     sensor = Sensor()
     for separation in (1.5, 2.0, 2.6, 3.0, 3.5):
@@ -633,6 +635,7 @@ def test_two_markers_merged_into_one_round_blob_are_not_taken_for_a_cut_one(monk
         monkeypatch.setattr(mocap.detect, "CUT_ACCEPT", -np.inf)
         plain = detect(image)
         monkeypatch.undo()
+        monkeypatch.setattr(mocap.detect, "CUT_FIT", True)
         np.testing.assert_array_equal(det.xy, plain.xy)
 
 
@@ -640,6 +643,7 @@ def test_a_small_cut_blob_gets_the_cut_discs_centre_but_not_the_flag(monkeypatch
     # Discs of 1.3 px radius cut half a radius out: the blobs left are 7-11 px. Those of 9 px or more are measured as
     # cut (flagged, within 0.25 px); those of 7-8 px get the cut disc's centre, nearer than the whole disc's, but not
     # the flag (the fit finds the cut's side less surely there: the tracker keeps judging them by size and light).
+    monkeypatch.setattr(mocap.detect, "CUT_FIT", True)  # (off by default: engine-log.md, eighty-first session)
     rng = np.random.default_rng(31)
     sensor = _CutSensor()
     gx, gy = np.meshgrid(np.arange(30, SHAPE[1] - 15, 30), np.arange(30, SHAPE[0] - 15, 30))

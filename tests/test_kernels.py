@@ -13,10 +13,11 @@ import dataclasses
 
 import numpy as np
 import pytest
-from scipy import special
 from conftest import ring_rig
 from helpers_engine import body_take
+from scipy import special
 
+from mocap import detect as mocap_detect
 from mocap import kernels, rigid
 from mocap.attached import AttachedDistances
 from mocap.camera import Camera, Lenses
@@ -599,10 +600,11 @@ def test_detection_fit_checks_are_the_numpy_ones(both):
         assert 0.1 < ref[2].mean() < 0.9  # both kinds of disc exercised
 
 
-def test_the_cut_disc_fit_kernel_is_the_numpy_one(both):
+def test_the_cut_disc_fit_kernel_is_the_numpy_one(both, monkeypatch):
     """Markers partly hidden by a straight edge (half a radius out or through the centre, 1.5-4 px radius, some
     saturated) among whole ones: both paths refit the same blobs as cut discs, to the same centres and covariances
     (the fits' sums run in another order: centres within 2e-3 px, most to 1e-6)."""
+    monkeypatch.setattr(mocap_detect, "CUT_FIT", True)  # (off by default)
     rng = np.random.default_rng(29)
     sensor = Sensor()
     frames, truth, cut = [], [], []
