@@ -51,20 +51,19 @@ the same blobs, pixels and order as the numpy path here, which stays the referen
    if every disc's fit succeeds), so such a pair is measured after all.
 
 6. **Partly hidden markers** (off by default: ``CUT_FIT``): a limb passing in front of a marker hides part of its
-   disc, and the centroid (and a
-   whole disc's fit) slides up to 0.42 radius toward the part in view. A single disc of ``CUT_MIN_AREA`` px or
-   more whose fit misfits (reduced chi-square against the noise plus 1 % of its height, over the frame's median,
-   above ``MISFIT_CUT``), or that is flagged merged for its shape, is fitted again as a disc cut by a
-   straight edge (:mod:`mocap.cutdisc`). Where that fit explains the blob (its misfit within ``CUT_ACCEPT`` times
-   the frame's and ``CUT_GAIN`` times the same model's whole disc's, its blur within ``CUT_BLUR`` times the
-   frame's discs', 0.3-0.88 of the disc in view, the centre known to ``CUT_MAX_STD`` px), the blob is reported at
-   the cut disc's centre, with its covariance (x ``CUT_COV_SCALE``), flagged ``cut`` and not merged for its shape;
-   its area, light and roundness stay those of the part in view. On rendered cut discs of 9 px or more the centres
-   come out 0.02-0.06 px rms off (0.4-0.55 px as whole discs); blobs of 7-8 px get the cut disc's centre (0.13 px
-   rms off, 0.52 before, some to 1.2 px) but not the flag; on smaller ones the fit finds the cut's side too
-   seldom. Two markers merged into one round blob are not taken for a cut one (too much blur, or too little of
-   the disc in view), nor are a renderer's hard-edged whole discs, which a disc fit misfits (the cut would leave
-   over 0.88 of them in view).
+   disc, and the centroid (and a whole disc's fit) slides up to 0.42 radius toward the part in view. A single disc of
+   ``CUT_MIN_AREA`` px or more whose fit misfits (reduced chi-square against the noise plus 1 % of its height, over
+   the frame's median, above ``MISFIT_CUT``), or that is flagged merged for its shape, is fitted again as a disc cut
+   by a straight edge (:mod:`mocap.cutdisc`). Where that fit explains the blob (its misfit within ``CUT_ACCEPT``
+   times the frame's and ``CUT_GAIN`` times the same model's whole disc's, its blur within ``CUT_BLUR`` times the
+   frame's discs', 0.3-0.88 of the disc in view, the centre known to ``CUT_MAX_STD`` px), the blob is reported at the
+   cut disc's centre, with its covariance (x ``CUT_COV_SCALE``), flagged ``cut`` and not merged for its shape; its
+   area, light and roundness stay those of the part in view. On rendered cut discs of 9 px or more the centres come
+   out 0.02-0.06 px rms off (0.4-0.55 px as whole discs); blobs of 7-8 px get the cut disc's centre (0.13 px rms off,
+   0.52 before, some to 1.2 px) but not the flag; on smaller ones the fit finds the cut's side too seldom. Two
+   markers merged into one round blob are not taken for a cut one (too much blur, or too little of the disc in view),
+   nor are a renderer's hard-edged whole discs, which a disc fit misfits (the cut would leave over 0.88 of them in
+   view).
 
 ROI mode (``rois``): only blobs whose centroid lies in one of the given boxes are measured and
 reported; the coarse 4x4 pass still covers the frame (it is ~5 % of the cost) so that a blob crossing a
@@ -922,6 +921,31 @@ def _measure_cut(image: np.ndarray, owners: _Owners, blobs: np.ndarray, radius: 
     return accepted, centre, cov
 
 
+def _refit_cut_blobs(image: np.ndarray, owners: _Owners, ids: np.ndarray, groups: list, quality: np.ndarray,
+                     flagged: np.ndarray, too_big: np.ndarray, faint: np.ndarray, radius: np.ndarray, stats: _Blobs,
+                     level: float, sigma: float, t: int) -> np.ndarray:
+    """Refit as cut discs (:func:`_measure_cut`) the single discs of 7 px or more (``CUT_MIN_AREA``, not ``faint``
+    (N,)) whose fit ``quality`` (N, 2) misfits ``MISFIT_CUT`` times the frame's usual (over the blobs not
+    ``flagged`` (N,) merged) or that are flagged for their shape (not only ``too_big`` (N,)), and put the accepted
+    fits' centres and covariances into the fitted ``groups`` (blobs (n,) of ``ids`` (N,), centres (n, k, 2),
+    covariances (n, k, 2, 2)), in place. Returns the refitted blobs, sorted indices into ``ids``."""
+    misfit = quality[:, 0]
+    usual = _usual_fit(quality, flagged)
+    with np.errstate(invalid="ignore"):
+        candidates = np.flatnonzero(((misfit > MISFIT_CUT * usual[0]) | (flagged & ~too_big & np.isfinite(misfit)))
+                                    & ~faint & (stats.area[ids] >= CUT_MIN_AREA))
+    cut, cut_xy, cut_cov = _measure_cut(image, owners, ids[candidates], radius[candidates], stats, level, sigma, t,
+                                        usual)
+    candidates, cut_xy, cut_cov = candidates[cut], cut_xy[cut], cut_cov[cut]
+    for group, centres, covs in groups:
+        if centres.shape[1] == 1:  # (a single disc's blob is in one such group; groups are sorted)
+            row = np.searchsorted(group, candidates)
+            mine = row < len(group)
+            mine[mine] = group[row[mine]] == candidates[mine]
+            centres[row[mine], 0], covs[row[mine], 0] = cut_xy[mine], cut_cov[mine]
+    return candidates
+
+
 def detect(image: np.ndarray, *, threshold: float | None = None, min_area: int = MIN_AREA, max_area: int = MAX_AREA,
            rois: np.ndarray | None = None, noise_sigma: float | None = None, refine: str = "fit",
            seeds: np.ndarray | None = None, faint: bool = True) -> Detections:
@@ -1036,20 +1060,9 @@ def _detect(image: np.ndarray, threshold: float | None, min_area: int, max_area:
         centres, covs, _, quality[again] = _measure(image, owners, ids[again], 1, radius[again], peaks, stats, level,
                                                     sigma, t, pixel_var[again])
         groups.append((again, centres, covs))
-    misfit = quality[:, 0]
-    usual = _usual_fit(quality, flagged)
-    with np.errstate(invalid="ignore"):  # (CUT_FIT off: no candidate)
-        candidates = np.flatnonzero(((misfit > MISFIT_CUT * usual[0]) | (flagged & ~too_big & np.isfinite(misfit)))
-                                    & ~faint[ids] & (stats.area[ids] >= CUT_MIN_AREA) & CUT_FIT)
-    cut, cut_xy, cut_cov = _measure_cut(image, owners, ids[candidates], radius[candidates], stats, level, sigma, t,
-                                        usual)
-    candidates = candidates[cut]
+    candidates = (_refit_cut_blobs(image, owners, ids, groups, quality, flagged, too_big, faint[ids], radius, stats,
+                                   level, sigma, t) if CUT_FIT else np.zeros(0, np.intp))
     for group, centres, covs in groups:  # (N, k, ...) per group
-        if centres.shape[1] == 1:  # a partly hidden marker: the cut disc's centre
-            row = np.searchsorted(group, candidates)  # (groups are sorted; a single disc's blob is in one of them)
-            mine = row < len(group)
-            mine[mine] = group[row[mine]] == candidates[mine]
-            centres[row[mine], 0], covs[row[mine], 0] = cut_xy[cut][mine], cut_cov[cut][mine]
         xy.append(centres.reshape(-1, 2))
         cov.append(covs.reshape(-1, 2, 2))
         part.append(np.repeat(group, centres.shape[1]))

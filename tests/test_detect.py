@@ -585,14 +585,9 @@ class _CutSensor(Sensor):
         return signal * 0.5 * special.erfc((along - edge) / (np.sqrt(2.0) * self.sigma))
 
 
-@pytest.mark.parametrize("radius, amplitude, saturating", [(2.5, 150.0, False), (4.0, 400.0, True)])
-@pytest.mark.parametrize("edge", [0.5, 0.0])
-def test_a_disc_partly_hidden_by_an_edge_is_measured_at_its_centre(radius, amplitude, saturating, edge, monkeypatch):
-    # A disc cut half a radius out (or through its centre) has its centroid 0.2 (0.42) radius toward the part in view;
-    # the whole disc's fit misfits it, the cut disc's finds the centre, with a covariance that matches its errors,
-    # and flags it cut (not merged for its shape). The whole discs of the same frame keep their fit, and every blob
-    # keeps its area, light and roundness as seen.
-    monkeypatch.setattr(mocap.detect, "CUT_FIT", True)  # (off by default: engine-log.md, eighty-first session)
+def _cut_disc_grid(radius: float, amplitude: float, edge: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A frame of discs on a 30 px grid (``radius`` px, ``amplitude`` grey levels), 30 % of them cut ``edge`` radii
+    out at random angles (seeded): the image, the centres (N, 2) px and (N,) which are cut."""
     rng = np.random.default_rng(31)
     sensor = _CutSensor()
     gx, gy = np.meshgrid(np.arange(30, SHAPE[1] - 15, 30), np.arange(30, SHAPE[0] - 15, 30))
@@ -603,6 +598,18 @@ def test_a_disc_partly_hidden_by_an_edge_is_measured_at_its_centre(radius, ampli
     sensor.cut_edge = np.where(cut, edge, np.nan)
     image = sensor.background_frame(SHAPE, rng)
     sensor.draw(image, uv, np.full(len(uv), radius), np.full(len(uv), amplitude), rng)
+    return image, uv, cut
+
+
+@pytest.mark.parametrize("radius, amplitude, saturating", [(2.5, 150.0, False), (4.0, 400.0, True)])
+@pytest.mark.parametrize("edge", [0.5, 0.0])
+def test_a_disc_partly_hidden_by_an_edge_is_measured_at_its_centre(radius, amplitude, saturating, edge, monkeypatch):
+    # A disc cut half a radius out (or through its centre) has its centroid 0.2 (0.42) radius toward the part in view;
+    # the whole disc's fit misfits it, the cut disc's finds the centre, with a covariance that matches its errors,
+    # and flags it cut (not merged for its shape). The whole discs of the same frame keep their fit, and every blob
+    # keeps its area, light and roundness as seen.
+    monkeypatch.setattr(mocap.detect, "CUT_FIT", True)  # (off by default: engine-log.md, eighty-first session)
+    image, uv, cut = _cut_disc_grid(radius, amplitude, edge)
     assert (image == 255).any() == saturating
     det = detect(image)
     idx = match(det.xy, uv)
@@ -644,16 +651,7 @@ def test_a_small_cut_blob_gets_the_cut_discs_centre_but_not_the_flag(monkeypatch
     # cut (flagged, within 0.25 px); those of 7-8 px get the cut disc's centre, nearer than the whole disc's, but not
     # the flag (the fit finds the cut's side less surely there: the tracker keeps judging them by size and light).
     monkeypatch.setattr(mocap.detect, "CUT_FIT", True)  # (off by default: engine-log.md, eighty-first session)
-    rng = np.random.default_rng(31)
-    sensor = _CutSensor()
-    gx, gy = np.meshgrid(np.arange(30, SHAPE[1] - 15, 30), np.arange(30, SHAPE[0] - 15, 30))
-    uv = np.c_[gx.ravel(), gy.ravel()] + rng.uniform(-0.5, 0.5, (gx.size, 2))
-    cut = rng.random(len(uv)) < 0.3
-    angle = rng.uniform(0, 2 * np.pi, len(uv))
-    sensor.cut_normal = np.c_[np.cos(angle), np.sin(angle)]
-    sensor.cut_edge = np.where(cut, 0.5, np.nan)
-    image = sensor.background_frame(SHAPE, rng)
-    sensor.draw(image, uv, np.full(len(uv), 1.3), np.full(len(uv), 100.0), rng)
+    image, uv, cut = _cut_disc_grid(1.3, 100.0, 0.5)
     det = detect(image)
     idx = match(det.xy, uv)
     err = np.hypot(*(det.xy[idx] - uv).T)
